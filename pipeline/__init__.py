@@ -1,0 +1,1 @@
+"""mocapflow engine: catalog, cache, storage, scheduling and the CLI."""

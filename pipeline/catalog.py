@@ -1,0 +1,280 @@
+"""catalog.yaml: datasets, storage and stages, parsed once and validated with line numbers.
+
+The catalog is the single place where a user swaps an implementation (``stages.flow.task``)
+or changes a parameter. It is read with ``yaml.safe_load``; every error names the file, the
+line, the dotted key, the bad value and the fix. ``--set dotted.key=value`` overrides any value.
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+from mocapflow.pipeline import registry
+from mocapflow.pipeline.errors import CatalogError
+from mocapflow.schemas import get_schema
+
+TOP_KEYS = ("data_roots", "plugins", "storage", "datasets", "stages", "evaluation")
+STORAGE_KEYS = ("root", "region_frames")
+STAGE_KEYS = ("task", "params", "inputs", "dataset", "region_frames")
+DEFAULT_REGION_FRAMES = 32
+
+
+@dataclass(frozen=True)
+class DatasetConfig:
+    """Where raw sequences come from; ``options`` are checked by the dataset reader of ``kind``."""
+
+    name: str
+    kind: str
+    options: Mapping[str, Any]
+    where: str
+
+
+@dataclass(frozen=True)
+class StageConfig:
+    name: str
+    task: str
+    params: Any  # the task's frozen params dataclass
+    inputs: Mapping[str, str]  # role -> upstream stage name
+    dataset: str | None
+    region_frames: int
+
+
+@dataclass(frozen=True)
+class Catalog:
+    path: Path
+    root: str
+    data_roots: tuple[Path, ...]
+    plugins: tuple[str, ...]
+    datasets: Mapping[str, DatasetConfig]
+    stages: Mapping[str, StageConfig]  # in topological order
+    evaluation: Mapping[str, Any] = field(default_factory=dict)
+
+    def ancestors(self, stage: str) -> list[str]:
+        """``stage`` and everything it depends on, in topological order."""
+        need, todo = set(), [stage]
+        while todo:
+            name = todo.pop()
+            if name not in need:
+                need.add(name)
+                todo.extend(self.stages[name].inputs.values())
+        return [s for s in self.stages if s in need]
+
+    def resolve_data_path(self, value: str, where: str) -> Path:
+        """A dataset path, relative to the catalog; it must stay inside one of ``data_roots``."""
+        path = (self.path.parent / os.path.expanduser(value)).resolve()
+        if not any(path == root or root in path.parents for root in self.data_roots):
+            roots = ", ".join(str(r) for r in self.data_roots)
+            raise CatalogError(f"{where}: path {value!r} resolves to {path}, outside the declared data_roots ({roots}); "
+                               "add its folder to data_roots or move the data")
+        return path
+
+
+def load_catalog(path: str | os.PathLike, overrides: tuple[str, ...] = ()) -> Catalog:
+    """Parse, override (``dotted.key=value``) and validate a catalog file."""
+    path = Path(path).resolve()
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise CatalogError(f"cannot read catalog {path}: {exc.strerror}; pass --catalog PATH") from exc
+    try:
+        data = yaml.safe_load(text) or {}
+        lines = _line_index(yaml.compose(text, Loader=yaml.SafeLoader))
+    except yaml.YAMLError as exc:
+        raise CatalogError(f"{path}: not valid YAML: {exc}") from exc
+    if not isinstance(data, dict):
+        raise CatalogError(f"{path}: the catalog must be a mapping with keys {list(TOP_KEYS)}")
+    data = apply_overrides(data, overrides, lines)
+    return _Validator(path, lines).catalog(data)
+
+
+def apply_overrides(data: dict, overrides: tuple[str, ...], lines: dict) -> dict:
+    data = copy.deepcopy(data)
+    for item in overrides:
+        dotted, sep, raw = item.partition("=")
+        if not sep or not dotted:
+            raise CatalogError(f"--set {item!r}: expected dotted.key=value, e.g. --set stages.flow.task=dis")
+        keys = dotted.split(".")
+        node = data
+        for key in keys[:-1]:
+            child = node.setdefault(key, {})
+            if not isinstance(child, dict):
+                raise CatalogError(f"--set {item!r}: {key!r} is a {type(child).__name__}, not a mapping")
+            node = child
+        node[keys[-1]] = yaml.safe_load(raw) if raw else ""
+        lines[tuple(keys)] = "--set"
+    return data
+
+
+def _line_index(node, prefix=()) -> dict[tuple, int | str]:
+    """Map each dotted key path to its 1-based line in the YAML text."""
+    out: dict[tuple, int | str] = {}
+    if isinstance(node, yaml.MappingNode):
+        for key_node, value_node in node.value:
+            path = prefix + (key_node.value,)
+            out[path] = key_node.start_mark.line + 1
+            out.update(_line_index(value_node, path))
+    elif isinstance(node, yaml.SequenceNode):
+        for i, item in enumerate(node.value):
+            out[prefix + (i,)] = item.start_mark.line + 1
+            out.update(_line_index(item, prefix + (i,)))
+    return out
+
+
+class _Validator:
+    def __init__(self, path: Path, lines: dict):
+        self.path = path
+        self.lines = lines
+
+    def where(self, *keys) -> str:
+        line = None
+        for n in range(len(keys), 0, -1):
+            line = self.lines.get(tuple(keys[:n]))
+            if line is not None:
+                break
+        at = f"line {line}" if isinstance(line, int) else (line or "?")
+        return f"{self.path.name} ({at}): {'.'.join(str(k) for k in keys)}"
+
+    def mapping(self, value, *keys) -> dict:
+        if value is None:
+            return {}
+        if not isinstance(value, dict):
+            raise CatalogError(f"{self.where(*keys)}: expected a mapping, got {type(value).__name__} {value!r}")
+        return value
+
+    def known_keys(self, value: dict, allowed, *keys) -> None:
+        for key in value:
+            if key not in allowed:
+                raise CatalogError(f"{self.where(*keys, key)}: unknown key {key!r}"
+                                   f"{registry.did_you_mean(str(key), allowed)}; allowed: {list(allowed)}")
+
+    def catalog(self, data: dict) -> Catalog:
+        self.known_keys(data, TOP_KEYS)
+        plugins = tuple(data.get("plugins") or ())
+        registry.import_plugins(plugins)
+        storage = self.mapping(data.get("storage"), "storage")
+        self.known_keys(storage, STORAGE_KEYS, "storage")
+        root = str(storage.get("root", "storage/"))
+        if "://" not in root:
+            root = str((self.path.parent / root).resolve())
+        region = storage.get("region_frames", DEFAULT_REGION_FRAMES)
+        self.positive_int(region, "storage", "region_frames")
+        roots = data.get("data_roots") or ["."]
+        if not isinstance(roots, list):
+            raise CatalogError(f"{self.where('data_roots')}: expected a list of folders, got {roots!r}")
+        data_roots = tuple((self.path.parent / os.path.expanduser(str(r))).resolve() for r in roots)
+        datasets = self.datasets(self.mapping(data.get("datasets"), "datasets"))
+        stages = self.stages(self.mapping(data.get("stages"), "stages"), datasets, region)
+        evaluation = self.mapping(data.get("evaluation"), "evaluation")
+        return Catalog(self.path, root, data_roots, plugins, datasets, stages, evaluation)
+
+    def positive_int(self, value, *keys) -> int:
+        if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+            raise CatalogError(f"{self.where(*keys)}: expected a positive integer, got {value!r}")
+        return value
+
+    def datasets(self, raw: dict) -> dict[str, DatasetConfig]:
+        from mocapflow.pipeline.datasets import DATASET_KINDS
+
+        out = {}
+        for name, body in raw.items():
+            body = dict(self.mapping(body, "datasets", name))
+            kind = body.pop("kind", None)
+            if kind not in DATASET_KINDS:
+                raise CatalogError(f"{self.where('datasets', name, 'kind')}: unknown dataset kind {kind!r}"
+                                   f"{registry.did_you_mean(str(kind), DATASET_KINDS)}; use one of {sorted(DATASET_KINDS)}")
+            out[name] = DatasetConfig(name, kind, body, self.where("datasets", name))
+        return out
+
+    def stages(self, raw: dict, datasets: dict, default_region: int) -> dict[str, StageConfig]:
+        parsed: dict[str, StageConfig] = {}
+        for name, body in raw.items():
+            body = self.mapping(body, "stages", name)
+            self.known_keys(body, STAGE_KEYS, "stages", name)
+            if "task" not in body:
+                raise CatalogError(f"{self.where('stages', name)}: stage {name!r} has no 'task'; "
+                                   f"name a registered implementation, one of {registry.names()}")
+            try:
+                spec = registry.get(str(body["task"]))
+            except CatalogError as exc:
+                raise CatalogError(f"{self.where('stages', name, 'task')}: {exc}") from None
+            params = registry.build_params(spec, self.mapping(body.get("params"), "stages", name, "params"),
+                                           lambda key, name=name: self.where("stages", name, "params", key))
+            inputs = self.inputs(name, spec, body.get("inputs"))
+            dataset = self.dataset_ref(name, spec, body.get("dataset"), datasets)
+            region = self.positive_int(body.get("region_frames", default_region), "stages", name, "region_frames")
+            parsed[name] = StageConfig(name, spec.name, params, inputs, dataset, region)
+        self.check_inputs(parsed)
+        return {name: parsed[name] for name in self.topological(parsed)}
+
+    def inputs(self, stage: str, spec: registry.TaskSpec, raw) -> dict[str, str]:
+        if raw is None:
+            raw = {}
+        if isinstance(raw, list):  # positional: the task's roles in declared order
+            if len(raw) != len(spec.inputs):
+                raise CatalogError(f"{self.where('stages', stage, 'inputs')}: task {spec.name!r} takes "
+                                   f"{len(spec.inputs)} input(s) {list(spec.inputs)}, got {raw!r}")
+            raw = dict(zip(spec.inputs, (str(s) for s in raw)))
+        raw = self.mapping(raw, "stages", stage, "inputs")
+        for role in raw:
+            if role not in spec.inputs:
+                raise CatalogError(f"{self.where('stages', stage, 'inputs')}: task {spec.name!r} takes no input "
+                                   f"{role!r}{registry.did_you_mean(str(role), spec.inputs)}; it takes {list(spec.inputs)}")
+        for role in spec.inputs:
+            if role not in raw:
+                raise CatalogError(f"{self.where('stages', stage, 'inputs')}: task {spec.name!r} needs input {role!r} "
+                                   f"(an artifact of schema {spec.inputs[role]!r}); add it to stages.{stage}.inputs")
+        return {str(k): str(v) for k, v in raw.items()}
+
+    def dataset_ref(self, stage: str, spec: registry.TaskSpec, raw, datasets: dict) -> str | None:
+        if not spec.source:
+            if raw is not None:
+                raise CatalogError(f"{self.where('stages', stage, 'dataset')}: only source tasks read a dataset; "
+                                   f"task {spec.name!r} reads stage outputs through 'inputs'")
+            return None
+        if raw is None and len(datasets) == 1:
+            return next(iter(datasets))
+        if raw not in datasets:
+            raise CatalogError(f"{self.where('stages', stage, 'dataset')}: unknown dataset {raw!r}"
+                               f"{registry.did_you_mean(str(raw), datasets)}; declared: {sorted(datasets)}")
+        return str(raw)
+
+    def check_inputs(self, stages: dict[str, StageConfig]) -> None:
+        for name, stage in stages.items():
+            spec = registry.get(stage.task)
+            for role, upstream in stage.inputs.items():
+                where = self.where("stages", name, "inputs")
+                if upstream not in stages:
+                    raise CatalogError(f"{where}: input {role!r} names stage {upstream!r}, which is not declared"
+                                       f"{registry.did_you_mean(upstream, stages)}; declared stages: {list(stages)}")
+                produced = registry.get(stages[upstream].task).output
+                expected = get_schema(spec.inputs[role]).name
+                if produced != expected:
+                    raise CatalogError(f"{where}: input {role!r} of task {spec.name!r} must be a {expected!r} artifact, "
+                                       f"but stage {upstream!r} ({stages[upstream].task}) writes {produced!r}")
+
+    def topological(self, stages: dict[str, StageConfig]) -> list[str]:
+        order: list[str] = []
+        state: dict[str, str] = {}
+
+        def visit(name: str, path: list[str]) -> None:
+            if state.get(name) == "done":
+                return
+            if state.get(name) == "active":
+                cycle = path[path.index(name):] + [name]
+                raise CatalogError(f"{self.where('stages', name)}: stages form a cycle: {' -> '.join(cycle)}; "
+                                   "remove one of these inputs")
+            state[name] = "active"
+            for upstream in stages[name].inputs.values():
+                visit(upstream, path + [name])
+            state[name] = "done"
+            order.append(name)
+
+        for name in stages:
+            visit(name, [])
+        return order

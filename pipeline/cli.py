@@ -1,0 +1,212 @@
+"""The `mocapflow` command line."""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+
+import click
+
+from mocapflow.pipeline.catalog import Catalog, load_catalog
+from mocapflow.pipeline.errors import MocapflowError
+from mocapflow.pipeline.plan import Plan, WorkItem, build_plan, select, status
+from mocapflow.pipeline.storage import Store
+
+catalog_option = click.option("--catalog", "catalog_path", default="catalog.yaml", show_default=True,
+                              type=click.Path(dir_okay=False), help="catalog file")
+set_option = click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
+                          help="override a catalog value, e.g. --set stages.flow.task=dis (repeatable)")
+sequences_option = click.option("--sequences", default=None, metavar="GLOB", help="only sequences whose id matches")
+
+
+class _Group(click.Group):
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except MocapflowError as exc:
+            click.echo(f"error: {exc}", err=True)
+            sys.exit(2)
+
+
+@click.group(cls=_Group)
+@click.option("-v", "--verbose", count=True, help="more log output (-v info, -vv debug)")
+def main(verbose: int) -> None:
+    """mocapflow: optical motion capture as a cached, resumable dataflow."""
+    level = [logging.WARNING, logging.INFO, logging.DEBUG][min(verbose, 2)]
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+
+
+@main.command()
+@catalog_option
+@set_option
+@sequences_option
+@click.option("--only", default=None, metavar="STAGE", help="run this stage only (its inputs must exist)")
+@click.option("--until", default=None, metavar="STAGE", help="run this stage and everything it needs")
+@click.option("--dry-run", is_flag=True, help="print the plan (stage x partition) and exit")
+@click.option("--workers", default=2, show_default=True, help="local worker threads")
+@click.option("--scheduler", "address", default=None, metavar="ADDRESS",
+              help="run on an existing dask.distributed scheduler, e.g. tcp://10.0.0.5:8786")
+@click.option("--keep-going", is_flag=True, help="continue past failed partitions")
+@click.option("--json", "as_json", is_flag=True, help="print a JSON summary as the last line of stdout")
+@click.option("--no-progress", is_flag=True, help="hide the progress bar")
+def run(catalog_path, overrides, sequences, only, until, dry_run, workers, address, keep_going, as_json, no_progress):
+    """Run the catalog's stages, reusing every cached partition."""
+    from mocapflow.pipeline.scheduler import run_items
+
+    started = time.perf_counter()
+    catalog = load_catalog(catalog_path, overrides)
+    store = Store(catalog.root)
+    plan = build_plan(catalog, sequences)
+    items = select(plan, catalog, store, only=only, until=until)
+    cached = [i for i in items if store.is_complete(i.partition.stage, i.key)]
+    todo = [i for i in items if i not in cached]
+    if dry_run:
+        cells = {i.partition.id: ("cached" if i in cached else "run") for i in items}
+        click.echo(_matrix(plan, [s for s in catalog.stages if any(i.partition.stage == s for i in items)], cells))
+        click.echo(f"{len(todo)} to run, {len(cached)} cached")
+        if as_json:
+            click.echo(json.dumps({"planned": [i.partition.id for i in todo], "cached": [i.partition.id for i in cached]}))
+        return
+    results = run_items(todo, workers=workers, address=address, keep_going=keep_going,
+                        progress=not no_progress and sys.stderr.isatty())
+    by_status = {s: [r for r in results if r.status == s] for s in ("executed", "failed", "skipped")}
+    elapsed = time.perf_counter() - started
+    click.echo(f"{len(by_status['executed'])} executed, {len(cached)} cached, {len(by_status['failed'])} failed, "
+               f"{len(by_status['skipped'])} skipped in {elapsed:.2f} s")
+    for r in by_status["failed"]:
+        click.echo(f"FAILED {r.partition}: {r.error}", err=True)
+        if r.detail:
+            logging.getLogger(__name__).info("%s", r.detail)
+    if as_json:
+        click.echo(json.dumps({
+            "executed": [r.partition for r in by_status["executed"]],
+            "cached": [i.partition.id for i in cached] + [r.partition for r in results if r.status == "cached"],
+            "failed": [r.partition for r in by_status["failed"]],
+            "skipped": [r.partition for r in by_status["skipped"]],
+            "errors": {r.partition: r.error for r in by_status["failed"]},
+            "regions": {r.partition: r.regions for r in by_status["executed"]},
+            "seconds": round(elapsed, 3),
+        }))
+    if by_status["failed"] or by_status["skipped"]:
+        sys.exit(1)
+
+
+@main.command("status")
+@catalog_option
+@set_option
+@sequences_option
+def status_cmd(catalog_path, overrides, sequences):
+    """fresh / stale / partial / missing for every stage x partition."""
+    catalog = load_catalog(catalog_path, overrides)
+    store = Store(catalog.root)
+    plan = build_plan(catalog, sequences)
+    versions = {stage: store.versions(stage) for stage in catalog.stages}
+    cells = {pid: status(item, store, versions) for pid, item in plan.items.items()}
+    click.echo(_matrix(plan, list(catalog.stages), cells))
+    counts = {s: list(cells.values()).count(s) for s in ("fresh", "partial", "stale", "missing")}
+    click.echo(", ".join(f"{n} {s}" for s, n in counts.items()))
+
+
+@main.command()
+@catalog_option
+@set_option
+@click.argument("stage")
+@click.argument("sequence")
+@click.argument("view", required=False)
+def explain(catalog_path, overrides, stage, sequence, view):
+    """Why STAGE of SEQUENCE [VIEW] would run: which key component changed, old vs new."""
+    catalog = load_catalog(catalog_path, overrides)
+    store = Store(catalog.root)
+    plan = build_plan(catalog, sequence)
+    pid = "/".join(p for p in (stage, sequence, view) if p)
+    item = plan.items.get(pid)
+    if item is None:
+        candidates = [p for p in plan.items if p.startswith(f"{stage}/{sequence}")]
+        raise MocapflowError(f"no partition {pid!r} in the catalog's plan; partitions of that stage and sequence: "
+                             f"{candidates or 'none'} (per-view stages need the VIEW argument)")
+    click.echo(_explain(item, store))
+
+
+def _explain(item: WorkItem, store: Store) -> str:
+    stage = item.partition.stage
+    if store.is_complete(stage, item.key):
+        return f"{item.partition.id} is fresh (key {item.key}); nothing would run"
+    others = [v for v in store.versions(stage) if v.partition == item.partition.id and v.key != item.key]
+    if not others:
+        return f"{item.partition.id} was never computed (key {item.key}); it would run"
+    prev = max(others, key=lambda v: (v.complete, v.lineage.get("finished") or v.lineage.get("started") or ""))
+    lines = [f"{item.partition.id} would run: key {prev.key} -> {item.key} "
+             f"(previous version {'complete' if prev.complete else 'incomplete'}, "
+             f"finished {prev.lineage.get('finished', '-')})"]
+    hinted = set()
+    for path, old, new in _diff(prev.lineage.get("components", {}), json.loads(json.dumps(dict(item.components)))):
+        lines.append(f"  {path}: {json.dumps(old)} -> {json.dumps(new)}")
+        role = path.split(".")[1] if path.startswith("upstream.") else None
+        if role in item.upstream and role not in hinted:
+            hinted.add(role)
+            up = item.upstream[role]
+            lines.append(f"    upstream stage {up.stage!r} changed; see `mocapflow explain {up.stage} "
+                         f"{item.partition.sequence}{' ' + item.partition.view if up.partition == 'view' else ''}`")
+    return "\n".join(lines)
+
+
+def _diff(old, new, prefix=""):
+    if isinstance(old, dict) and isinstance(new, dict):
+        for key in sorted(set(old) | set(new)):
+            yield from _diff(old.get(key), new.get(key), f"{prefix}.{key}" if prefix else key)
+    elif old != new:
+        yield prefix, old, new
+
+
+@main.command()
+@catalog_option
+@set_option
+@click.option("--dry-run", is_flag=True, help="list what would be deleted")
+def gc(catalog_path, overrides, dry_run):
+    """Delete stored versions that the current catalog no longer references."""
+    catalog = load_catalog(catalog_path, overrides)
+    store = Store(catalog.root)
+    plan = build_plan(catalog)
+    keep = {(i.partition.stage, i.key) for i in plan.items.values()}
+    doomed = [v for stage in store.stages_on_disk() for v in store.versions(stage) if (v.stage, v.key) not in keep]
+    for v in doomed:
+        click.echo(f"{'would delete' if dry_run else 'deleting'} {v.stage}/{v.key} ({v.partition})")
+        if not dry_run:
+            try:
+                with store.lock(v.stage, v.key, f"gc {v.partition}"):
+                    store.remove_version(v.stage, v.key)
+            except MocapflowError as exc:
+                click.echo(f"  kept: {exc}", err=True)
+    click.echo(f"{len(doomed)} unreferenced version(s){' found' if dry_run else ' deleted'}, {len(keep)} kept")
+
+
+@main.command()
+@click.argument("folder", type=click.Path(file_okay=False))
+@click.option("--force", is_flag=True, help="overwrite an existing catalog.yaml")
+def init(folder, force):
+    """Scaffold a catalog.yaml for a FOLDER of recordings (raw zarr stores or PNG sequence folders)."""
+    from mocapflow.pipeline.scaffold import scaffold
+
+    path = scaffold(Path(folder), force=force)
+    click.echo(f"wrote {path}; check it with `mocapflow run --catalog {path} --dry-run`")
+
+
+def _matrix(plan: Plan, stages: list[str], cells: dict[str, str]) -> str:
+    """Rows: stages; columns: sequence/view. A per-sequence stage fills every view column of its sequence."""
+    columns = [(s.id, v) for s in plan.sequences for v in s.views]
+    header = ["stage"] + [f"{s}/{v}" for s, v in columns]
+    rows = [header]
+    for stage in stages:
+        row = [stage]
+        for seq, view in columns:
+            row.append(cells.get(f"{stage}/{seq}/{view}") or cells.get(f"{stage}/{seq}") or "")
+        rows.append(row)
+    widths = [max(len(r[c]) for r in rows) for c in range(len(header))]
+    return "\n".join("  ".join(cell.ljust(w) for cell, w in zip(r, widths)).rstrip() for r in rows)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

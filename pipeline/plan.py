@@ -1,0 +1,191 @@
+"""Planning: partitions, cache keys and their status.
+
+Per-view stages partition by sequence x view, per-sequence stages by sequence. The cache key
+of a partition hashes everything its output depends on: stage name, implementation and its
+explicit code version, canonical params, output schema version, upstream keys, the raw input's
+fingerprint (source stages) and the hash of any weight file a param names.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+from mocapflow.pipeline import registry
+from mocapflow.pipeline.catalog import Catalog
+from mocapflow.pipeline.datasets import SequenceInfo, discover
+from mocapflow.pipeline.errors import PlanError
+from mocapflow.pipeline.hashing import digest, file_digest
+from mocapflow.pipeline.storage import Store
+from mocapflow.schemas import get_schema
+
+
+@dataclass(frozen=True)
+class Partition:
+    stage: str
+    sequence: str
+    view: str | None = None
+
+    @property
+    def id(self) -> str:
+        return "/".join(p for p in (self.stage, self.sequence, self.view) if p is not None)
+
+
+@dataclass(frozen=True)
+class Upstream:
+    """One input role of a work item: the upstream stage and the keys it reads (one per view or one)."""
+
+    stage: str
+    partition: str  # "view" or "sequence"
+    schema: str
+    keys: Mapping[str | None, str]  # view (or None) -> key
+
+
+@dataclass(frozen=True)
+class WorkItem:
+    """Everything a worker needs to produce one partition; small, so it travels in the graph."""
+
+    partition: Partition
+    key: str
+    components: Mapping[str, Any]
+    upstream: Mapping[str, Upstream]
+    sequence: SequenceInfo
+    catalog: Catalog
+
+    @property
+    def stage(self):
+        return self.catalog.stages[self.partition.stage]
+
+    @property
+    def depends_on(self) -> list[str]:
+        out = []
+        for up in self.upstream.values():
+            for view in up.keys:
+                out.append(Partition(up.stage, self.partition.sequence, view).id)
+        return out
+
+    def lineage(self, **extra) -> dict:
+        return {"partition": self.partition.id, "key": self.key, "components": dict(self.components), **extra}
+
+
+@dataclass
+class Plan:
+    items: dict[str, WorkItem] = field(default_factory=dict)  # partition id -> item, topological
+    sequences: list[SequenceInfo] = field(default_factory=list)
+
+    def for_stages(self, stages: list[str]) -> list[WorkItem]:
+        return [i for i in self.items.values() if i.partition.stage in stages]
+
+
+def build_plan(catalog: Catalog, sequences: str | None = None) -> Plan:
+    """Keys for every stage x partition of the catalog (for the sequences matching the glob)."""
+    plan = Plan()
+    seqs_by_dataset = {name: discover(catalog, ds, sequences) for name, ds in catalog.datasets.items()}
+    source_of = _source_datasets(catalog)
+    weights = {}
+    for stage in catalog.stages.values():
+        spec = registry.get(stage.task)
+        weights[stage.name] = _weights(catalog, stage, spec)
+    for dataset_name, seqs in seqs_by_dataset.items():
+        plan.sequences.extend(seqs)
+        for seq in seqs:
+            keys: dict[str, dict[str | None, str]] = {}
+            for stage in catalog.stages.values():
+                if source_of[stage.name] != dataset_name:
+                    continue
+                spec = registry.get(stage.task)
+                views = list(seq.views) if spec.partition == "view" else [None]
+                keys[stage.name] = {}
+                for view in views:
+                    item = _work_item(catalog, stage, spec, seq, view, keys, weights[stage.name])
+                    keys[stage.name][view] = item.key
+                    plan.items[item.partition.id] = item
+    return plan
+
+
+def _work_item(catalog, stage, spec, seq, view, keys, weights) -> WorkItem:
+    upstream = {}
+    for role, up_name in stage.inputs.items():
+        up_spec = registry.get(catalog.stages[up_name].task)
+        up_keys = keys[up_name]
+        if up_spec.partition == "view" and view is not None:
+            up_keys = {view: up_keys[view]}
+        upstream[role] = Upstream(up_name, up_spec.partition, up_spec.output, dict(up_keys))
+    components = {
+        "stage": stage.name,
+        "partition": {"sequence": seq.id, "view": view},
+        "task": spec.name,
+        "code_version": spec.version,
+        "params": _params(stage.params),
+        "schema": f"{spec.output}@{get_schema(spec.output).version}",
+        "upstream": {role: {"stage": u.stage, "keys": {str(k): v for k, v in u.keys.items()}}
+                     for role, u in upstream.items()},
+        "raw_input": seq.fingerprint if spec.source else None,
+        "weights": weights,
+    }
+    key = digest(components)
+    return WorkItem(Partition(stage.name, seq.id, view), key, components, upstream, seq, catalog)
+
+
+def _params(params) -> dict:
+    return {f.name: getattr(params, f.name) for f in dataclasses.fields(params)}
+
+
+def _weights(catalog, stage, spec) -> dict[str, str]:
+    out = {}
+    for name in spec.weights_params:
+        value = getattr(stage.params, name)
+        if value:
+            path = catalog.resolve_data_path(str(value), f"stages.{stage.name}.params.{name}")
+            out[name] = file_digest(str(path))
+    return out
+
+
+def _source_datasets(catalog: Catalog) -> dict[str, str]:
+    """The dataset each stage ultimately reads from (through its inputs)."""
+    out: dict[str, str] = {}
+    for stage in catalog.stages.values():
+        if stage.dataset is not None:
+            out[stage.name] = stage.dataset
+        else:
+            found = {out[u] for u in stage.inputs.values() if u in out}
+            if len(found) != 1:
+                raise PlanError(f"stage {stage.name!r} must read exactly one dataset through its inputs, "
+                                f"found {sorted(found) or 'none'}; give it a path to a source stage")
+            out[stage.name] = found.pop()
+    return out
+
+
+def select(plan: Plan, catalog: Catalog, store: Store, *, only: str | None, until: str | None) -> list[WorkItem]:
+    """The work items a run covers: all stages, ``--until`` and its ancestors, or ``--only`` one stage."""
+    for flag, name in (("--only", only), ("--until", until)):
+        if name is not None and name not in catalog.stages:
+            raise PlanError(f"{flag} {name!r}: no such stage{registry.did_you_mean(name, catalog.stages)}; "
+                            f"stages: {list(catalog.stages)}")
+    if only is not None:
+        items = plan.for_stages([only])
+        missing = sorted({dep for i in items for dep in i.depends_on
+                          if not store.is_complete(plan.items[dep].partition.stage, plan.items[dep].key)})
+        if missing:
+            raise PlanError(f"--only {only}: inputs are not computed yet: {', '.join(missing[:6])}"
+                            f"{' ...' if len(missing) > 6 else ''}; run `mocapflow run --until {only}` instead")
+        return items
+    stages = catalog.ancestors(until) if until is not None else list(catalog.stages)
+    return plan.for_stages(stages)
+
+
+def status(item: WorkItem, store: Store, versions_by_stage: dict) -> str:
+    """fresh (current key complete), partial (current key, some regions), stale (another version), missing."""
+    stage = item.partition.stage
+    if store.is_complete(stage, item.key):
+        return "fresh"
+    if store.regions_done(stage, item.key):
+        return "partial"
+    others = [v for v in versions_by_stage.get(stage, []) if v.partition == item.partition.id and v.key != item.key]
+    return "stale" if others else "missing"
+
+
+def now() -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%S")

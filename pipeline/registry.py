@@ -1,0 +1,160 @@
+"""Registered task implementations and their engine-facing metadata.
+
+tasks/ holds pure array functions; this module says how the engine drives each one: which
+stage partition kind it runs on, which artifacts it reads (role -> schema) and writes, its
+frozen params dataclass, its explicit code version (bump it when results change), the frame
+halo it needs around a region, and which params name weight files (hashed into the cache key).
+Plugins listed in a catalog register further implementations with :func:`register`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import importlib
+import types
+import typing
+from dataclasses import dataclass, field
+from typing import Any, Callable, Literal, Mapping
+
+from mocapflow.pipeline.errors import CatalogError
+
+Partitioning = Literal["view", "sequence"]
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """How the engine runs one implementation.
+
+    ``fn(**inputs, **params) -> xr.Dataset`` for ordinary tasks, where each input is the
+    upstream artifact sliced to this partition and the region's frames (plus the halo).
+    Source tasks (``source=True``) are run by the dataset reader instead and have no inputs.
+    """
+
+    name: str
+    fn: Callable[..., Any] | None
+    version: str
+    params: type
+    output: str
+    partition: Partitioning
+    inputs: Mapping[str, str] = field(default_factory=dict)
+    halo: tuple[int, int] = (0, 0)
+    weights_params: tuple[str, ...] = ()
+    source: bool = False
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class NoParams:
+    """Params of a task that takes none."""
+
+
+_REGISTRY: dict[str, TaskSpec] = {}
+_BUILTINS_LOADED = False
+
+
+def register(spec: TaskSpec) -> TaskSpec:
+    """Register (or replace) an implementation under ``spec.name``."""
+    if not dataclasses.is_dataclass(spec.params):
+        raise TypeError(f"task {spec.name!r}: params must be a dataclass, got {spec.params!r}")
+    _REGISTRY[spec.name] = spec
+    return spec
+
+
+def get(name: str) -> TaskSpec:
+    _load_builtins()
+    try:
+        return _REGISTRY[name]
+    except KeyError:
+        raise CatalogError(f"unknown task {name!r}{did_you_mean(name, _REGISTRY)}; registered: {sorted(_REGISTRY)}") from None
+
+
+def names() -> list[str]:
+    _load_builtins()
+    return sorted(_REGISTRY)
+
+
+def import_plugins(modules: typing.Iterable[str]) -> None:
+    """Import plugin modules (each registers its tasks/schemas on import)."""
+    _load_builtins()
+    for module in modules:
+        try:
+            importlib.import_module(module)
+        except ImportError as exc:
+            raise CatalogError(
+                f"plugin module {module!r} cannot be imported ({exc}); install it or put it on PYTHONPATH"
+            ) from exc
+
+
+def did_you_mean(word: str, choices: typing.Iterable[str]) -> str:
+    close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.5)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def build_params(spec: TaskSpec, raw: Mapping[str, Any], where: Callable[[str], str] = str) -> Any:
+    """Check ``raw`` against the task's params dataclass: unknown names, wrong types. Returns an instance.
+
+    ``where(key)`` names the place of a parameter in error messages (file, line, dotted key).
+    """
+    fields = {f.name: f for f in dataclasses.fields(spec.params)}
+    hints = typing.get_type_hints(spec.params)
+    values = {}
+    for key, value in raw.items():
+        if key not in fields:
+            raise CatalogError(
+                f"{where(key)}: task {spec.name!r} has no parameter {key!r}{did_you_mean(key, fields)}; "
+                f"its parameters are {sorted(fields)}"
+            )
+        values[key] = _coerce(value, hints[key], where(key))
+    try:
+        return spec.params(**values)
+    except (TypeError, ValueError) as exc:
+        raise CatalogError(f"{where('')}: invalid parameters for task {spec.name!r}: {exc}") from exc
+
+
+def _coerce(value: Any, hint: Any, where: str) -> Any:
+    """Accept ``value`` for type ``hint`` (int for float, list for tuple) or raise CatalogError."""
+    origin = typing.get_origin(hint)
+    args = typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        for option in args:
+            try:
+                return _coerce(value, option, where)
+            except CatalogError:
+                continue
+        raise CatalogError(f"{where}: {value!r} is not any of {_type_name(hint)}")
+    if origin is typing.Literal:
+        if value in args:
+            return value
+        raise CatalogError(f"{where}: {value!r} is not one of {list(args)}")
+    if hint is type(None):
+        if value is None:
+            return None
+        raise CatalogError(f"{where}: expected null, got {value!r}")
+    if origin in (tuple, list):
+        if not isinstance(value, (list, tuple)):
+            raise CatalogError(f"{where}: expected a list ({_type_name(hint)}), got {value!r}")
+        item = args[0] if args else Any
+        items = [_coerce(v, item, f"{where}[{i}]") for i, v in enumerate(value)]
+        return tuple(items) if origin is tuple else items
+    if hint is Any:
+        return value
+    if hint is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)
+    if hint is int and isinstance(value, bool):
+        raise CatalogError(f"{where}: expected int, got {value!r}")
+    if isinstance(hint, type) and isinstance(value, hint):
+        return value
+    raise CatalogError(f"{where}: expected {_type_name(hint)}, got {type(value).__name__} {value!r}")
+
+
+def _type_name(hint: Any) -> str:
+    return getattr(hint, "__name__", str(hint))
+
+
+def _load_builtins() -> None:
+    global _BUILTINS_LOADED
+    if _BUILTINS_LOADED:
+        return
+    _BUILTINS_LOADED = True
+    from mocapflow.pipeline import builtin_tasks  # noqa: F401  (registers on import)

@@ -1,0 +1,246 @@
+"""Content-addressed artifact storage on any fsspec root.
+
+Layout of one artifact version (one stage partition under one cache key)::
+
+    <root>/<stage>/<key>/lineage.json      key components, partition, written before any data
+    <root>/<stage>/<key>/data.zarr/        the xarray Dataset (zarr v3), chunked along frames
+    <root>/<stage>/<key>/_init             template (metadata + frame-less arrays) is written
+    <root>/<stage>/<key>/_regions/A-B      frames [A, B) are written (marker written after the data)
+    <root>/<stage>/<key>/_COMPLETE         every region is committed; lineage is in the zarr attrs
+    <root>/<stage>/<key>/.lock             held while a run writes this version
+
+A version is read only when ``_COMPLETE`` exists; a region is trusted only when its marker
+exists, so a run killed at any point resumes at region granularity and never reads a partial
+region as done. Several versions of a partition live side by side (swap A -> B -> A reuses A).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import time
+import uuid
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Iterator
+
+import dask.array as da
+import fsspec
+import numpy as np
+import psutil
+import xarray as xr
+
+from mocapflow.pipeline.errors import LockError, SchemaError, StorageError
+from mocapflow.schemas import ArtifactSchema, SchemaViolation
+
+
+
+@dataclass(frozen=True)
+class VersionInfo:
+    stage: str
+    key: str
+    partition: str
+    complete: bool
+    lineage: dict
+
+
+class Store:
+    """One storage root (a local folder or any fsspec URL)."""
+
+    def __init__(self, root: str):
+        self.root = root
+        self.fs, self.base = fsspec.core.url_to_fs(root)
+        self.local = "file" in _protocols(self.fs)
+
+    # ---- paths -------------------------------------------------------------------------
+    def version_dir(self, stage: str, key: str) -> str:
+        return f"{self.base.rstrip('/')}/{stage}/{key}"
+
+    def _zarr_target(self, stage: str, key: str) -> str:
+        path = f"{self.version_dir(stage, key)}/data.zarr"
+        return path if self.local else self.fs.unstrip_protocol(path)
+
+    def _marker(self, stage: str, key: str, name: str) -> str:
+        return f"{self.version_dir(stage, key)}/{name}"
+
+    # ---- state ---------------------------------------------------------------------------
+    def is_complete(self, stage: str, key: str) -> bool:
+        return self.fs.exists(self._marker(stage, key, "_COMPLETE"))
+
+    def region_done(self, stage: str, key: str, start: int, stop: int) -> bool:
+        return self.fs.exists(self._marker(stage, key, f"_regions/{start:08d}-{stop:08d}"))
+
+    def regions_done(self, stage: str, key: str) -> int:
+        try:
+            return len(self.fs.ls(self._marker(stage, key, "_regions"), detail=False))
+        except FileNotFoundError:
+            return 0
+
+    def versions(self, stage: str) -> list[VersionInfo]:
+        """Every stored version of ``stage`` (complete or not) with its lineage."""
+        out = []
+        for path in self.fs.glob(f"{self.base.rstrip('/')}/{stage}/*/lineage.json"):
+            key = path.rstrip("/").split("/")[-2]
+            try:
+                lineage = json.loads(self.fs.cat_file(path))
+            except (OSError, ValueError):
+                continue
+            out.append(VersionInfo(stage, key, lineage.get("partition", "?"), self.is_complete(stage, key), lineage))
+        return out
+
+    def stages_on_disk(self) -> list[str]:
+        try:
+            entries = self.fs.ls(self.base, detail=True)
+        except FileNotFoundError:
+            return []
+        return sorted(e["name"].rstrip("/").split("/")[-1] for e in entries if e["type"] == "directory")
+
+    def _put(self, path: str, data: bytes) -> None:
+        self.fs.makedirs(path.rsplit("/", 1)[0], exist_ok=True)
+        self.fs.pipe_file(path, data)
+
+    def remove_version(self, stage: str, key: str) -> None:
+        self.fs.rm(self.version_dir(stage, key), recursive=True)
+
+    # ---- writing -------------------------------------------------------------------------
+    def begin(self, stage: str, key: str, lineage: dict) -> None:
+        self.fs.makedirs(self.version_dir(stage, key), exist_ok=True)
+        self._put(self._marker(stage, key, "lineage.json"), json.dumps(lineage, indent=1).encode())
+
+    def write_region(self, stage: str, key: str, schema: ArtifactSchema, ds: xr.Dataset,
+                     n_frames: int, start: int, stop: int) -> None:
+        """Write frames [start, stop) of ``ds`` (validated), initializing the store on first use."""
+        check(schema, ds, f"output of stage {stage!r} frames {start}-{stop}")
+        frames = ds["frame"].values if "frame" in ds.coords else None
+        assert frames is None or np.array_equal(frames, np.arange(start, stop)), (stage, start, stop)
+        target = self._zarr_target(stage, key)
+        if not self.fs.exists(self._marker(stage, key, "_init")):
+            if self.fs.exists(self._marker(stage, key, "_regions")):
+                self.fs.rm(self._marker(stage, key, "_regions"), recursive=True)
+            template, encoding = _template(schema, ds, n_frames)
+            template.to_zarr(target, mode="w", compute=False, zarr_format=3, consolidated=False, encoding=encoding)
+            self._put(self._marker(stage, key, "_init"), b"")
+        framed = ds.drop_vars([n for n, v in ds.variables.items() if "frame" not in v.dims])
+        if framed.data_vars or "frame" in framed.coords:
+            framed.to_zarr(target, region={"frame": slice(start, stop)}, consolidated=False)
+        self._put(self._marker(stage, key, f"_regions/{start:08d}-{stop:08d}"), b"")
+
+    def commit(self, stage: str, key: str, lineage: dict) -> None:
+        """Record lineage in the zarr attrs and mark the version complete (last write)."""
+        import zarr
+
+        group = zarr.open_group(self._zarr_target(stage, key), mode="r+", zarr_format=3)
+        group.attrs["mocapflow_lineage"] = json.loads(json.dumps(lineage))
+        self._put(self._marker(stage, key, "lineage.json"), json.dumps(lineage, indent=1).encode())
+        self._put(self._marker(stage, key, "_COMPLETE"), str(time.time()).encode())
+
+    # ---- reading -------------------------------------------------------------------------
+    def open(self, stage: str, key: str, schema: ArtifactSchema) -> xr.Dataset:
+        """The complete artifact, lazily indexed and checked against ``schema``."""
+        if not self.is_complete(stage, key):
+            raise StorageError(f"artifact {stage}/{key} is not complete in {self.root}; "
+                               f"run `mocapflow run --until {stage}` to produce it")
+        try:
+            ds = xr.open_zarr(self._zarr_target(stage, key), consolidated=False, chunks=None, zarr_format=3)
+        except (OSError, ValueError, KeyError) as exc:
+            raise StorageError(f"artifact {stage}/{key} in {self.root} is unreadable ({exc}); "
+                               f"delete {self.version_dir(stage, key)} and rerun") from exc
+        check(schema, ds, f"stored artifact {stage}/{key}")
+        return ds
+
+    # ---- locking -------------------------------------------------------------------------
+    @contextmanager
+    def lock(self, stage: str, key: str, label: str) -> Iterator[None]:
+        """Exclusive lock of one version; a lock left by a dead process on this host is taken over."""
+        path = self._marker(stage, key, ".lock")
+        me = _holder(label)
+        self.fs.makedirs(self.version_dir(stage, key), exist_ok=True)
+        if not self._try_create(path, me):
+            holder = self._read_lock(path)
+            if holder is not None and _alive(holder):
+                raise LockError(
+                    f"partition {label} is being written by another run ({holder.get('run', '?')}: host "
+                    f"{holder.get('host')} pid {holder.get('pid')} since {holder.get('since')}); wait for it to "
+                    f"finish, or if that process is gone delete {path}")
+            self.fs.rm_file(path)
+            if not self._try_create(path, me):
+                raise LockError(f"partition {label}: lost the race for {path} to another run; retry")
+        try:
+            yield
+        finally:
+            current = self._read_lock(path)
+            if current is not None and current.get("token") == me["token"]:
+                self.fs.rm_file(path)
+
+    def _try_create(self, path: str, info: dict) -> bool:
+        data = json.dumps(info).encode()
+        if self.local:
+            try:
+                fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                return False
+            with os.fdopen(fd, "wb") as fh:
+                fh.write(data)
+            return True
+        if self.fs.exists(path):  # best effort on object stores without exclusive create
+            return False
+        self.fs.pipe_file(path, data)
+        return (self._read_lock(path) or {}).get("token") == info["token"]
+
+    def _read_lock(self, path: str) -> dict | None:
+        try:
+            return json.loads(self.fs.cat_file(path))
+        except (OSError, ValueError):
+            return None
+
+
+def check(schema: ArtifactSchema, ds: xr.Dataset, what: str) -> None:
+    try:
+        schema.validate(ds)
+    except SchemaViolation as exc:
+        raise SchemaError(f"{what} does not match its schema: {exc}") from exc
+
+
+def _template(schema: ArtifactSchema, ds: xr.Dataset, n_frames: int) -> tuple[xr.Dataset, dict]:
+    """A lazily-zero Dataset of the full frame length, and the chunk encoding from the schema."""
+    variables, encoding = {}, {}
+    for name, var in ds.data_vars.items():
+        if "frame" in var.dims:
+            shape = tuple(n_frames if d == "frame" else s for d, s in zip(var.dims, var.shape))
+            chunks = schema.chunks(name, shape, var.dims)
+            variables[name] = xr.Variable(var.dims, da.zeros(shape, dtype=var.dtype, chunks=chunks), var.attrs)
+            encoding[name] = {"chunks": chunks}
+        else:
+            variables[name] = _variable_strings(var.variable)
+    coords = {name: _variable_strings(c.variable) for name, c in ds.coords.items() if "frame" not in c.dims}
+    if "frame" in ds.dims:
+        coords["frame"] = xr.Variable(("frame",), np.arange(n_frames, dtype=np.int64))
+    return xr.Dataset(variables, coords=coords, attrs=ds.attrs), encoding
+
+
+def _variable_strings(var: xr.Variable) -> xr.Variable:
+    """Fixed-width unicode has no zarr v3 spec; store strings as variable-length."""
+    return var.astype(object) if var.dtype.kind == "U" else var
+
+
+def _protocols(fs) -> tuple[str, ...]:
+    proto = fs.protocol
+    return (proto,) if isinstance(proto, str) else tuple(proto)
+
+
+def _holder(label: str) -> dict:
+    me = psutil.Process()
+    return {"host": socket.gethostname(), "pid": os.getpid(), "started": me.create_time(),
+            "since": time.strftime("%Y-%m-%dT%H:%M:%S"), "run": label, "token": uuid.uuid4().hex}
+
+
+def _alive(holder: dict) -> bool:
+    """Whether the process named by a lock still runs (assumed alive if it is on another host)."""
+    if holder.get("host") != socket.gethostname():
+        return True
+    try:
+        proc = psutil.Process(int(holder["pid"]))
+        return abs(proc.create_time() - float(holder["started"])) < 1.0 and proc.status() != psutil.STATUS_ZOMBIE
+    except (psutil.NoSuchProcess, KeyError, ValueError):
+        return False

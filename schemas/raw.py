@@ -1,0 +1,53 @@
+"""Raw-sequence schema: synchronized multi-view IR + depth with calibration and timing.
+
+Depth is Kinect-v2-like uint16 millimetres (0 = invalid), IR uint16 counts. Calibration
+follows OpenCV: pinhole intrinsics ``fx fy cx cy`` in pixels, distortion ``k1 k2 p1 p2 k3``,
+and a 4x4 camera-to-world transform with translation in metres (world is Z-up, metres).
+Ground-truth variables (``gt_*``) are optional: the studio writes them, real recordings lack them.
+"""
+
+from __future__ import annotations
+
+from mocapflow.schemas import ArtifactSchema, VarSpec, register_schema
+
+DIST_COEFS = ("k1", "k2", "p1", "p2", "k3")
+
+RAW_SEQUENCE = register_schema(
+    ArtifactSchema(
+        name="raw_sequence",
+        version=1,
+        coords={
+            "view": VarSpec(("view",), "str", description="sensor name"),
+            "frame": VarSpec(("frame",), "int64", description="frame index from 0"),
+        },
+        variables={
+            "depth": VarSpec(("view", "frame", "y", "x"), "uint16", "mm", description="0 where invalid"),
+            "ir": VarSpec(("view", "frame", "y", "x"), "uint16", "counts"),
+            "timestamp": VarSpec(("frame",), "float64", "s"),
+            "fx": VarSpec(("view",), "float64", "px"),
+            "fy": VarSpec(("view",), "float64", "px"),
+            "cx": VarSpec(("view",), "float64", "px"),
+            "cy": VarSpec(("view",), "float64", "px"),
+            "dist": VarSpec(("view", "dist_coef"), "float64", "", description="OpenCV k1 k2 p1 p2 k3"),
+            "cam_to_world": VarSpec(("view", "row", "col"), "float64", "m", description="4x4 rigid transform"),
+            "width": VarSpec(("view",), "int64", "px"),
+            "height": VarSpec(("view",), "int64", "px"),
+            # Optional ground truth (the synthetic studio writes these).
+            "gt_joints": VarSpec(("frame", "joint", "xyz"), "float32", "m", required=False),
+            "gt_reflectors": VarSpec(("frame", "reflector", "xyz"), "float32", "m", required=False),
+            "gt_reflectors2d": VarSpec(("view", "frame", "reflector", "uv"), "float32", "px", required=False),
+            "gt_visible": VarSpec(("view", "frame", "reflector"), "bool", required=False),
+            "gt_pixels": VarSpec(("view", "frame", "reflector"), "int32", "px", required=False),
+            "gt_reflector_id": VarSpec(
+                ("view", "frame", "y", "x"), "int8", required=False, description="-1 none, else reflector index"
+            ),
+            "gt_scene_flow": VarSpec(
+                ("view", "frame", "y", "x", "xyz"), "float16", "m",
+                required=False, description="camera-frame 3D motion of the visible surface to the next frame",
+            ),
+        },
+        required_attrs={"fps": float},
+        frame_chunk=8,
+        description="synchronized multi-view IR-depth recording with calibration",
+    )
+)

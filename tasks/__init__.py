@@ -1,0 +1,1 @@
+"""mocapflow stages: pure functions of labelled arrays."""

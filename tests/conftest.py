@@ -1,0 +1,97 @@
+"""Shared test helpers: tiny raw recordings, catalogs and `mocapflow` subprocesses."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PLUGINS = ROOT / "tests" / "plugins"
+SHARED = ROOT.parent / "shared" / "data"
+
+
+def env_with_plugins() -> dict:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(PLUGINS), env.get("PYTHONPATH")]))
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+def mocapflow(*args, cwd, check=True, timeout=300) -> subprocess.CompletedProcess:
+    """Run the real CLI in a subprocess; returns the CompletedProcess (text)."""
+    proc = subprocess.run([sys.executable, "-m", "mocapflow.pipeline.cli", *map(str, args)], cwd=cwd,
+                          env=env_with_plugins(), capture_output=True, text=True, timeout=timeout)
+    if check and proc.returncode != 0:
+        raise AssertionError(f"mocapflow {' '.join(map(str, args))} exited {proc.returncode}\n"
+                             f"stdout:\n{proc.stdout}\nstderr:\n{proc.stderr}")
+    return proc
+
+
+def last_json(proc: subprocess.CompletedProcess) -> dict:
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def write_raw_zarr(path: Path, *, views=("cam0", "cam1"), frames=20, seed=0, size=(12, 16)) -> None:
+    from mocapflow.pipeline.datasets import raw_dataset
+
+    rng = np.random.default_rng(seed)
+    h, w = size
+    cams = {v: dict(fx=100.0, fy=100.0, cx=w / 2, cy=h / 2, dist=[0.0] * 5, cam_to_world=np.eye(4),
+                    width=w, height=h) for v in views}
+    depth = rng.integers(500, 4000, (len(views), frames, h, w)).astype(np.uint16)
+    raw_dataset(depth, depth // 3, cams, 30.0, 0).to_zarr(path, zarr_format=3, consolidated=False, mode="w")
+
+
+TOY_CATALOG = """\
+plugins: [toytasks]
+storage: {{root: {root}, region_frames: {region}}}
+datasets:
+  rec: {{kind: zarr, path: data}}
+stages:
+  frames: {{task: ingest}}
+  scaled: {{task: scale, inputs: [frames], params: {{factor: 3, sleep: {sleep}}}}}
+  diffed: {{task: diff, inputs: [scaled]}}
+  summed: {{task: total, inputs: [scaled]}}
+"""
+
+
+@pytest.fixture
+def toy_project(tmp_path):
+    """A folder with two tiny raw sequences (2 views, 20 frames) and a catalog of toy stages."""
+
+    def make(*, root="storage/", region=4, sleep=0.0, frames=20, sequences=("seqA", "seqB")) -> Path:
+        (tmp_path / "data").mkdir(exist_ok=True)
+        for i, name in enumerate(sequences):
+            write_raw_zarr(tmp_path / "data" / f"{name}.zarr", frames=frames, seed=i)
+        (tmp_path / "catalog.yaml").write_text(TOY_CATALOG.format(root=root, region=region, sleep=sleep))
+        return tmp_path
+
+    return make
+
+
+def read_artifacts(root: Path) -> dict:
+    """partition id -> {variable: ndarray} for every complete version under a storage root."""
+    import xarray as xr
+
+    out = {}
+    for lineage_path in sorted(root.glob("*/*/lineage.json")):
+        version = lineage_path.parent
+        if not (version / "_COMPLETE").exists():
+            continue
+        lineage = json.loads(lineage_path.read_text())
+        ds = xr.open_zarr(version / "data.zarr", consolidated=False, chunks=None)
+        out[(lineage["partition"], lineage["key"])] = {k: ds[k].values for k in ds.data_vars}
+    return out
+
+
+def assert_same_artifacts(a: dict, b: dict) -> None:
+    assert a.keys() == b.keys()
+    for key in a:
+        for var in a[key]:
+            np.testing.assert_array_equal(a[key][var], b[key][var], err_msg=f"{key} {var}")

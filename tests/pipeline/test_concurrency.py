@@ -1,0 +1,50 @@
+"""Two runs on one storage root, failures and --keep-going."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+import time
+
+from conftest import assert_same_artifacts, env_with_plugins, last_json, mocapflow, read_artifacts
+
+
+def test_second_run_on_same_root_is_refused_per_partition_naming_the_holder(toy_project, tmp_path_factory):
+    project = toy_project(sleep=0.3, frames=24, sequences=("seqA",))
+    first = subprocess.Popen([sys.executable, "-m", "mocapflow.pipeline.cli", "run", "--json"], cwd=project,
+                             env=env_with_plugins(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 60
+    while not list((project / "storage").glob("scaled/*/.lock")) and time.time() < deadline:
+        time.sleep(0.05)
+    second = mocapflow("run", "--json", "--keep-going", cwd=project, check=False)
+    out, _ = first.communicate(timeout=120)
+    assert first.returncode == 0, out
+    assert second.returncode == 1
+    summary = last_json(second)
+    locked = [p for p, e in summary["errors"].items() if "is being written by another run" in e]
+    assert locked and all(p.startswith("scaled/") for p in locked)
+    assert f"pid {first.pid}" in summary["errors"][locked[0]]
+    # nothing was corrupted: the result equals a clean run's
+    reference = tmp_path_factory.mktemp("ref")
+
+    shutil.copytree(project / "data", reference / "data")
+    shutil.copy(project / "catalog.yaml", reference / "catalog.yaml")
+    mocapflow("run", "--json", cwd=reference)
+    assert last_json(mocapflow("run", "--json", cwd=project))["failed"] == []
+    assert_same_artifacts(read_artifacts(project / "storage"), read_artifacts(reference / "storage"))
+
+
+def test_keep_going_continues_past_a_failed_partition_and_lists_it(toy_project):
+    project = toy_project()
+    (project / "catalog.yaml").write_text((project / "catalog.yaml").read_text().replace(
+        "task: scale,", "task: boom,").replace("params: {factor: 3, sleep: 0.0}", "params: {bad_view: cam1}"))
+    stop = mocapflow("run", "--json", cwd=project, check=False)
+    assert stop.returncode == 1
+    assert "FAILED scaled/seq" in stop.stderr and "RuntimeError: boom on cam1" in stop.stderr
+    going = mocapflow("run", "--json", "--keep-going", cwd=project, check=False)
+    summary = last_json(going)
+    assert going.returncode == 1
+    assert set(summary["failed"]) == {"scaled/seqA/cam1", "scaled/seqB/cam1"}
+    assert {"summed/seqA", "summed/seqB", "diffed/seqA/cam1"} <= set(summary["skipped"])
+    assert "diffed/seqA/cam0" in summary["executed"] or "diffed/seqA/cam0" in summary["cached"]

@@ -1,0 +1,96 @@
+"""A real `dask scheduler` + 2 `dask worker` processes on loopback: same outputs; a lost worker is survived."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from conftest import assert_same_artifacts, env_with_plugins, last_json, mocapflow, read_artifacts
+
+DASK = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
+WORKER = [sys.executable, "-m", "distributed.cli.dask_worker"]
+
+
+@pytest.fixture
+def cluster(tmp_path):
+    """Scheduler and two single-thread workers without nannies (a killed worker stays dead)."""
+    sched_file = tmp_path / "scheduler.json"
+    procs = [subprocess.Popen(DASK + ["--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                                      "--scheduler-file", str(sched_file)],
+                              env=env_with_plugins(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    try:
+        _wait(lambda: sched_file.exists() and json.loads(sched_file.read_text()).get("address"))
+        address = json.loads(sched_file.read_text())["address"]
+        workers = []
+        for i in range(2):
+            workers.append(subprocess.Popen(
+                WORKER + [address, "--nthreads", "1", "--no-nanny", "--no-dashboard", "--host", "127.0.0.1",
+                          "--local-directory", str(tmp_path / f"w{i}"), "--name", f"w{i}"],
+                env=env_with_plugins(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        procs += workers
+        from distributed import Client
+
+        with Client(address, timeout="20s") as client:
+            client.wait_for_workers(2, timeout=60)
+        yield address, workers
+    finally:
+        for proc in procs:
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGKILL)
+            proc.wait()
+
+
+def _wait(predicate, timeout=60):
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        try:
+            if predicate():
+                return
+        except (OSError, ValueError):
+            pass
+        time.sleep(0.1)
+    raise TimeoutError("condition not met in time")
+
+
+def _reference(project: Path, tmp_path_factory) -> dict:
+    ref = tmp_path_factory.mktemp("local")
+    shutil.copytree(project / "data", ref / "data")
+    shutil.copy(project / "catalog.yaml", ref / "catalog.yaml")
+    mocapflow("run", "--json", cwd=ref)
+    return read_artifacts(ref / "storage")
+
+
+def test_run_on_cluster_equals_local_run(toy_project, cluster, tmp_path_factory):
+    address, _ = cluster
+    project = toy_project()
+    summary = last_json(mocapflow("run", "--json", "--scheduler", address, cwd=project))
+    assert summary["failed"] == [] and len(summary["executed"]) == 12
+    assert_same_artifacts(read_artifacts(project / "storage"), _reference(project, tmp_path_factory))
+
+
+def test_killing_a_worker_mid_run_still_completes(toy_project, cluster, tmp_path_factory):
+    address, workers = cluster
+    project = toy_project(sleep=0.2, frames=32)
+    run = subprocess.Popen([sys.executable, "-m", "mocapflow.pipeline.cli", "run", "--json", "--scheduler", address],
+                           cwd=project, env=env_with_plugins(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    _wait(lambda: len(list((project / "storage").glob("scaled/*/_regions/*"))) >= 3)
+    os.kill(workers[0].pid, signal.SIGKILL)
+    out, err = run.communicate(timeout=240)
+    assert run.returncode == 0, err
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["failed"] == [] and len(summary["executed"]) == 12
+    assert_same_artifacts(read_artifacts(project / "storage"), _reference(project, tmp_path_factory))
+
+
+def test_unreachable_scheduler_is_a_clear_error(toy_project):
+    project = toy_project()
+    proc = mocapflow("run", "--scheduler", "tcp://127.0.0.1:1", cwd=project, check=False, timeout=120)
+    assert proc.returncode == 2 and "cannot reach the Dask scheduler at 'tcp://127.0.0.1:1'" in proc.stderr

@@ -1,0 +1,77 @@
+"""Small test-only tasks that exercise the engine (registered when a catalog lists this plugin).
+
+- ``scale``: per-view, depth * factor (+ an optional per-region sleep to kill runs part-way)
+- ``diff``: per-view, depth[f] - depth[f-1] (halo of one frame before)
+- ``total``: per-sequence, sum over views
+- ``boom``: per-view, raises for one chosen view (tests --keep-going)
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import xarray as xr
+
+from mocapflow.pipeline.registry import TaskSpec, register
+from mocapflow.schemas import ArtifactSchema, VarSpec, register_schema
+
+register_schema(ArtifactSchema(
+    name="toy_view", version=1, frame_chunk=4,
+    coords={"view": VarSpec(("view",), "str"), "frame": VarSpec(("frame",), "int64")},
+    variables={"value": VarSpec(("view", "frame", "y", "x"), "float32", "mm")},
+))
+register_schema(ArtifactSchema(
+    name="toy_sequence", version=1, frame_chunk=4,
+    coords={"frame": VarSpec(("frame",), "int64")},
+    variables={"total": VarSpec(("frame", "y", "x"), "float32", "mm")},
+))
+
+
+@dataclass(frozen=True)
+class ScaleParams:
+    factor: float = 2.0
+    sleep: float = 0.0
+
+
+def scale(frames: xr.Dataset, *, factor: float, sleep: float) -> xr.Dataset:
+    time.sleep(sleep)
+    value = frames["depth"].astype(np.float32) * np.float32(factor)
+    return xr.Dataset({"value": value})
+
+
+def scale_plus(frames: xr.Dataset, *, factor: float, sleep: float) -> xr.Dataset:
+    return xr.Dataset({"value": frames["depth"].astype(np.float32) * np.float32(factor) + 1})
+
+
+@dataclass(frozen=True)
+class NoParams:
+    pass
+
+
+def diff(scaled: xr.Dataset) -> xr.Dataset:
+    value = scaled["value"]
+    return xr.Dataset({"value": value - value.shift(frame=1).fillna(0)})
+
+
+def total(scaled: xr.Dataset) -> xr.Dataset:
+    return xr.Dataset({"total": scaled["value"].sum("view")})
+
+
+@dataclass(frozen=True)
+class BoomParams:
+    bad_view: str = "cam1"
+
+
+def boom(frames: xr.Dataset, *, bad_view: str) -> xr.Dataset:
+    if str(frames["view"].values[0]) == bad_view:
+        raise RuntimeError(f"boom on {bad_view}")
+    return xr.Dataset({"value": frames["depth"].astype(np.float32)})
+
+
+register(TaskSpec("scale", scale, "1", ScaleParams, "toy_view", "view", {"frames": "raw_sequence"}))
+register(TaskSpec("scale_plus", scale_plus, "1", ScaleParams, "toy_view", "view", {"frames": "raw_sequence"}))
+register(TaskSpec("diff", diff, "1", NoParams, "toy_view", "view", {"scaled": "toy_view"}, halo=(1, 0)))
+register(TaskSpec("total", total, "1", NoParams, "toy_sequence", "sequence", {"scaled": "toy_view"}))
+register(TaskSpec("boom", boom, "1", BoomParams, "toy_view", "view", {"frames": "raw_sequence"}))
