@@ -1,0 +1,70 @@
+"""Dataset readers (zarr, 16-bit PNG folders), `mocapflow init`, and bad raw inputs."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import xarray as xr
+import yaml
+
+from conftest import last_json, mocapflow, read_artifacts, write_raw_zarr
+
+
+def write_png_sequence(folder, views=("k0", "k1"), frames=6, size=(10, 14)):
+    rng = np.random.default_rng(3)
+    calib = {"fps": 30.0, "views": {}}
+    data = {}
+    for i, view in enumerate(views):
+        calib["views"][view] = {"fx": 365.0, "fy": 365.0, "cx": 7.0, "cy": 5.0, "dist": [0.01, 0, 0, 0, 0],
+                                "cam_to_world": np.eye(4).tolist(), "width": size[1], "height": size[0]}
+        for kind in ("depth", "ir"):
+            (folder / view / kind).mkdir(parents=True)
+            stack = rng.integers(0, 65535, (frames, *size)).astype(np.uint16)
+            data[view, kind] = stack
+            for f, img in enumerate(stack):
+                cv2.imwrite(str(folder / view / kind / f"{f:06d}.png"), img)
+    (folder / "calibration.yaml").write_text(yaml.safe_dump(calib))
+    return data
+
+
+def test_image_folder_is_imported_exactly(tmp_path):
+    data = write_png_sequence(tmp_path / "recs" / "take1")
+    mocapflow("init", tmp_path / "recs", cwd=tmp_path)
+    summary = last_json(mocapflow("run", "--json", "--catalog", tmp_path / "recs" / "catalog.yaml", cwd=tmp_path))
+    assert summary["executed"] == ["frames/take1"]
+    [(_, arrays)] = read_artifacts(tmp_path / "recs" / "storage").items()
+    np.testing.assert_array_equal(arrays["depth"][1], data["k1", "depth"])
+    np.testing.assert_array_equal(arrays["ir"][0], data["k0", "ir"])
+    np.testing.assert_allclose(arrays["dist"][0], [0.01, 0, 0, 0, 0])
+
+
+def test_init_detects_zarr_recordings_and_refuses_to_overwrite(tmp_path):
+    write_raw_zarr(tmp_path / "recs" / "a.zarr")
+    mocapflow("init", tmp_path / "recs", cwd=tmp_path)
+    catalog = yaml.safe_load((tmp_path / "recs" / "catalog.yaml").read_text())
+    assert catalog["datasets"]["recordings"]["kind"] == "zarr"
+    proc = mocapflow("init", tmp_path / "recs", cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and "exists; pass --force" in proc.stderr
+    proc = mocapflow("init", tmp_path / "nothing", cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and "is not a folder" in proc.stderr
+
+
+def test_raw_input_violating_the_schema_is_a_clear_error_and_keeps_artifacts(toy_project):
+    project = toy_project()
+    mocapflow("run", "--json", cwd=project)
+    before = read_artifacts(project / "storage")
+    broken = xr.open_zarr(project / "data" / "seqA.zarr", consolidated=False).load()
+    broken["depth"] = broken["depth"].astype(np.float32)
+    broken.to_zarr(project / "data" / "seqC.zarr", zarr_format=3, consolidated=False, mode="w")
+    proc = mocapflow("run", "--json", cwd=project, check=False)
+    assert proc.returncode == 2
+    assert "seqC.zarr does not match its schema" in proc.stderr and "'depth' has dtype float32, expected uint16" in proc.stderr
+    after = read_artifacts(project / "storage")
+    assert before.keys() == after.keys()
+
+
+def test_missing_dataset_folder(toy_project):
+    project = toy_project()
+    (project / "catalog.yaml").write_text((project / "catalog.yaml").read_text().replace("path: data", "path: nowhere"))
+    proc = mocapflow("run", cwd=project, check=False)
+    assert proc.returncode == 2 and "nowhere is not a folder" in proc.stderr
