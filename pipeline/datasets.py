@@ -26,7 +26,7 @@ from mocapflow.pipeline.errors import CatalogError, InputError
 from mocapflow.pipeline.hashing import digest
 from mocapflow.pipeline.storage import check
 from mocapflow.schemas import get_schema
-from mocapflow.schemas.raw import DIST_COEFS
+from mocapflow.schemas.raw import make_raw_sequence
 
 log = logging.getLogger(__name__)
 
@@ -129,7 +129,7 @@ class ImageFolderReader:
                     raise InputError(f"{seq_dir / view / kind}: every frame must be a readable 16-bit PNG")
                 sink.append(np.stack(frames))
         fps = float(calib["fps"])
-        return raw_dataset(np.stack(depth), np.stack(ir), calib["views"], fps, start)
+        return make_raw_sequence(np.stack(depth), np.stack(ir), calib["views"], fps, start)
 
 
 def _calibration(seq_dir: Path) -> dict:
@@ -142,28 +142,6 @@ def _calibration(seq_dir: Path) -> dict:
         raise InputError(f"{path}: expected 'fps' and 'views: {{name: {{fx, fy, cx, cy, dist, cam_to_world, "
                          f"width, height}}}}' ({exc})") from exc
     return calib
-
-
-def raw_dataset(depth: np.ndarray, ir: np.ndarray, cameras: Mapping[str, Mapping], fps: float,
-                first_frame: int, extra: Mapping[str, tuple] | None = None) -> xr.Dataset:
-    """Build a raw-sequence Dataset from arrays ``(view, frame, y, x)`` and per-view calibration dicts."""
-    views = list(cameras)
-    n = depth.shape[1]
-    frames = np.arange(first_frame, first_frame + n, dtype=np.int64)
-    cam = [cameras[v] for v in views]
-    data = {
-        "depth": (("view", "frame", "y", "x"), depth.astype(np.uint16)),
-        "ir": (("view", "frame", "y", "x"), ir.astype(np.uint16)),
-        "timestamp": (("frame",), frames / float(fps)),
-        "dist": (("view", "dist_coef"), np.array([np.asarray(c["dist"], float) for c in cam])),
-        "cam_to_world": (("view", "row", "col"), np.array([np.asarray(c["cam_to_world"], float) for c in cam])),
-        **{k: (("view",), np.array([float(c[k]) for c in cam])) for k in ("fx", "fy", "cx", "cy")},
-        **{k: (("view",), np.array([int(c[k]) for c in cam], dtype=np.int64)) for k in ("width", "height")},
-        **(extra or {}),
-    }
-    coords = {"view": np.array(views, dtype=object), "frame": frames, "dist_coef": np.array(DIST_COEFS, dtype=object)}
-    return xr.Dataset(data, coords=coords, attrs={"fps": float(fps), "length_unit": "m", "depth_unit": "mm",
-                                                  "up_axis": "Z"})
 
 
 # ---- studio -------------------------------------------------------------------------------

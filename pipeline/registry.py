@@ -105,21 +105,21 @@ def build_params(spec: TaskSpec, raw: Mapping[str, Any], where: Callable[[str], 
                 f"{where(key)}: task {spec.name!r} has no parameter {key!r}{did_you_mean(key, fields)}; "
                 f"its parameters are {sorted(fields)}"
             )
-        values[key] = _coerce(value, hints[key], where(key))
+        values[key] = coerce(value, hints[key], where(key))
     try:
         return spec.params(**values)
     except (TypeError, ValueError) as exc:
         raise CatalogError(f"{where('')}: invalid parameters for task {spec.name!r}: {exc}") from exc
 
 
-def _coerce(value: Any, hint: Any, where: str) -> Any:
+def coerce(value: Any, hint: Any, where: str) -> Any:
     """Accept ``value`` for type ``hint`` (int for float, list for tuple) or raise CatalogError."""
     origin = typing.get_origin(hint)
     args = typing.get_args(hint)
     if origin in (typing.Union, types.UnionType):
         for option in args:
             try:
-                return _coerce(value, option, where)
+                return coerce(value, option, where)
             except CatalogError:
                 continue
         raise CatalogError(f"{where}: {value!r} is not any of {_type_name(hint)}")
@@ -135,7 +135,7 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
         if not isinstance(value, (list, tuple)):
             raise CatalogError(f"{where}: expected a list ({_type_name(hint)}), got {value!r}")
         item = args[0] if args else Any
-        items = [_coerce(v, item, f"{where}[{i}]") for i, v in enumerate(value)]
+        items = [coerce(v, item, f"{where}[{i}]") for i, v in enumerate(value)]
         return tuple(items) if origin is tuple else items
     if hint is Any:
         return value

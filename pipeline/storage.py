@@ -118,12 +118,9 @@ class Store:
         if not self.fs.exists(self._marker(stage, key, "_init")):
             if self.fs.exists(self._marker(stage, key, "_regions")):
                 self.fs.rm(self._marker(stage, key, "_regions"), recursive=True)
-            template, encoding = _template(schema, ds, n_frames)
-            template.to_zarr(target, mode="w", compute=False, zarr_format=3, consolidated=False, encoding=encoding)
+            init_zarr(target, schema, ds, n_frames)
             self._put(self._marker(stage, key, "_init"), b"")
-        framed = ds.drop_vars([n for n, v in ds.variables.items() if "frame" not in v.dims])
-        if framed.data_vars or "frame" in framed.coords:
-            framed.to_zarr(target, region={"frame": slice(start, stop)}, consolidated=False)
+        write_zarr_region(target, ds, start, stop)
         self._put(self._marker(stage, key, f"_regions/{start:08d}-{stop:08d}"), b"")
 
     def commit(self, stage: str, key: str, lineage: dict) -> None:
@@ -193,6 +190,19 @@ class Store:
             return json.loads(self.fs.cat_file(path))
         except (OSError, ValueError):
             return None
+
+
+def init_zarr(target: str, schema: ArtifactSchema, ds: xr.Dataset, n_frames: int) -> None:
+    """Create a zarr v3 group shaped like ``ds`` but ``n_frames`` long: metadata and frame-less arrays only."""
+    template, encoding = _template(schema, ds, n_frames)
+    template.to_zarr(target, mode="w", compute=False, zarr_format=3, consolidated=False, encoding=encoding)
+
+
+def write_zarr_region(target: str, ds: xr.Dataset, start: int, stop: int) -> None:
+    """Write the frame-dimensioned variables of ``ds`` into frames [start, stop) of an initialized group."""
+    framed = ds.drop_vars([n for n, v in ds.variables.items() if "frame" not in v.dims])
+    if framed.data_vars or "frame" in framed.coords:
+        framed.to_zarr(target, region={"frame": slice(start, stop)}, consolidated=False)
 
 
 def check(schema: ArtifactSchema, ds: xr.Dataset, what: str) -> None:

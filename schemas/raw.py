@@ -8,6 +8,11 @@ Ground-truth variables (``gt_*``) are optional: the studio writes them, real rec
 
 from __future__ import annotations
 
+from typing import Mapping
+
+import numpy as np
+import xarray as xr
+
 from mocapflow.schemas import ArtifactSchema, VarSpec, register_schema
 
 DIST_COEFS = ("k1", "k2", "p1", "p2", "k3")
@@ -41,6 +46,8 @@ RAW_SEQUENCE = register_schema(
             "gt_reflector_id": VarSpec(
                 ("view", "frame", "y", "x"), "int8", required=False, description="-1 none, else reflector index"
             ),
+            "gt_joint_rotations": VarSpec(("frame", "joint", "quat"), "float32", "", required=False,
+                                          description="local joint rotations, quaternions x y z w"),
             "gt_scene_flow": VarSpec(
                 ("view", "frame", "y", "x", "xyz"), "float16", "m",
                 required=False, description="camera-frame 3D motion of the visible surface to the next frame",
@@ -51,3 +58,25 @@ RAW_SEQUENCE = register_schema(
         description="synchronized multi-view IR-depth recording with calibration",
     )
 )
+
+
+def make_raw_sequence(depth: np.ndarray, ir: np.ndarray, cameras: Mapping[str, Mapping], fps: float,
+                      first_frame: int, extra: Mapping[str, tuple] | None = None) -> xr.Dataset:
+    """Build a raw-sequence Dataset from arrays ``(view, frame, y, x)`` and per-view calibration dicts."""
+    views = list(cameras)
+    n = depth.shape[1]
+    frames = np.arange(first_frame, first_frame + n, dtype=np.int64)
+    cam = [cameras[v] for v in views]
+    data = {
+        "depth": (("view", "frame", "y", "x"), depth.astype(np.uint16)),
+        "ir": (("view", "frame", "y", "x"), ir.astype(np.uint16)),
+        "timestamp": (("frame",), frames / float(fps)),
+        "dist": (("view", "dist_coef"), np.array([np.asarray(c["dist"], float) for c in cam])),
+        "cam_to_world": (("view", "row", "col"), np.array([np.asarray(c["cam_to_world"], float) for c in cam])),
+        **{k: (("view",), np.array([float(c[k]) for c in cam])) for k in ("fx", "fy", "cx", "cy")},
+        **{k: (("view",), np.array([int(c[k]) for c in cam], dtype=np.int64)) for k in ("width", "height")},
+        **(extra or {}),
+    }
+    coords = {"view": np.array(views, dtype=object), "frame": frames, "dist_coef": np.array(DIST_COEFS, dtype=object)}
+    return xr.Dataset(data, coords=coords, attrs={"fps": float(fps), "length_unit": "m", "depth_unit": "mm",
+                                                  "up_axis": "Z"})

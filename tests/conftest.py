@@ -38,14 +38,14 @@ def last_json(proc: subprocess.CompletedProcess) -> dict:
 
 
 def write_raw_zarr(path: Path, *, views=("cam0", "cam1"), frames=20, seed=0, size=(12, 16)) -> None:
-    from mocapflow.pipeline.datasets import raw_dataset
+    from mocapflow.schemas.raw import make_raw_sequence
 
     rng = np.random.default_rng(seed)
     h, w = size
     cams = {v: dict(fx=100.0, fy=100.0, cx=w / 2, cy=h / 2, dist=[0.0] * 5, cam_to_world=np.eye(4),
                     width=w, height=h) for v in views}
     depth = rng.integers(500, 4000, (len(views), frames, h, w)).astype(np.uint16)
-    raw_dataset(depth, depth // 3, cams, 30.0, 0).to_zarr(path, zarr_format=3, consolidated=False, mode="w")
+    make_raw_sequence(depth, depth // 3, cams, 30.0, 0).to_zarr(path, zarr_format=3, consolidated=False, mode="w")
 
 
 TOY_CATALOG = """\

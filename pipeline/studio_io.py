@@ -1,0 +1,171 @@
+"""The studio as a dataset kind and as `mocapflow synth`: specs from the catalog or the CLI, rigs per worker.
+
+A studio dataset in catalog.yaml::
+
+    datasets:
+      default:
+        kind: studio
+        layout: layouts/dmc.yaml          # optional camera layout file (else the DMC ring)
+        defaults: {frames: 60, views: 3, noise: 1.0}
+        sequences:
+          jj_s1: {motion: jumping_jack, seed: 1, subject_height: 1.72}
+          walk:  {motion: ../shared/data/motions/cmu_12_01_walk.bvh, seed: 7}
+
+``motion`` is an exercise name or a .bvh path (inside ``data_roots``). Files are read here; the
+studio itself (tasks/studio) only sees parsed values.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import threading
+import typing
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import yaml
+
+from mocapflow.pipeline.errors import CatalogError, InputError
+from mocapflow.pipeline.hashing import digest
+from mocapflow.pipeline.registry import coerce, did_you_mean
+from mocapflow.tasks.studio import bvh as bvh_mod
+from mocapflow.tasks.studio.cameras import layout as camera_layout
+from mocapflow.tasks.studio.motion import EXERCISES
+from mocapflow.tasks.studio.synth import STUDIO_VERSION, Rig, SequenceSpec, build_rig, synthesize
+
+SPEC_FIELDS = {f.name: f for f in dataclasses.fields(SequenceSpec)}
+_RIGS: dict[str, Rig] = {}
+_RIG_LOCK = threading.Lock()
+
+
+def make_spec(raw: Mapping[str, Any], where: str, resolve: Callable[[str], Path],
+              layout: Mapping | None = None) -> tuple[SequenceSpec, str | None, str | None]:
+    """A validated SequenceSpec, the BVH text (or None) and the BVH path, from a mapping of spec fields."""
+    raw = dict(raw)
+    for key in raw:
+        if key not in SPEC_FIELDS:
+            raise CatalogError(f"{where}: unknown studio field {key!r}{did_you_mean(key, SPEC_FIELDS)}; "
+                               f"fields: {sorted(SPEC_FIELDS)}")
+    if "motion" not in raw:
+        raise CatalogError(f"{where}: no 'motion'; give an exercise name ({', '.join(sorted(EXERCISES))}) or a .bvh path")
+    motion = str(raw["motion"])
+    bvh_text = bvh_path = None
+    if motion.lower().endswith(".bvh"):
+        path = resolve(motion)
+        try:
+            bvh_text = path.read_text()
+        except OSError as exc:
+            raise InputError(f"{where}: cannot read BVH {path}: {exc.strerror}") from exc
+        bvh_path, raw["motion"] = str(path), "bvh"
+        raw.setdefault("frames", None)
+    elif motion not in EXERCISES:
+        raise CatalogError(f"{where}: unknown exercise {motion!r}{did_you_mean(motion, EXERCISES)}; "
+                           f"use one of {sorted(EXERCISES)} or a .bvh file")
+    if layout is not None:
+        raw.setdefault("layout", layout)
+    hints = typing.get_type_hints(SequenceSpec)
+    values = {k: coerce(v, hints[k], f"{where}.{k}") if k != "layout" else v for k, v in raw.items()}
+    try:
+        spec = SequenceSpec(**values)
+        if spec.layout is not None:
+            camera_layout(spec.layout, views=spec.views)
+    except (ValueError, TypeError) as exc:
+        raise InputError(f"{where}: {exc}") from exc
+    if bvh_text is not None:
+        try:
+            bvh_mod.parse_bvh(bvh_text)
+        except bvh_mod.BVHError as exc:
+            raise InputError(f"{where}: {bvh_path} is not a valid BVH file: {exc}") from exc
+    return spec, bvh_text, bvh_path
+
+
+def read_layout(path: Path, where: str) -> dict:
+    try:
+        data = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise InputError(f"{where}: cannot read camera layout {path}: {exc}") from exc
+    if not isinstance(data, dict) or not ({"ring", "sensors"} & set(data)):
+        raise InputError(f"{where}: camera layout {path} needs 'ring: {{count, radius, height}}' or "
+                         "'sensors: [{name, position}]'")
+    return data
+
+
+def frame_count(spec: SequenceSpec, bvh_text: str | None) -> int:
+    """Frames the sequence will have (a BVH clip's length at the studio's fps, less one for scene flow)."""
+    if spec.frames is not None:
+        return spec.frames
+    clip = bvh_mod.parse_bvh(bvh_text)
+    n = clip.data.shape[0] - (1 if bvh_mod._starts_with_tpose(clip) else 0)
+    available = int(((n - 1) * clip.frame_time - spec.start_s) * spec.fps) + 1
+    return available - 1
+
+
+def view_names(spec: SequenceSpec) -> tuple[str, ...]:
+    if spec.layout and "sensors" in spec.layout:
+        return tuple(str(s.get("name", f"kinect{i}")) for i, s in enumerate(spec.layout["sensors"]))
+    count = (spec.layout or {}).get("ring", {}).get("count", spec.views)
+    return tuple(f"kinect{i}" for i in range(count))
+
+
+def fingerprint(spec: SequenceSpec, bvh_text: str | None) -> str:
+    bvh_hash = hashlib.sha256(bvh_text.encode()).hexdigest() if bvh_text else None
+    return digest({"spec": dataclasses.asdict(spec), "bvh": bvh_hash, "studio": STUDIO_VERSION})
+
+
+def discover(catalog, dataset) -> list:
+    from mocapflow.pipeline.datasets import SequenceInfo
+
+    opts = dataset.options
+    for key in opts:
+        if key not in ("sequences", "defaults", "layout"):
+            raise CatalogError(f"{dataset.where}: unknown key {key!r}{did_you_mean(key, ('sequences', 'defaults', 'layout'))} "
+                               "for a studio dataset; use sequences, defaults, layout")
+    layout = None
+    if opts.get("layout"):
+        layout = read_layout(catalog.resolve_data_path(str(opts["layout"]), dataset.where), dataset.where)
+    sequences = opts.get("sequences") or {}
+    if not isinstance(sequences, dict) or not sequences:
+        raise CatalogError(f"{dataset.where}: a studio dataset needs 'sequences: {{id: {{motion: ...}}}}'")
+    out = []
+    for seq_id, body in sequences.items():
+        where = f"{dataset.where}.sequences.{seq_id}"
+        spec, text, path = make_spec({**(opts.get("defaults") or {}), **(body or {})}, where,
+                                     lambda p, w=where: catalog.resolve_data_path(p, w), layout)
+        fp = fingerprint(spec, text)
+        out.append(SequenceInfo(str(seq_id), view_names(spec), frame_count(spec, text), fp,
+                                {"spec": spec, "bvh_path": path}))
+    return out
+
+
+def rig_for(info) -> Rig:
+    """The sequence's rig, built once per worker process (cameras' rays and the room are reused)."""
+    with _RIG_LOCK:
+        rig = _RIGS.get(info.fingerprint)
+    if rig is None:
+        path = info.spec["bvh_path"]
+        rig = build_rig(info.spec["spec"], Path(path).read_text() if path else None)
+        with _RIG_LOCK:
+            if len(_RIGS) >= 4:
+                _RIGS.pop(next(iter(_RIGS)))
+            _RIGS[info.fingerprint] = rig
+    return rig
+
+
+def read(catalog, dataset, seq, start: int, stop: int):
+    return synthesize(rig_for(seq), start, stop)
+
+
+def write_sequence(rig: Rig, target: str, region_frames: int = 16) -> None:
+    """Render a whole sequence into a raw-sequence zarr store, region by region."""
+    from mocapflow.pipeline.storage import check, init_zarr, write_zarr_region
+    from mocapflow.schemas import get_schema
+
+    schema = get_schema("raw_sequence")
+    for start in range(0, rig.n_frames, region_frames):
+        stop = min(start + region_frames, rig.n_frames)
+        ds = synthesize(rig, start, stop)
+        check(schema, ds, f"studio output {target}")
+        if start == 0:
+            init_zarr(target, schema, ds, rig.n_frames)
+        write_zarr_region(target, ds, start, stop)

@@ -1,0 +1,152 @@
+"""Kinect-v2-like IR-D sensors: 512x424 depth/IR, about 70.6 x 60 degrees field of view.
+
+Intrinsics follow OpenCV's pinhole model with radial/tangential distortion (k1 k2 p1 p2 k3).
+Extrinsics are 4x4 camera-to-world transforms (OpenCV camera axes: x right, y down, z forward)
+in the studio's world frame (Z up, metres). The default layout is DeepMoCap's DMC setup (§4):
+three sensors about 120 degrees apart, 2-3 m from the subject, 0.5-1 m high, aimed at the centre.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import cv2
+import numpy as np
+
+WIDTH, HEIGHT = 512, 424
+FOV_DEG = (70.6, 60.0)
+KINECT_DIST = (0.09, -0.27, 0.0, 0.0, 0.09)
+CAPTURE_CENTRE = (0.0, 0.0, 0.9)
+
+
+@dataclass(frozen=True)
+class Camera:
+    name: str
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    dist: tuple[float, ...]
+    cam_to_world: np.ndarray = field(repr=False)
+    width: int = WIDTH
+    height: int = HEIGHT
+
+    @property
+    def K(self) -> np.ndarray:
+        return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1.0]])
+
+    @property
+    def world_to_cam(self) -> np.ndarray:
+        return np.linalg.inv(self.cam_to_world)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy, "dist": list(self.dist),
+                "cam_to_world": self.cam_to_world, "width": self.width, "height": self.height}
+
+
+def kinect_v2(name: str, cam_to_world: np.ndarray, rng: np.random.Generator | None = None) -> Camera:
+    """A sensor with Kinect-v2 intrinsics (per-unit variation of about 1 % when ``rng`` is given)."""
+    fx = (WIDTH / 2) / np.tan(np.radians(FOV_DEG[0] / 2))
+    fy = (HEIGHT / 2) / np.tan(np.radians(FOV_DEG[1] / 2))
+    cx, cy, dist = (WIDTH - 1) / 2, (HEIGHT - 1) / 2, np.array(KINECT_DIST)
+    if rng is not None:
+        fx, fy = fx * rng.uniform(0.99, 1.01), fy * rng.uniform(0.99, 1.01)
+        cx, cy = cx + rng.uniform(-4, 4), cy + rng.uniform(-4, 4)
+        dist = dist * rng.uniform(0.8, 1.2, 5)
+    return Camera(name, float(fx), float(fy), float(cx), float(cy), tuple(float(d) for d in dist),
+                  np.asarray(cam_to_world, float))
+
+
+def look_at(position, target=CAPTURE_CENTRE) -> np.ndarray:
+    """Camera-to-world transform of a camera at ``position`` aimed at ``target`` (no roll)."""
+    position, target = np.asarray(position, float), np.asarray(target, float)
+    z = target - position
+    if np.linalg.norm(z) < 1e-6:
+        raise ValueError(f"camera at {position.tolist()} coincides with its target")
+    z /= np.linalg.norm(z)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    if np.linalg.norm(x) < 1e-6:
+        raise ValueError(f"camera at {position.tolist()} looks straight up or down; tilt it")
+    x /= np.linalg.norm(x)
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
+    pose[:3, 3] = position
+    return pose
+
+
+def ring_positions(count=3, radius=2.5, height=0.8, start_deg=90.0, spacing_deg=None) -> np.ndarray:
+    """Sensor positions on a circle around the centre; the first one faces the subject's front (+Y)."""
+    spacing = 360.0 / count if spacing_deg is None else spacing_deg
+    angles = np.radians(start_deg + spacing * np.arange(count))
+    return np.stack([radius * np.cos(angles), radius * np.sin(angles), np.full(count, height)], axis=1)
+
+
+def layout(spec: Mapping[str, Any] | None = None, *, views: int = 3, rng: np.random.Generator | None = None):
+    """Cameras from a layout mapping (see below) or the default DMC ring with ``views`` sensors.
+
+    Layout mapping: ``target: [x, y, z]`` (optional) and either
+    ``ring: {count, radius, height, start_deg, spacing_deg}`` or
+    ``sensors: [{name, position: [x, y, z], target?, fx?, fy?, cx?, cy?, dist?}, ...]``.
+    """
+    spec = dict(spec or {"ring": {"count": views}})
+    target = np.asarray(spec.get("target", CAPTURE_CENTRE), float)
+    if "sensors" in spec:
+        cams = [_sensor(i, s, target) for i, s in enumerate(spec["sensors"])]
+    else:
+        ring = dict(spec.get("ring", {}))
+        ring.setdefault("count", views)
+        cams = [kinect_v2(f"kinect{i}", look_at(p, target), rng) for i, p in enumerate(ring_positions(**ring))]
+    if not cams:
+        raise ValueError("the camera layout has no sensors")
+    for cam in cams:
+        check_sees(cam, target)
+    return cams
+
+
+def random_ring(rng: np.random.Generator, views: int = 3) -> dict:
+    """A random DMC-like layout: 2-3 m away, 0.5-1 m high, roughly evenly spread."""
+    return {"ring": {"count": views, "radius": float(rng.uniform(2.0, 3.0)), "height": float(rng.uniform(0.5, 1.0)),
+                     "start_deg": float(90 + rng.uniform(-25, 25)), "spacing_deg": float(360 / views + rng.uniform(-10, 10))},
+            "target": [float(rng.uniform(-0.1, 0.1)), float(rng.uniform(-0.1, 0.1)), float(rng.uniform(0.8, 1.0))]}
+
+
+def _sensor(i: int, s: Mapping[str, Any], target: np.ndarray) -> Camera:
+    if "position" not in s:
+        raise ValueError(f"sensor {i} of the layout has no 'position: [x, y, z]'")
+    name = str(s.get("name", f"kinect{i}"))
+    base = kinect_v2(name, look_at(s["position"], s.get("target", target)))
+    return Camera(name, float(s.get("fx", base.fx)), float(s.get("fy", base.fy)), float(s.get("cx", base.cx)),
+                  float(s.get("cy", base.cy)), tuple(float(d) for d in s.get("dist", base.dist)), base.cam_to_world)
+
+
+def check_sees(cam: Camera, point) -> None:
+    """Raise ValueError when ``point`` (world) is behind ``cam`` or outside its image."""
+    uv, z = project(cam, np.asarray(point, float)[None])
+    if z[0] <= 0.3 or not (0 <= uv[0, 0] < cam.width and 0 <= uv[0, 1] < cam.height):
+        raise ValueError(f"sensor {cam.name!r} does not see the capture centre {np.round(point, 2).tolist()} "
+                         f"(it projects to {np.round(uv[0], 1).tolist()} at depth {z[0]:.2f} m); aim it at the subject")
+
+
+def to_camera(cam: Camera, points: np.ndarray) -> np.ndarray:
+    """World points (..., 3) in the camera frame."""
+    w2c = cam.world_to_cam
+    return points @ w2c[:3, :3].T + w2c[:3, 3]
+
+
+def project(cam: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distorted pixel coordinates (n, 2) and camera depth z (n,) of world points (n, 3)."""
+    pc = to_camera(cam, points)
+    uv, _ = cv2.projectPoints(pc.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), cam.K, np.asarray(cam.dist))
+    return uv.reshape(-1, 2), pc[:, 2]
+
+
+def pixel_rays(cam: Camera) -> np.ndarray:
+    """Unit ray directions (camera frame) through every pixel centre, undistorted.  # (y, x, 3)"""
+    ys, xs = np.mgrid[0:cam.height, 0:cam.width].astype(np.float64)
+    pts = np.stack([xs.ravel(), ys.ravel()], axis=1).reshape(-1, 1, 2)
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-9)
+    norm = cv2.undistortPoints(pts, cam.K, np.asarray(cam.dist), criteria=crit).reshape(-1, 2)
+    rays = np.concatenate([norm, np.ones((norm.shape[0], 1))], axis=1)
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    return rays.reshape(cam.height, cam.width, 3)

@@ -1,0 +1,260 @@
+"""Procedural library of DMC3D's 15 exercises (DeepMoCap §4, Table 1) on the template body.
+
+Each exercise is a set of joint-angle curves over a phase ``phi`` (one repetition = 2*pi), with
+speed (repetitions per second), amplitude (a factor on the nominal angles) and repetitions as
+parameters. Angles use the template's rest axes (x right, y forward, z up); the feet are planted
+on the floor on every frame (jumps lift them on top of that).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from mocapflow.tasks.studio.body import JOINT_INDEX, JOINTS, Subject, forward_kinematics, rest_offsets, surface
+
+ARMS_DOWN = np.radians(78.0)  # shoulder adduction from the T-pose to relaxed arms
+
+
+@dataclass(frozen=True)
+class Motion:
+    """Local joint rotations and root positions at the studio's frame rate."""
+
+    local_rot: np.ndarray  # (frame, joint, 3, 3)
+    root_pos: np.ndarray  # (frame, 3) metres
+    fps: float
+    label: str
+
+    @property
+    def n_frames(self) -> int:
+        return self.root_pos.shape[0]
+
+
+class _Pose:
+    """Accumulates per-joint rotations (applied in call order, each in the parent frame) and root offsets."""
+
+    def __init__(self, n: int):
+        self.n = n
+        self.rot = np.tile(np.eye(3), (n, len(JOINTS), 1, 1))
+        self.root = np.zeros((n, 3))
+        self.air = np.zeros(n)
+
+    def turn(self, joint: str, axis: str, angle) -> "_Pose":
+        angle = np.broadcast_to(np.asarray(angle, float), (self.n,))
+        r = Rotation.from_euler(axis, angle[:, None]).as_matrix()
+        j = JOINT_INDEX[joint]
+        self.rot[:, j] = r @ self.rot[:, j]
+        return self
+
+    def arms_down(self, left=0.0, right=0.0) -> "_Pose":
+        """Relaxed arms; ``left``/``right`` raise them sideways (abduction, radians)."""
+        self.turn("RightShoulder", "y", ARMS_DOWN - np.asarray(right))
+        return self.turn("LeftShoulder", "y", -(ARMS_DOWN - np.asarray(left)))
+
+    def arm_forward(self, side: str, angle) -> "_Pose":
+        return self.turn(f"{side}Shoulder", "x", angle)  # flexion: raise forward
+
+    def elbow(self, side: str, angle) -> "_Pose":
+        return self.turn(f"{side}Elbow", "z", angle if side == "Right" else -np.asarray(angle))
+
+    def hip(self, side: str, flex=0.0, abduct=0.0) -> "_Pose":
+        self.turn(f"{side}Hip", "y", -np.asarray(abduct) if side == "Right" else abduct)
+        return self.turn(f"{side}Hip", "x", flex)
+
+    def knee(self, side: str, angle) -> "_Pose":
+        return self.turn(f"{side}Knee", "x", -np.asarray(angle))
+
+    def ankle(self, side: str, angle) -> "_Pose":
+        return self.turn(f"{side}Ankle", "x", angle)
+
+    def spine(self, flex=0.0, side_bend=0.0, twist=0.0) -> "_Pose":
+        self.turn("SpineBase", "z", twist)
+        self.turn("SpineBase", "y", side_bend)
+        return self.turn("SpineBase", "x", -np.asarray(flex))
+
+
+def _pos(x):
+    return np.maximum(x, 0.0)
+
+
+def _walk(p, phi, a):
+    s = np.sin(phi)
+    for side, sign in (("Right", 1), ("Left", -1)):
+        lift = _pos(sign * s)
+        p.hip(side, flex=a * np.radians(45) * lift).knee(side, a * np.radians(70) * lift)
+        p.arm_forward(side, -sign * a * np.radians(20) * s)
+    p.arms_down().elbow("Right", np.radians(15)).elbow("Left", np.radians(15))
+
+
+def _single_arm_raise(p, phi, a):
+    raise_ = a * np.radians(150) * (1 - np.cos(phi)) / 2
+    p.arms_down().arm_forward("Right", raise_)
+
+
+def _elbow_flexion(p, phi, a):
+    bend = a * np.radians(130) * (1 - np.cos(phi)) / 2
+    p.arms_down(np.radians(8), np.radians(8)).elbow("Right", bend).elbow("Left", bend)
+
+
+def _knee_flexion(p, phi, a):
+    for side, shift in (("Right", 0.0), ("Left", np.pi)):
+        bend = _pos(np.sin(phi / 2 + shift / 2)) ** 2 * (np.sin(phi) * (1 if side == "Right" else -1) > 0)
+        p.hip(side, flex=a * np.radians(15) * bend).knee(side, a * np.radians(105) * bend)
+    p.arms_down(np.radians(10), np.radians(10))
+
+
+def _closing_arms(p, phi, a):
+    up = a * np.radians(165) * (1 - np.cos(phi)) / 2
+    p.arms_down(up, up)
+
+
+def _side_steps(p, phi, a):
+    p.root[:, 0] = a * 0.35 * np.sin(phi)
+    for side, sign in (("Right", 1), ("Left", -1)):
+        lift = _pos(sign * np.cos(phi))
+        p.hip(side, abduct=a * np.radians(15) * lift, flex=np.radians(10) * lift).knee(side, np.radians(25) * lift)
+    p.arms_down(np.radians(10), np.radians(10))
+
+
+def _jumping_jack(p, phi, a):
+    open_ = (1 - np.cos(phi)) / 2
+    p.arms_down(a * np.radians(160) * open_, a * np.radians(160) * open_)
+    for side in ("Right", "Left"):
+        p.hip(side, abduct=a * np.radians(16) * open_).knee(side, np.radians(12) * np.abs(np.sin(phi)))
+    p.air[:] = a * 0.09 * np.abs(np.sin(phi))
+
+
+def _butt_kicks(p, phi, a):
+    s = np.sin(phi)
+    for side, sign in (("Right", 1), ("Left", -1)):
+        kick = _pos(sign * s)
+        p.hip(side, flex=np.radians(8) * kick).knee(side, a * np.radians(125) * kick)
+        p.arm_forward(side, -sign * np.radians(30) * s)
+    p.arms_down(np.radians(12), np.radians(12)).elbow("Right", np.radians(85)).elbow("Left", np.radians(85))
+    p.air[:] = 0.03 * np.abs(s)
+
+
+def _lunge(p, phi, a):
+    for side, sign in (("Right", 1), ("Left", -1)):
+        depth = _pos(sign * np.sin(phi)) * a
+        other = "Left" if side == "Right" else "Right"
+        p.hip(side, flex=np.radians(80) * depth).knee(side, np.radians(90) * depth)
+        p.hip(other, flex=-np.radians(25) * depth).knee(other, np.radians(85) * depth)
+        p.root[:, 1] += 0.3 * depth
+    p.arms_down()
+    p.spine(flex=np.radians(5))
+
+
+def _squat(p, phi, a):
+    d = a * (1 - np.cos(phi)) / 2
+    p.spine(flex=np.radians(35) * d)
+    for side in ("Right", "Left"):
+        p.hip(side, flex=np.radians(95) * d, abduct=np.radians(8)).knee(side, np.radians(110) * d)
+        p.ankle(side, np.radians(25) * d)
+        p.arm_forward(side, np.radians(85) * d)
+    p.arms_down()
+    p.root[:, 1] = -0.12 * d
+
+
+def _side_step_knee_elbow(p, phi, a):
+    _side_steps(p, phi, 0.6 * a)
+    for side, sign in (("Right", 1), ("Left", -1)):
+        up = _pos(sign * np.sin(phi)) * a
+        other = "Left" if side == "Right" else "Right"
+        p.hip(side, flex=np.radians(85) * up).knee(side, np.radians(90) * up)
+        p.arm_forward(other, np.radians(70) * up).elbow(other, np.radians(110) * up)
+        p.spine(twist=sign * np.radians(25) * up, flex=np.radians(15) * up)
+
+
+def _side_reach(p, phi, a, sides=("Right",)):
+    for side in sides:
+        sign = 1 if side == "Right" else -1
+        reach = (_pos(sign * np.sin(phi)) if len(sides) > 1 else (1 - np.cos(phi)) / 2) * a
+        if side == "Right":
+            p.arms_down(0.0, np.radians(170) * reach)
+        else:
+            p.arms_down(np.radians(170) * reach, 0.0)
+        p.spine(side_bend=-sign * np.radians(30) * reach)
+
+
+def _side_reaches(p, phi, a):
+    _side_reach(p, phi, a)
+
+
+def _alternate_side_reaches(p, phi, a):
+    sign = np.sin(phi)
+    right, left = _pos(sign) * a, _pos(-sign) * a
+    p.arms_down(np.radians(170) * left, np.radians(170) * right)
+    p.spine(side_bend=-np.radians(30) * right + np.radians(30) * left)
+
+
+def _side_jumps(p, phi, a):
+    p.root[:, 0] = a * 0.3 * np.sign(np.sin(phi)) * np.minimum(1, 3 * np.abs(np.sin(phi)))
+    flight = _pos(np.cos(2 * phi))
+    p.air[:] = a * 0.12 * flight
+    for side in ("Right", "Left"):
+        p.hip(side, flex=np.radians(30) * (1 - flight)).knee(side, np.radians(45) * (1 - flight))
+    p.arms_down(np.radians(25), np.radians(25))
+
+
+def _kick_box(p, phi, a):
+    for side, sign in (("Right", 1), ("Left", -1)):
+        kick = _pos(sign * np.sin(phi)) ** 1.5 * a
+        chamber = np.sin(np.clip(kick * np.pi, 0, np.pi))
+        p.hip(side, flex=np.radians(85) * kick).knee(side, np.radians(80) * chamber)
+        p.arm_forward(side, np.radians(55)).elbow(side, np.radians(120))
+    p.arms_down(np.radians(20), np.radians(20))
+    p.spine(flex=-np.radians(8) * np.abs(np.sin(phi)) * a)
+
+
+EXERCISES: dict[str, tuple[Callable, float]] = {  # name: (curves, nominal repetitions per second)
+    "walking_on_the_spot": (_walk, 0.9),
+    "single_arm_raise": (_single_arm_raise, 0.4),
+    "elbow_flexion": (_elbow_flexion, 0.5),
+    "knee_flexion": (_knee_flexion, 0.45),
+    "closing_arms_above_head": (_closing_arms, 0.45),
+    "side_steps": (_side_steps, 0.5),
+    "jumping_jack": (_jumping_jack, 0.8),
+    "butt_kicks_left_right": (_butt_kicks, 1.1),
+    "forward_lunge_left_right": (_lunge, 0.3),
+    "classic_squat": (_squat, 0.35),
+    "side_step_knee_elbow": (_side_step_knee_elbow, 0.45),
+    "side_reaches": (_side_reaches, 0.35),
+    "side_jumps": (_side_jumps, 0.6),
+    "alternate_side_reaches": (_alternate_side_reaches, 0.35),
+    "kick_box_kicking": (_kick_box, 0.6),
+}
+
+
+def exercise(name: str, subject: Subject, *, n_frames: int, fps: float = 30.0, speed: float = 1.0,
+             amplitude: float = 1.0, repetitions: float | None = None, phase: float = 0.0,
+             heading_deg: float = 0.0) -> Motion:
+    """``name`` performed by ``subject`` for ``n_frames`` frames; feet planted on the floor (z = 0)."""
+    if name not in EXERCISES:
+        raise ValueError(f"unknown exercise {name!r}; one of {sorted(EXERCISES)} or a .bvh file")
+    curves, rate = EXERCISES[name]
+    t = np.arange(n_frames) / fps
+    rate = repetitions / max(t[-1], 1e-6) if repetitions else rate * speed
+    pose = _Pose(n_frames)
+    curves(pose, 2 * np.pi * rate * t + phase, amplitude)
+    heading = Rotation.from_euler("z", np.radians(heading_deg)).as_matrix()
+    pose.rot[:, JOINT_INDEX["Hips"]] = heading @ pose.rot[:, JOINT_INDEX["Hips"]]
+    root = pose.root @ heading.T + rest_offsets(subject)[JOINT_INDEX["Hips"]]
+    root = plant_feet(pose.rot, root, subject) + np.outer(pose.air, [0, 0, 1])
+    return Motion(pose.rot, root, fps, name)
+
+
+def plant_feet(local_rot: np.ndarray, root: np.ndarray, subject: Subject) -> np.ndarray:
+    """Shift the root vertically so the lowest point of the feet touches z = 0 on every frame."""
+    return root - np.outer(lowest_foot_point(local_rot, root, subject), [0, 0, 1])
+
+
+def lowest_foot_point(local_rot: np.ndarray, root: np.ndarray, subject: Subject) -> np.ndarray:
+    """Height of the lowest foot surface point per frame (ankles, toes minus the foot capsule radius)."""
+    _, pos = forward_kinematics(local_rot, root, rest_offsets(subject))
+    radius = next(p.radii[0] for p in surface(subject) if p.name == "l_foot")
+    feet = [JOINT_INDEX[j] for j in ("LeftAnkle", "LeftFoot", "RightAnkle", "RightFoot")]
+    return pos[:, feet, 2].min(axis=1) - radius

@@ -1,0 +1,93 @@
+"""BVH parsing and retargeting of the real CMU clips; the procedural exercise library; the template."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import SHARED
+from mocapflow.tasks.studio import body, bvh, motion
+
+CLIPS = sorted((SHARED / "motions").glob("*.bvh"))
+
+
+def joints(m, subject):
+    return body.forward_kinematics(m.local_rot, m.root_pos, body.rest_offsets(subject))[1]
+
+
+def test_template_has_20_joints_levels_0_to_6_and_40_dof():
+    assert len(body.JOINT_NAMES) == 20 and body.DOF.sum() == 40
+    assert body.LEVELS[body.JOINT_INDEX["Hips"]] == 0 and body.LEVELS[body.JOINT_INDEX["LeftHand"]] == 6
+
+
+@pytest.mark.parametrize("clip", CLIPS, ids=lambda p: p.stem)
+def test_retargeted_cmu_clip_keeps_bone_lengths_and_feet_on_the_floor(clip):
+    subject = body.Subject(1.68)
+    m = bvh.retarget(bvh.parse_bvh(clip.read_text()), subject, fps=30)
+    pos = joints(m, subject)
+    bones = np.linalg.norm(pos[:, 1:] - pos[:, body.PARENTS[1:]], axis=-1)
+    np.testing.assert_allclose(bones, np.broadcast_to(bones[0], bones.shape), atol=1e-9)
+    feet = motion.lowest_foot_point(m.local_rot, m.root_pos, subject)
+    assert abs(feet.min()) < 1e-6  # the lowest contact touches the floor
+    assert np.percentile(feet, 10) < 0.03  # and the feet are near the floor most of the time
+    left, right = pos[:, body.JOINT_INDEX["LeftHip"]], pos[:, body.JOINT_INDEX["RightHip"]]
+    assert np.mean(left[:, 0] < right[:, 0]) > 0.95  # subject's left is -X: faces +Y like the template
+    head = pos[:, body.JOINT_INDEX["Head"], 2]
+    assert 1.3 < np.median(head) < 1.68
+
+
+def test_walk_moves_forward_and_jumping_jacks_leave_the_ground():
+    subject = body.Subject(1.75)
+    walk = bvh.retarget(bvh.parse_bvh((SHARED / "motions" / "cmu_12_01_walk.bvh").read_text()), subject)
+    assert walk.root_pos[-1, 1] - walk.root_pos[0, 1] > 2.0
+    jj = bvh.retarget(bvh.parse_bvh((SHARED / "motions" / "cmu_14_14_jumping_jacks.bvh").read_text()), subject)
+    assert motion.lowest_foot_point(jj.local_rot, jj.root_pos, subject).max() > 0.05
+
+
+@pytest.mark.parametrize("text,message", [
+    ("", r"unexpected end of file \(expected HIERARCHY\)"),
+    ("MOTION\n", "expected 'HIERARCHY', found 'MOTION'"),
+    ("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0\n", r"unexpected end of file \(expected an OFFSET number\)"),
+    ("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 x\n", "line 4: expected a number, found 'x'"),
+    ("HIERARCHY\nROOT Hips\n{\nOFFSET 0 0 0\nCHANNELS 1 Wrotation\n}\nMOTION\nFrames: 1\nFrame Time: 0.1\n0\n",
+     "unknown channel"),
+    ("HIERARCHY\nROOT Hips\n{\nOFFSET 0 0 0\nCHANNELS 1 Xrotation\n}\nMOTION\nFrames: 2\nFrame Time: 0.1\n0\n",
+     "MOTION holds 1 numbers, expected Frames 2 x 1 channels"),
+])
+def test_malformed_bvh_is_a_clear_error(text, message):
+    with pytest.raises(bvh.BVHError, match=message):
+        bvh.parse_bvh(text)
+
+
+def test_non_cmu_skeleton_is_rejected():
+    text = "HIERARCHY\nROOT Hips\n{\nOFFSET 0 0 0\nCHANNELS 3 Xrotation Yrotation Zrotation\n}\nMOTION\nFrames: 1\n" \
+           "Frame Time: 0.1\n0 0 0\n"
+    with pytest.raises(bvh.BVHError, match="lacks joints"):
+        bvh.retarget(bvh.parse_bvh(text), body.Subject())
+
+
+@pytest.mark.parametrize("name", sorted(motion.EXERCISES))
+def test_every_exercise_is_planted_and_moves(name):
+    subject = body.Subject(1.8)
+    m = motion.exercise(name, subject, n_frames=60)
+    pos = joints(m, subject)
+    assert np.isfinite(pos).all()
+    assert motion.lowest_foot_point(m.local_rot, m.root_pos, subject).min() > -1e-9
+    assert np.ptp(pos, axis=0).max() > 0.1, "the exercise must move some joint by 10 cm"
+
+
+def test_exercise_parameters_and_errors():
+    subject = body.Subject()
+    slow = motion.exercise("elbow_flexion", subject, n_frames=90, repetitions=1)
+    fast = motion.exercise("elbow_flexion", subject, n_frames=90, repetitions=3)
+    wrist = body.JOINT_INDEX["RightWrist"]
+    peaks = lambda m: int(np.sum(np.diff(np.sign(np.diff(joints(m, subject)[:, wrist, 2]))) < 0))  # noqa: E731
+    assert peaks(slow) < peaks(fast)
+    small = motion.exercise("elbow_flexion", subject, n_frames=90, amplitude=0.3)
+    assert np.ptp(joints(small, subject)[:, wrist, 2]) < np.ptp(joints(slow, subject)[:, wrist, 2])
+    with pytest.raises(ValueError, match="unknown exercise 'moonwalk'"):
+        motion.exercise("moonwalk", subject, n_frames=10)
+    with pytest.raises(ValueError, match="outside the studio's 1.50-2.00 m"):
+        body.Subject(2.3)
