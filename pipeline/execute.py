@@ -98,7 +98,8 @@ def _compute_region(item: WorkItem, spec: registry.TaskSpec, store: Store, start
         return read_frames(item.catalog, dataset, item.sequence, start, stop)
     lo = max(0, start - spec.halo[0])
     hi = min(item.sequence.n_frames, stop + spec.halo[1])
-    inputs = {role: _load_input(store, up, item.partition.view, lo, hi) for role, up in item.upstream.items()}
+    inputs = {role: _load_input(store, up, item.partition.view, lo, hi, spec.reads.get(role))
+              for role, up in item.upstream.items()}
     params = {f.name: getattr(item.stage.params, f.name) for f in fields(item.stage.params)}
     out = spec.fn(**inputs, **params)
     if not isinstance(out, xr.Dataset):
@@ -108,11 +109,13 @@ def _compute_region(item: WorkItem, spec: registry.TaskSpec, store: Store, start
     return out
 
 
-def _load_input(store: Store, up, view: str | None, lo: int, hi: int) -> xr.Dataset:
-    """Upstream artifact for this partition's view(s) and frames [lo, hi), loaded into memory."""
+def _load_input(store: Store, up, view: str | None, lo: int, hi: int, variables=None) -> xr.Dataset:
+    """Upstream artifact for this partition's view(s) and frames [lo, hi) (only ``variables``), in memory."""
     parts = []
     for key in up.keys.values():
         ds = store.open(up.stage, key, get_schema(up.schema))
+        if variables is not None:
+            ds = ds[list(variables)]
         if up.partition == "sequence" and view is not None:
             ds = ds.sel(view=[view])
         if "frame" in ds.dims:

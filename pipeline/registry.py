@@ -29,6 +29,8 @@ class TaskSpec:
     ``fn(**inputs, **params) -> xr.Dataset`` for ordinary tasks, where each input is the
     upstream artifact sliced to this partition and the region's frames (plus the halo).
     Source tasks (``source=True``) are run by the dataset reader instead and have no inputs.
+    ``reads`` names the variables a role needs (all when absent), so large unused arrays such as
+    ground truth are never loaded.
     """
 
     name: str
@@ -39,6 +41,7 @@ class TaskSpec:
     partition: Partitioning
     inputs: Mapping[str, str] = field(default_factory=dict)
     halo: tuple[int, int] = (0, 0)
+    reads: Mapping[str, tuple[str, ...]] = field(default_factory=dict)  # role -> the variables it needs
     weights_params: tuple[str, ...] = ()
     source: bool = False
     description: str = ""

@@ -118,9 +118,13 @@ class Store:
         if not self.fs.exists(self._marker(stage, key, "_init")):
             if self.fs.exists(self._marker(stage, key, "_regions")):
                 self.fs.rm(self._marker(stage, key, "_regions"), recursive=True)
-            init_zarr(target, schema, ds, n_frames)
+            whole = start == 0 and stop == n_frames
+            init_zarr(target, schema, ds, n_frames, with_data=whole)
             self._put(self._marker(stage, key, "_init"), b"")
-        write_zarr_region(target, ds, start, stop)
+            if not whole:
+                write_zarr_region(target, ds, start, stop)
+        else:
+            write_zarr_region(target, ds, start, stop)
         self._put(self._marker(stage, key, f"_regions/{start:08d}-{stop:08d}"), b"")
 
     def commit(self, stage: str, key: str, lineage: dict) -> None:
@@ -192,10 +196,18 @@ class Store:
             return None
 
 
-def init_zarr(target: str, schema: ArtifactSchema, ds: xr.Dataset, n_frames: int) -> None:
-    """Create a zarr v3 group shaped like ``ds`` but ``n_frames`` long: metadata and frame-less arrays only."""
+def init_zarr(target: str, schema: ArtifactSchema, ds: xr.Dataset, n_frames: int, with_data: bool = False) -> None:
+    """Create a zarr v3 group shaped like ``ds`` but ``n_frames`` long: metadata and frame-less arrays only.
+
+    ``with_data``: ``ds`` already holds all ``n_frames`` frames; write everything in one pass.
+    """
     template, encoding = _template(schema, ds, n_frames)
-    template.to_zarr(target, mode="w", compute=False, zarr_format=3, consolidated=False, encoding=encoding)
+    if with_data:
+        whole = xr.Dataset({n: _variable_strings(v.variable) for n, v in ds.data_vars.items()},
+                           coords={n: _variable_strings(c.variable) for n, c in ds.coords.items()}, attrs=ds.attrs)
+        whole.to_zarr(target, mode="w", zarr_format=3, consolidated=False, encoding=encoding)
+    else:
+        template.to_zarr(target, mode="w", compute=False, zarr_format=3, consolidated=False, encoding=encoding)
 
 
 def write_zarr_region(target: str, ds: xr.Dataset, start: int, stop: int) -> None:
