@@ -10,7 +10,7 @@ from pathlib import Path
 
 import click
 
-from mocapflow.pipeline.catalog import Catalog, load_catalog
+from mocapflow.pipeline.catalog import load_catalog
 from mocapflow.pipeline.errors import MocapflowError
 from mocapflow.pipeline.plan import Plan, WorkItem, build_plan, select, status
 from mocapflow.pipeline.storage import Store

@@ -51,8 +51,7 @@ def discover(catalog, dataset, pattern: str | None = None) -> list[SequenceInfo]
 
 def read_frames(catalog, dataset, seq: SequenceInfo, start: int, stop: int) -> xr.Dataset:
     """Frames [start, stop) of ``seq`` in the raw-sequence schema."""
-    ds = DATASET_KINDS[dataset.kind].read(catalog, dataset, seq, start, stop)
-    return ds
+    return DATASET_KINDS[dataset.kind].read(catalog, dataset, seq, start, stop)
 
 
 # ---- zarr ---------------------------------------------------------------------------------

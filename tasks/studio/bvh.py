@@ -25,18 +25,11 @@ CMU_MAP: dict[str, tuple[str, str, str] | str] = {
     "SpineBase": ("Spine1", "Spine", "Neck"),
     "Neck": "inherit",
     "Head": ("Head", "Head", "Head_End"),
-    "LeftShoulder": ("LeftArm", "LeftArm", "LeftForeArm"),
-    "LeftElbow": ("LeftForeArm", "LeftForeArm", "LeftHand"),
-    "LeftWrist": ("LeftHand", "LeftHand", "LeftHandIndex1"),
-    "RightShoulder": ("RightArm", "RightArm", "RightForeArm"),
-    "RightElbow": ("RightForeArm", "RightForeArm", "RightHand"),
-    "RightWrist": ("RightHand", "RightHand", "RightHandIndex1"),
-    "LeftHip": ("LeftUpLeg", "LeftUpLeg", "LeftLeg"),
-    "LeftKnee": ("LeftLeg", "LeftLeg", "LeftFoot"),
-    "LeftAnkle": ("LeftFoot", "LeftFoot", "LeftToeBase"),
-    "RightHip": ("RightUpLeg", "RightUpLeg", "RightLeg"),
-    "RightKnee": ("RightLeg", "RightLeg", "RightFoot"),
-    "RightAnkle": ("RightFoot", "RightFoot", "RightToeBase"),
+    **{f"{side}{joint}": (f"{side}{bvh}", f"{side}{bvh}", f"{side}{nxt}")
+       for side in ("Left", "Right")
+       for joint, bvh, nxt in (("Shoulder", "Arm", "ForeArm"), ("Elbow", "ForeArm", "Hand"),
+                               ("Wrist", "Hand", "HandIndex1"), ("Hip", "UpLeg", "Leg"), ("Knee", "Leg", "Foot"),
+                               ("Ankle", "Foot", "ToeBase"))},
 }
 # The other cgspeed naming (e.g. CMU subject 14): LeftHip/LeftKnee/LeftAnkle, Chest/Chest2, lowerneck.
 CMU_MAP_ALT: dict[str, tuple[str, str, str] | str] = {

@@ -14,7 +14,7 @@ def write_png_sequence(folder, views=("k0", "k1"), frames=6, size=(10, 14)):
     rng = np.random.default_rng(3)
     calib = {"fps": 30.0, "views": {}}
     data = {}
-    for i, view in enumerate(views):
+    for view in views:
         calib["views"][view] = {"fx": 365.0, "fy": 365.0, "cx": 7.0, "cy": 5.0, "dist": [0.01, 0, 0, 0, 0],
                                 "cam_to_world": np.eye(4).tolist(), "width": size[1], "height": size[0]}
         for kind in ("depth", "ir"):
