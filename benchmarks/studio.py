@@ -35,8 +35,8 @@ def render_times(motions=("jumping_jack", "kick_box_kicking", "classic_squat"), 
             for v, view in enumerate(rig.views):
                 rng = np.random.default_rng([seed, v, f])
                 t0 = time.perf_counter()
-                render.render(view, rig.prims, rig.placements, rig.joint_rot[f], rig.joint_pos[f],
-                              rig.joint_rot[f + 1], rig.joint_pos[f + 1], rng, 1.0)
+                render.render(view, rig.prims, rig.placements, rig.pose(f), rig.pose(max(f - 1, 0)), rig.pose(f + 1),
+                              rng, 1.0)
                 times.append(time.perf_counter() - t0)
     return times
 

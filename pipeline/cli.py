@@ -195,6 +195,31 @@ def init(folder, force):
 
 
 @main.command()
+@catalog_option
+@set_option
+@sequences_option
+@click.option("--workers", default=2, show_default=True, help="local worker threads for missing partitions")
+@click.option("--json", "as_json", is_flag=True, help="print the figures as one JSON object, the last line of stdout")
+def evaluate(catalog_path, overrides, sequences, workers, as_json):
+    """Accuracy of the catalog's stages on its evaluation split (computes missing partitions first)."""
+    from mocapflow.pipeline.evaluate import evaluate as run_evaluation
+    from mocapflow.pipeline.evaluate import evaluation_plan, headline, table
+    from mocapflow.pipeline.scheduler import run_items
+
+    catalog = load_catalog(catalog_path, overrides)
+    store = Store(catalog.root)
+    plan = evaluation_plan(catalog, sequences)
+    todo = [i for i in plan.items.values() if not store.is_complete(i.partition.stage, i.key)]
+    failed = [r for r in run_items(todo, workers=workers, progress=sys.stderr.isatty()) if not r.ok]
+    if failed:
+        raise MocapflowError("cannot evaluate: " + "; ".join(f"{r.partition}: {r.error}" for r in failed[:5]))
+    result = run_evaluation(catalog, plan, store)
+    click.echo(table(result))
+    if as_json:
+        click.echo(json.dumps(headline(result)))
+
+
+@main.command()
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="folder for <sequence>.zarr")
 @click.option("--motion", "motions", multiple=True, required=True, metavar="NAME_OR_BVH",
               help="an exercise name or a .bvh file (repeatable; one sequence each)")

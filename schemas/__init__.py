@@ -109,4 +109,4 @@ def get_schema(name: str) -> ArtifactSchema:
 
 
 def _load_builtin() -> None:
-    from mocapflow.schemas import raw  # noqa: F401  (registers on import)
+    from mocapflow.schemas import raw, stages  # noqa: F401  (register on import)

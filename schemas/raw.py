@@ -48,9 +48,15 @@ RAW_SEQUENCE = register_schema(
             ),
             "gt_joint_rotations": VarSpec(("frame", "joint", "quat"), "float32", "", required=False,
                                           description="local joint rotations, quaternions x y z w"),
+            "gt_body": VarSpec(("view", "frame", "y", "x"), "bool", required=False,
+                               description="the subject's body is the visible surface"),
             "gt_scene_flow": VarSpec(
                 ("view", "frame", "y", "x", "xyz"), "float16", "m",
                 required=False, description="camera-frame 3D motion of the visible surface to the next frame",
+            ),
+            "gt_scene_flow_prev": VarSpec(
+                ("view", "frame", "y", "x", "xyz"), "float16", "m", required=False,
+                description="camera-frame 3D motion of the visible surface from the previous frame (0 at frame 0)",
             ),
         },
         required_attrs={"fps": float},

@@ -11,6 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mocapflow.schemas.raw import make_raw_sequence
+
 ROOT = Path(__file__).resolve().parents[1]
 PLUGINS = ROOT / "tests" / "plugins"
 SHARED = ROOT.parent / "shared" / "data"
@@ -38,8 +40,6 @@ def last_json(proc: subprocess.CompletedProcess) -> dict:
 
 
 def write_raw_zarr(path: Path, *, views=("cam0", "cam1"), frames=20, seed=0, size=(12, 16)) -> None:
-    from mocapflow.schemas.raw import make_raw_sequence
-
     rng = np.random.default_rng(seed)
     h, w = size
     cams = {v: dict(fx=100.0, fy=100.0, cx=w / 2, cy=h / 2, dist=[0.0] * 5, cam_to_world=np.eye(4),
@@ -95,3 +95,35 @@ def assert_same_artifacts(a: dict, b: dict) -> None:
     for key in a:
         for var in a[key]:
             np.testing.assert_array_equal(a[key][var], b[key][var], err_msg=f"{key} {var}")
+
+
+# ---- an analytic scene for the flow stages ---------------------------------------------------
+PLANE_W, PLANE_H, PLANE_F = 160, 120, 150.0
+
+
+def plane_texture(x, y):
+    """IR counts of a textured surface at world (x, y) metres."""
+    return 3000 + 1200 * np.sin(x * 31) * np.sin(y * 23) + 800 * np.sin((x + 2 * y) * 13)
+
+
+def plane_sequence(motions, z0=2.0, hole=None):
+    """Frames of a fronto-parallel textured plane; frame k is moved by the sum of motions[:k] (metres)."""
+    ys, xs = np.mgrid[0:PLANE_H, 0:PLANE_W].astype(np.float64)
+    rays = np.stack([(xs - PLANE_W / 2) / PLANE_F, (ys - PLANE_H / 2) / PLANE_F], axis=-1)
+    offset = np.zeros(3)
+    depth, ir = [], []
+    for k in range(len(motions) + 1):
+        if k:
+            offset = offset + np.asarray(motions[k - 1])
+        z = z0 + offset[2]
+        px, py = rays[..., 0] * z - offset[0], rays[..., 1] * z - offset[1]  # surface coordinates
+        d = np.full((PLANE_H, PLANE_W), np.rint(z * 1000))
+        i = plane_texture(px, py)
+        if hole is not None:  # a reflector fixed on the surface: no depth, saturated IR
+            inside = (np.abs(px - hole[0]) < 0.07) & (np.abs(py - hole[1]) < 0.07)
+            d[inside], i[inside] = 0, 65000
+        depth.append(d)
+        ir.append(i)
+    cams = {"cam": dict(fx=PLANE_F, fy=PLANE_F, cx=PLANE_W / 2, cy=PLANE_H / 2, dist=[0.0] * 5, cam_to_world=np.eye(4),
+                    width=PLANE_W, height=PLANE_H)}
+    return make_raw_sequence(np.stack(depth)[None], np.stack(ir)[None], cams, 30.0, 0)

@@ -14,6 +14,8 @@ from typing import Any, Mapping
 import cv2
 import numpy as np
 
+from mocapflow.tasks import geometry
+
 WIDTH, HEIGHT = 512, 424
 FOV_DEG = (70.6, 60.0)
 KINECT_DIST = (0.09, -0.27, 0.0, 0.0, 0.09)
@@ -143,10 +145,4 @@ def project(cam: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def pixel_rays(cam: Camera) -> np.ndarray:
     """Unit ray directions (camera frame) through every pixel centre, undistorted.  # (y, x, 3)"""
-    ys, xs = np.mgrid[0:cam.height, 0:cam.width].astype(np.float64)
-    pts = np.stack([xs.ravel(), ys.ravel()], axis=1).reshape(-1, 1, 2)
-    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-9)
-    norm = cv2.undistortPoints(pts, cam.K, np.asarray(cam.dist), criteria=crit).reshape(-1, 2)
-    rays = np.concatenate([norm, np.ones((norm.shape[0], 1))], axis=1)
-    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
-    return rays.reshape(cam.height, cam.width, 3)
+    return geometry.pixel_rays(cam.K, cam.dist, cam.width, cam.height)

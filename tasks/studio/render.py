@@ -63,20 +63,30 @@ def prepare_view(cam: Camera) -> View:
 
 
 @dataclass(frozen=True)
+class Pose:
+    """World joint rotations (joint, 3, 3) and positions (joint, 3) at one instant."""
+
+    rot: np.ndarray
+    pos: np.ndarray
+
+
+@dataclass(frozen=True)
 class Frame:
     """One rendered view-frame."""
 
     depth: np.ndarray  # (y, x) uint16 mm
     ir: np.ndarray  # (y, x) uint16
     reflector_id: np.ndarray  # (y, x) int8, -1 none
-    scene_flow: np.ndarray  # (y, x, 3) float32 m, camera frame, to the next frame
+    body: np.ndarray  # (y, x) bool, the body is the visible surface
+    scene_flow: np.ndarray  # (y, x, 3) float32 m, camera frame: motion of the visible surface to the next frame
+    scene_flow_prev: np.ndarray  # (y, x, 3) float32 m, camera frame: its motion from the previous frame
     pixels: np.ndarray  # (26,) int32 visible pixels per reflector
 
 
 def render(view: View, prims: tuple[Primitive, ...], placements: tuple[Placement, ...],
-           rot: np.ndarray, pos: np.ndarray, rot_next: np.ndarray, pos_next: np.ndarray,
-           rng: np.random.Generator, noise: float = 1.0) -> Frame:
-    """Render one view at one frame.  rot (joint, 3, 3), pos (joint, 3): world joint poses at f and f+1."""
+           pose: Pose, prev: Pose, nxt: Pose, rng: np.random.Generator, noise: float = 1.0) -> Frame:
+    """Render one view at one frame; ``prev``/``nxt`` are the poses one frame before and after."""
+    rot, pos = pose.rot, pose.pos
     h, w = view.bg_t.shape
     t_buf = view.bg_t.copy()
     prim_buf = np.full((h, w), -1, dtype=np.int16)
@@ -104,8 +114,7 @@ def render(view: View, prims: tuple[Primitive, ...], placements: tuple[Placement
         prim_buf[yy, xx] = k
         normal_buf[yy, xx] = n[idx]
         local_buf[yy, xx] = (d[idx] * t[idx, None] - cam_pos) @ cam_rot  # hit point in the joint frame
-    return _sensor(view, prims, placements, t_buf, prim_buf, normal_buf, local_buf, rot, pos, rot_next,
-                   pos_next, rng, noise)
+    return _sensor(view, prims, placements, t_buf, prim_buf, normal_buf, local_buf, pose, prev, nxt, rng, noise)
 
 
 def _bounds(view, prims, rot, pos):
@@ -201,8 +210,7 @@ def _ellipsoid(C, Q, radii, d):
     return t, normal
 
 
-def _sensor(view, prims, placements, t_buf, prim_buf, normal_buf, local_buf, rot, pos, rot_next, pos_next,
-            rng, noise) -> Frame:
+def _sensor(view, prims, placements, t_buf, prim_buf, normal_buf, local_buf, pose, prev, nxt, rng, noise) -> Frame:
     body = prim_buf >= 0
     rid = np.full(prim_buf.shape, -1, dtype=np.int8)
     for k, prim in enumerate(prims):
@@ -212,21 +220,43 @@ def _sensor(view, prims, placements, t_buf, prim_buf, normal_buf, local_buf, rot
     reflector = rid >= 0
     cos = np.where(body, np.abs(np.einsum("yxi,yxi->yx", normal_buf, view.rays)), view.bg_cos)
     z = t_buf * view.rays[..., 2]
-    flow = _scene_flow(view, prims, prim_buf, local_buf, rot, pos, rot_next, pos_next)
+    flow = _scene_flow(view, prims, prim_buf, local_buf, pose, nxt)
+    flow_prev = -_scene_flow(view, prims, prim_buf, local_buf, pose, prev)
     depth = _depth(z, cos, reflector, rng, noise)
-    ir = _ir(t_buf, cos, np.where(body, ALBEDO["body"], view.bg_albedo), reflector, rng, noise)
+    albedo = view.bg_albedo.copy()
+    albedo[body] = ALBEDO["body"] * cloth_texture(prim_buf[body], local_buf[body])
+    ir = _ir(t_buf, cos, albedo, reflector, rng, noise)
     pixels = np.bincount(rid[reflector].astype(np.int64), minlength=len(placements)).astype(np.int32)
-    return Frame(depth, ir, rid, flow, pixels)
+    return Frame(depth, ir, rid, body, flow, flow_prev, pixels)
 
 
-def _scene_flow(view, prims, prim_buf, local_buf, rot, pos, rot_next, pos_next):
-    """Camera-frame 3D motion of the visible surface to the next frame (static background: 0)."""
+_SCALES = np.array([[20.0, 33.0], [8.0, 12.5], [3.3, 5.0]])  # cycles per metre: fine, medium, coarse bands
+_WAVES = np.random.default_rng(20190601).normal(size=(32, 6, 3))  # per primitive: two plane waves per band
+_WAVES /= np.linalg.norm(_WAVES, axis=2, keepdims=True)
+_WAVES *= np.random.default_rng(7).uniform(_SCALES[:, :1], _SCALES[:, 1:], (32, 3, 2)).reshape(32, 6, 1)
+_PHASES = np.random.default_rng(11).uniform(0, 2 * np.pi, (32, 6))
+
+
+def cloth_texture(prim: np.ndarray, local: np.ndarray) -> np.ndarray:
+    """Albedo factor (about 0.75-1.25) of a cloth-like pattern fixed to each primitive's surface.
+
+    prim (n,) primitive index, local (n, 3) surface points in the joint frame -> (n,)
+    Three bands of plane waves (periods about 4, 10 and 25 cm), like the multi-scale texture of
+    clothing (weave, folds, seams); it moves with the body.
+    """
+    arg = 2 * np.pi * np.einsum("nkj,nj->nk", _WAVES[prim], local) + _PHASES[prim]  # (n, 6)
+    s = np.sin(arg)
+    return 1.0 + 0.25 * (0.3 * s[:, 0] * s[:, 1] + 0.35 * s[:, 2] * s[:, 3] + 0.35 * s[:, 4] * s[:, 5])
+
+
+def _scene_flow(view, prims, prim_buf, local_buf, pose: Pose, other: Pose):
+    """Camera-frame 3D motion of the visible surface from ``pose`` to ``other`` (static background: 0)."""
     flow = np.zeros(prim_buf.shape + (3,), dtype=np.float32)
     body = prim_buf >= 0
     if body.any():
         joints = np.array([p.joint for p in prims])[prim_buf[body]]
         p = local_buf[body]
-        moved = np.einsum("nij,nj->ni", rot_next[joints] - rot[joints], p) + pos_next[joints] - pos[joints]
+        moved = np.einsum("nij,nj->ni", other.rot[joints] - pose.rot[joints], p) + other.pos[joints] - pose.pos[joints]
         flow[body] = moved @ view.R.T
     return flow
 

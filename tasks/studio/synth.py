@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation
 from mocapflow.schemas.raw import make_raw_sequence
 from mocapflow.tasks.studio import body, bvh, cameras, motion, reflectors, render
 
-STUDIO_VERSION = "1"
+STUDIO_VERSION = "2"
 
 
 @dataclass(frozen=True)
@@ -63,6 +63,9 @@ class Rig:
     def n_frames(self) -> int:
         return self.joint_pos.shape[0] - 1
 
+    def pose(self, f: int) -> render.Pose:
+        return render.Pose(self.joint_rot[f], self.joint_pos[f])
+
 
 def build_rig(spec: SequenceSpec, bvh_text: str | None = None) -> Rig:
     """Everything fixed by ``spec``: the subject, placements, cameras and the whole motion."""
@@ -96,17 +99,19 @@ def synthesize(rig: Rig, start: int, stop: int) -> xr.Dataset:
     ir = np.zeros_like(depth)
     rid = np.zeros((n_views, n, h, w), np.int8)
     flow = np.zeros((n_views, n, h, w, 3), np.float16)
+    flow_prev = np.zeros_like(flow)
+    body_mask = np.zeros((n_views, n, h, w), bool)
     pixels = np.zeros((n_views, n, len(rig.placements)), np.int32)
     uv = np.zeros((n_views, n, len(rig.placements), 2), np.float32)
     refl3d = reflectors.world_positions(rig.placements, rig.prims, rig.joint_rot[start:stop], rig.joint_pos[start:stop])
     for v, view in enumerate(rig.views):
         uv[v] = cameras.project(view.cam, refl3d.reshape(-1, 3))[0].reshape(n, -1, 2)
         for i, f in enumerate(range(start, stop)):
-            frame = render.render(view, rig.prims, rig.placements, rig.joint_rot[f], rig.joint_pos[f],
-                                  rig.joint_rot[f + 1], rig.joint_pos[f + 1],
-                                  np.random.default_rng([rig.spec.seed, v, f]), rig.spec.noise)
-            depth[v, i], ir[v, i], rid[v, i], flow[v, i], pixels[v, i] = (
-                frame.depth, frame.ir, frame.reflector_id, frame.scene_flow, frame.pixels)
+            frame = render.render(view, rig.prims, rig.placements, rig.pose(f), rig.pose(max(f - 1, 0)),
+                                  rig.pose(f + 1), np.random.default_rng([rig.spec.seed, v, f]), rig.spec.noise)
+            depth[v, i], ir[v, i], rid[v, i], body_mask[v, i], pixels[v, i] = (
+                frame.depth, frame.ir, frame.reflector_id, frame.body, frame.pixels)
+            flow[v, i], flow_prev[v, i] = frame.scene_flow, frame.scene_flow_prev
     quats = Rotation.from_matrix(rig.motion.local_rot[start:stop].reshape(-1, 3, 3)).as_quat()
     gt = {
         "gt_joints": (("frame", "joint", "xyz"), rig.joint_pos[start:stop].astype(np.float32)),
@@ -116,7 +121,9 @@ def synthesize(rig: Rig, start: int, stop: int) -> xr.Dataset:
         "gt_visible": (("view", "frame", "reflector"), pixels > 0),
         "gt_pixels": (("view", "frame", "reflector"), pixels),
         "gt_reflector_id": (("view", "frame", "y", "x"), rid),
+        "gt_body": (("view", "frame", "y", "x"), body_mask),
         "gt_scene_flow": (("view", "frame", "y", "x", "xyz"), flow),
+        "gt_scene_flow_prev": (("view", "frame", "y", "x", "xyz"), flow_prev),
     }
     ds = make_raw_sequence(depth, ir, {view.cam.name: view.cam.as_dict() for view in rig.views}, rig.spec.fps,
                            start, gt)

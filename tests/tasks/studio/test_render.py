@@ -112,7 +112,8 @@ def test_an_arm_across_the_chest_hides_the_chest_patch():
 
     def pixels(pose):
         rot, pos = body.forward_kinematics(pose.rot, pose.root + body.rest_offsets(subject)[0], body.rest_offsets(subject))
-        frame = render.render(view, prims, placements, rot[0], pos[0], rot[0], pos[0], np.random.default_rng(0), 0.0)
+        still = render.Pose(rot[0], pos[0])
+        frame = render.render(view, prims, placements, still, still, still, np.random.default_rng(0), 0.0)
         return dict(zip(NAMES, frame.pixels))
 
     relaxed = pixels(motion._Pose(1).arms_down())
@@ -132,7 +133,7 @@ def test_straps_are_seen_from_every_side_and_patches_from_one():
     assert not seen[:, NAMES.index("B_BACK")][0] and seen[:, NAMES.index("F_SPINEMID")][0]
 
 
-def test_rigid_translation_gives_that_scene_flow_on_the_body():
+def test_rigid_translation_gives_that_scene_flow_forward_and_backward():
     subject = body.Subject(1.7)
     prims = body.surface(subject)
     placements = reflectors.place(prims)
@@ -140,10 +141,14 @@ def test_rigid_translation_gives_that_scene_flow_on_the_body():
     pose = motion._Pose(1).arms_down()
     rot, pos = body.forward_kinematics(pose.rot, pose.root + body.rest_offsets(subject)[0], body.rest_offsets(subject))
     step = np.array([0.02, -0.01, 0.005])
-    frame = render.render(view, prims, placements, rot[0], pos[0], rot[0], pos[0] + step, np.random.default_rng(0), 0.0)
-    moving = np.abs(frame.scene_flow).sum(-1) > 0
-    assert moving.sum() > 3000
-    np.testing.assert_allclose(frame.scene_flow[moving], np.broadcast_to(view.R @ step, (moving.sum(), 3)), atol=1e-6)
+    now = render.Pose(rot[0], pos[0])
+    frame = render.render(view, prims, placements, now, render.Pose(rot[0], pos[0] - 2 * step),
+                          render.Pose(rot[0], pos[0] + step), np.random.default_rng(0), 0.0)
+    assert frame.body.sum() > 3000
+    expected = np.broadcast_to(view.R @ step, (frame.body.sum(), 3))
+    np.testing.assert_allclose(frame.scene_flow[frame.body], expected, atol=1e-6)
+    np.testing.assert_allclose(frame.scene_flow_prev[frame.body], 2 * expected, atol=1e-6)
+    assert not frame.scene_flow[~frame.body].any() and not frame.scene_flow_prev[~frame.body].any()
 
 
 def test_noisy_depth_has_kinect_artifacts():

@@ -1,0 +1,146 @@
+"""3D optical flow between consecutive frames of a view (DeepMoCap §3.2), the fast variant and the shared parts.
+
+For frame f the stage reports, at every pixel of frame f, the camera-frame 3D motion (metres) of
+the surface seen there from frame f-1 to f, and the colorized flow image ``I_F`` in which each
+axis of the motion is normalized into one channel. Two estimators fill it:
+
+- ``dis``: OpenCV's DIS optical flow on IR (with its variational refinement), from frame f to
+  f-1, lifted to 3D by back-projecting both depth maps through the calibration;
+- ``primal_dual``: the variational RGB-D scene flow of Jaimez et al. (see pdflow.py).
+
+Invalid depth never yields motion: a pixel's motion is reported only where its own depth is
+valid, its correspondence in frame f-1 lies inside the image on valid depth, and the implied
+depth change is at most ``max_depth_jump`` metres per frame (larger jumps are occlusions or
+mismatches at silhouettes). Everywhere else — reflector holes, out-of-range and dropout pixels,
+the first frame of a sequence — the motion is 0 and ``valid`` is false.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import xarray as xr
+
+from mocapflow.tasks.geometry import backproject, intrinsics, pixel_rays
+
+DIS_PRESETS = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
+               "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
+
+
+def ir_to_8bit(ir: np.ndarray, ir_max: float) -> np.ndarray:
+    """IR counts to 8 bits with a square-root curve (more levels for the dim body than for reflectors)."""
+    return np.rint(255.0 * np.sqrt(np.clip(ir.astype(np.float32) / ir_max, 0.0, 1.0))).astype(np.uint8)
+
+
+def dis_flow(ir_ref: np.ndarray, ir_other: np.ndarray, *, preset: str, refine_iterations: int) -> np.ndarray:
+    """2D flow (pixels) from ``ir_ref`` to ``ir_other`` (both 8-bit).  (y, x) -> (y, x, 2)"""
+    dis = cv2.DISOpticalFlow_create(DIS_PRESETS[preset])
+    dis.setVariationalRefinementIterations(refine_iterations)
+    return dis.calc(ir_ref, ir_other, None)
+
+
+def lift(flow2d: np.ndarray, z_ref: np.ndarray, z_other: np.ndarray, rays: np.ndarray,
+         max_depth_jump: float, z_corr: np.ndarray | None = None,
+         consistency: float = 0.04) -> tuple[np.ndarray, np.ndarray]:
+    """3D motion from the other frame to the reference one, at reference pixels.
+
+    flow2d (y, x, 2) pixels ref -> other; z_ref, z_other (y, x) metres, 0 invalid; rays (y, x, 3).
+    z_corr: the other frame's depth at the correspondence if the estimator solved for it (else it
+    is read from ``z_other`` at the nearest pixel); it must then agree with the measured depth
+    there within ``consistency`` metres. Returns motion (y, x, 3), valid (y, x).
+    """
+    h, w = z_ref.shape
+    xs, ys = _grid(h, w)
+    xo, yo = xs + flow2d[..., 0], ys + flow2d[..., 1]
+    inside = (xo >= 0) & (xo <= w - 1) & (yo >= 0) & (yo <= h - 1)
+    z_near = cv2.remap(z_other.astype(np.float32), xo, yo, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
+    z_o = z_near if z_corr is None else z_corr.astype(np.float32)
+    valid = inside & (z_ref > 0) & (z_near > 0) & (z_o > 0) & (np.abs(z_o - z_ref) <= max_depth_jump)
+    if z_corr is not None:
+        valid &= np.abs(z_near - z_o) <= consistency
+    rays32 = rays.astype(np.float32)
+    rays_o = cv2.remap(rays32, xo, yo, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    x_ref = backproject(z_ref.astype(np.float32), rays32)
+    x_oth = backproject(z_o, rays_o)
+    motion = x_ref - x_oth
+    motion[~valid] = 0.0
+    return motion, valid
+
+
+@functools.lru_cache(maxsize=4)
+def _grid(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+    xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    xs.flags.writeable = ys.flags.writeable = False
+    return xs, ys
+
+
+def colorize_flow(motion: np.ndarray, valid: np.ndarray, scale_m: float) -> np.ndarray:
+    """``I_F``: each motion axis normalized into one channel, 128 = still, +-scale_m = 255/1.  -> (y, x, 3) uint8"""
+    scaled = np.clip(128.0 + 127.0 * motion / scale_m, 0, 255)
+    out = np.rint(scaled).astype(np.uint8)
+    out[~valid] = 128
+    return out
+
+
+def rays_for(frames: xr.Dataset, view) -> np.ndarray:
+    """Pixel rays of one view of a raw sequence, from its calibration variables."""
+    cam = frames.sel(view=view)
+    K = intrinsics(*(float(cam[k]) for k in ("fx", "fy", "cx", "cy")))
+    return pixel_rays(K, cam["dist"].values, int(cam["width"]), int(cam["height"]))
+
+
+def flow_sequence(frames: xr.Dataset, estimate, *, color_scale_m: float, max_depth_jump: float) -> xr.Dataset:
+    """Apply a pairwise estimator ``estimate(ir_ref, ir_prev, z_ref_m, z_prev_m, rays, K) -> (motion, valid)``
+    to every frame with its predecessor in ``frames`` (the first frame of a sequence gets no motion)."""
+    depth = frames["depth"].values  # (view, frame, y, x) mm
+    ir = frames["ir"].values
+    frame_ids = frames["frame"].values
+    assert np.all(np.diff(frame_ids) == 1), "flow needs consecutive frames"
+    motion = np.zeros(depth.shape + (3,), np.float16)
+    valid = np.zeros(depth.shape, bool)
+    colored = np.full(depth.shape + (3,), 128, np.uint8)
+    for v, view in enumerate(frames["view"].values):
+        rays = rays_for(frames, view)
+        cam = frames.sel(view=view)
+        K = intrinsics(*(float(cam[k]) for k in ("fx", "fy", "cx", "cy")))
+        z = depth[v].astype(np.float32) / 1000.0  # (frame, y, x) metres
+        for i in range(1, len(frame_ids)):
+            m, ok = estimate(ir[v, i], ir[v, i - 1], z[i], z[i - 1], rays, K)
+            motion[v, i], valid[v, i] = m, ok
+            colored[v, i] = colorize_flow(m, ok, color_scale_m)
+    dims = ("view", "frame", "y", "x")
+    return xr.Dataset(
+        {"flow": (dims + ("xyz",), motion), "valid": (dims, valid), "colorized_flow": (dims + ("rgb",), colored)},
+        coords={"view": frames["view"].values, "frame": frame_ids,
+                "xyz": np.array(["x", "y", "z"], dtype=object), "rgb": np.array(["r", "g", "b"], dtype=object)},
+        attrs={"units": "m", "frame_convention": "motion from frame f-1 to f at the pixels of frame f, camera axes",
+               "color_scale_m": color_scale_m})
+
+
+@dataclass(frozen=True)
+class DisConfig:
+    """Stage `flow`, implementation `dis`: DIS preset and variational refinement iterations, the IR level
+    mapped to white, the largest plausible depth change per frame (m), and the flow-image scale (m)."""
+
+    preset: str = "medium"
+    refine_iterations: int = 2
+    ir_max: float = 12000.0
+    max_depth_jump: float = 0.15
+    color_scale_m: float = 0.05
+
+
+def dis(frames: xr.Dataset, *, preset: str, refine_iterations: int, ir_max: float, max_depth_jump: float,
+        color_scale_m: float) -> xr.Dataset:
+    """Stage `flow`, implementation `dis`: DIS optical flow on IR lifted to 3D with both depth maps."""
+    if preset not in DIS_PRESETS:
+        raise ValueError(f"unknown DIS preset {preset!r}; use one of {sorted(DIS_PRESETS)}")
+
+    def estimate(ir_ref, ir_prev, z_ref, z_prev, rays, K):
+        flow2d = dis_flow(ir_to_8bit(ir_ref, ir_max), ir_to_8bit(ir_prev, ir_max), preset=preset,
+                          refine_iterations=refine_iterations)
+        return lift(flow2d, z_ref, z_prev, rays, max_depth_jump)
+
+    return flow_sequence(frames, estimate, color_scale_m=color_scale_m, max_depth_jump=max_depth_jump)

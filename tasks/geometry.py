@@ -1,0 +1,58 @@
+"""Camera geometry shared by the stages: undistorted pixel rays, back-projection, bilinear sampling.
+
+Cameras follow OpenCV: intrinsics fx fy cx cy in pixels, distortion k1 k2 p1 p2 k3. A pixel's ray
+is the undistorted direction through its centre, scaled to unit length; a depth value is the
+camera-frame z of the surface (Kinect convention), so a point is ``ray * z / ray_z``.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import cv2
+import numpy as np
+
+
+def intrinsics(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+
+def pixel_rays(K: np.ndarray, dist, width: int, height: int) -> np.ndarray:
+    """Unit ray directions (camera frame) through every pixel centre, undistorted.  -> (y, x, 3)
+
+    Memoized per calibration (read-only result): a view's rays are computed once per process.
+    """
+    return _pixel_rays(tuple(np.asarray(K, float).ravel()), tuple(np.asarray(dist, float).ravel()), width, height)
+
+
+@functools.lru_cache(maxsize=16)
+def _pixel_rays(K: tuple, dist: tuple, width: int, height: int) -> np.ndarray:
+    K = np.array(K).reshape(3, 3)
+    ys, xs = np.mgrid[0:height, 0:width].astype(np.float64)
+    pts = np.stack([xs.ravel(), ys.ravel()], axis=1).reshape(-1, 1, 2)
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-9)
+    norm = cv2.undistortPoints(pts, K, np.asarray(dist, float), criteria=crit).reshape(-1, 2)
+    rays = np.concatenate([norm, np.ones((norm.shape[0], 1))], axis=1)
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    rays = rays.reshape(height, width, 3)
+    rays.flags.writeable = False
+    return rays
+
+
+def backproject(z: np.ndarray, rays: np.ndarray) -> np.ndarray:
+    """Camera-frame points of depth ``z`` (metres, any shape S) along ``rays`` (S + (3,))."""
+    return rays * (z / rays[..., 2])[..., None]
+
+
+def sample_bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``image`` (y, x[, c]) at float coordinates (clamped to the border)."""
+    h, w = image.shape[:2]
+    x = np.clip(x, 0, w - 1.001)
+    y = np.clip(y, 0, h - 1.001)
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    ax, ay = x - x0, y - y0
+    if image.ndim == 3:
+        ax, ay = ax[..., None], ay[..., None]
+    top = image[y0, x0] * (1 - ax) + image[y0, x0 + 1] * ax
+    bottom = image[y0 + 1, x0] * (1 - ax) + image[y0 + 1, x0 + 1] * ax
+    return top * (1 - ay) + bottom * ay

@@ -1,0 +1,81 @@
+"""3D optical flow, both variants: a textured plane under known rigid motion, zero motion, holes, schema."""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from conftest import plane_sequence
+from mocapflow.schemas import get_schema
+from mocapflow.tasks.flow import DisConfig, dis
+from mocapflow.tasks.pdflow import PrimalDualConfig, primal_dual
+
+VARIANTS = {"dis": lambda ds: dis(ds, **asdict(DisConfig())),
+            "primal_dual": lambda ds: primal_dual(ds, **asdict(PrimalDualConfig(device="cpu")))}
+
+
+def interior(valid):
+    region = np.zeros_like(valid)
+    region[..., 20:-20, 25:-25] = True
+    return region & valid
+
+
+@pytest.mark.parametrize("variant", sorted(VARIANTS))
+def test_rigid_translation_of_a_plane_gives_the_known_3d_flow(variant):
+    step = np.array([0.012, -0.008, 0.015])
+    out = VARIANTS[variant](plane_sequence([step, step]))
+    get_schema("scene_flow").validate(out)
+    flow, valid = out.flow.values[0].astype(np.float32), out.valid.values[0]
+    assert not valid[0].any() and not flow[0].any()  # the first frame has no predecessor
+    for k in (1, 2):
+        ok = interior(valid[k])
+        assert ok.sum() > 0.9 * interior(np.ones_like(valid[k])).sum()
+        err = np.linalg.norm(flow[k][ok] - step, axis=-1)
+        assert np.median(err) < 0.0015, f"{variant} frame {k}: median error {np.median(err) * 1000:.2f} mm"
+
+
+@pytest.mark.parametrize("variant", sorted(VARIANTS))
+def test_zero_motion_gives_near_zero_flow(variant):
+    out = VARIANTS[variant](plane_sequence([np.zeros(3)]))
+    ok = interior(out.valid.values[0, 1])
+    assert np.percentile(np.linalg.norm(out.flow.values[0, 1][ok].astype(np.float32), axis=-1), 95) < 0.0005
+
+
+@pytest.mark.parametrize("variant", sorted(VARIANTS))
+def test_reflector_holes_do_not_bleed_motion(variant):
+    step = np.array([0.01, 0.0, 0.0])
+    ds = plane_sequence([step], hole=(0.0, 0.0))
+    out = VARIANTS[variant](ds)
+    hole = ds.depth.values[0, 1] == 0
+    assert hole.sum() > 50
+    flow, valid = out.flow.values[0, 1].astype(np.float32), out.valid.values[0, 1]
+    assert not valid[hole].any() and not flow[hole].any()
+    ring = np.zeros_like(hole)
+    ys, xs = np.nonzero(hole)
+    ring[ys.min() - 8:ys.max() + 9, xs.min() - 8:xs.max() + 9] = True
+    ring &= ~hole & valid
+    assert ring.sum() > 100
+    assert np.median(np.linalg.norm(flow[ring] - step, axis=-1)) < 0.002
+
+
+def test_invalid_depth_is_never_reported_as_motion():
+    ds = plane_sequence([np.array([0.01, 0.0, 0.0])])
+    depth = ds.depth.values.copy()
+    depth[0, 0, :, :40] = 0  # the previous frame lost its left part
+    out = dis(ds.assign(depth=(("view", "frame", "y", "x"), depth)), **asdict(DisConfig()))
+    valid = out.valid.values[0, 1]
+    assert not valid[:, :35].any()  # correspondences would land on missing depth
+    assert valid[:, 60:140].mean() > 0.9
+
+
+def test_unknown_dis_preset_is_a_clear_error():
+    with pytest.raises(ValueError, match="unknown DIS preset 'turbo'"):
+        dis(plane_sequence([np.zeros(3)]), **{**asdict(DisConfig()), "preset": "turbo"})
+
+
+def test_flow_dataset_dims_are_named():
+    out = dis(plane_sequence([np.zeros(3)]), **asdict(DisConfig()))
+    assert out.flow.dims == ("view", "frame", "y", "x", "xyz") and isinstance(out, xr.Dataset)
