@@ -1,5 +1,6 @@
-"""Render the studio gallery under docs/studio/: colorized depth (reflectors black, DeepMoCap Fig. 4 style),
-IR and reflector ids for three views of a few exercises and a retargeted CMU clip.
+"""Render the gallery under docs/: the studio (docs/studio/: colorized depth with reflectors black, IR and
+reflector ids for three views of a few exercises and a retargeted CMU clip) and the input stages
+(docs/stages/: the FCN's inputs I_CD and I_F for three views, as in DeepMoCap's Figure 4).
 
     python docs/make_gallery.py
 """
@@ -8,9 +9,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from dataclasses import asdict
+
 import cv2
 import numpy as np
 
+from mocapflow.tasks.flow import DisConfig, dis
+from mocapflow.tasks.masks import MaskConfig, masks
+from mocapflow.tasks.pdflow import PrimalDualConfig, primal_dual
 from mocapflow.tasks.studio.synth import SequenceSpec, build_rig, synthesize
 
 OUT = Path(__file__).resolve().parent / "studio"
@@ -43,6 +49,27 @@ def panel(ds, frame: int) -> np.ndarray:
     return np.vstack(rows)
 
 
+def stages_panel(name: str, spec: SequenceSpec, frame: int) -> None:
+    """Per view: I_CD (masks stage), I_F from dis, I_F from primal_dual, and the true flow, colorized alike."""
+    ds = synthesize(build_rig(spec), frame - 1, frame + 1)
+    cd = masks(ds, **asdict(MaskConfig())).colorized_depth.values[:, 1]
+    flows = [dis(ds, **asdict(DisConfig())), primal_dual(ds, **asdict(PrimalDualConfig()))]
+    scale = DisConfig().color_scale_m
+    truth = np.clip(128 + 127 * ds.gt_scene_flow_prev.values[:, 1].astype(np.float32) / scale, 0, 255).astype(np.uint8)
+    truth[~ds.gt_body.values[:, 1]] = 128
+    rows = []
+    for v in range(ds.sizes["view"]):
+        tiles = [cd[v]] + [f.colorized_flow.values[v, 1] for f in flows] + [truth[v]]
+        row = np.hstack([t[..., ::-1] for t in tiles])  # RGB -> BGR for OpenCV
+        for k, label in enumerate(("I_CD", "I_F dis", "I_F primal_dual", "true flow")):
+            cv2.putText(row, label, (8 + 512 * k, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1)
+        rows.append(row)
+    (OUT.parent / "stages").mkdir(exist_ok=True)
+    path = OUT.parent / "stages" / f"{name}.png"
+    cv2.imwrite(str(path), cv2.resize(np.vstack(rows), None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA))
+    print("wrote", path)
+
+
 def main() -> None:
     OUT.mkdir(parents=True, exist_ok=True)
     shots = [("jumping_jack", SequenceSpec("jumping_jack", frames=16, seed=2, subject_height=1.8), None, 12),
@@ -57,6 +84,7 @@ def main() -> None:
         img = panel(ds, 0)
         cv2.imwrite(str(OUT / f"{name}.png"), cv2.resize(img, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA))
         print("wrote", OUT / f"{name}.png")
+    stages_panel("kick_box_kicking", SequenceSpec("kick_box_kicking", frames=24, seed=3, subject_height=1.74), 20)
 
 
 if __name__ == "__main__":

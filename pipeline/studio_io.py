@@ -58,6 +58,7 @@ def make_spec(raw: Mapping[str, Any], where: str, resolve: Callable[[str], Path]
         except OSError as exc:
             raise InputError(f"{where}: cannot read BVH {path}: {exc.strerror}") from exc
         bvh_path, raw["motion"] = str(path), "bvh"
+        raw.setdefault("label", path.stem)
         raw.setdefault("frames", None)
     elif motion not in EXERCISES:
         raise CatalogError(f"{where}: unknown exercise {motion!r}{did_you_mean(motion, EXERCISES)}; "

@@ -40,6 +40,7 @@ class SequenceSpec:
     heading_deg: float = 0.0
     random_layout: bool = False
     layout: Mapping[str, Any] | None = None
+    label: str = ""  # the motion's name in the ground truth (defaults to ``motion``)
 
     def __post_init__(self):
         if self.frames is not None and self.frames <= 0:
@@ -80,7 +81,8 @@ def build_rig(spec: SequenceSpec, bvh_text: str | None = None) -> Rig:
             raise ValueError("motion 'bvh' needs the clip's text")
         clip = bvh.parse_bvh(bvh_text)
         frames = None if spec.frames is None else spec.frames + 1
-        mot = bvh.retarget(clip, subject, fps=spec.fps, n_frames=frames, start_s=spec.start_s)
+        mot = bvh.retarget(clip, subject, fps=spec.fps, n_frames=frames, start_s=spec.start_s,
+                           label=spec.label or "bvh")
     else:
         mot = motion.exercise(spec.motion, subject, n_frames=(spec.frames or 90) + 1, fps=spec.fps,
                               speed=spec.speed, amplitude=spec.amplitude, repetitions=spec.repetitions,

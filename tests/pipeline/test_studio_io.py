@@ -71,7 +71,7 @@ def test_synth_is_deterministic_per_seed_and_writes_the_raw_schema(tmp_path):
     assert tree_digest(tmp_path / "a") != tree_digest(tmp_path / "c")
     ds = xr.open_zarr(tmp_path / "a" / "cmu_12_01_walk.zarr", consolidated=False)
     assert ds.sizes["view"] == 2 and ds.sizes["frame"] == 5
-    assert ds.attrs["subject"]["height"] == 1.9 and ds.attrs["exercise"] == "bvh"
+    assert ds.attrs["subject"]["height"] == 1.9 and ds.attrs["exercise"] == "cmu_12_01_walk"
     assert list(ds.reflector.values[:3]) == ["F_SPINEMID", "F_R_CHEST", "F_L_CHEST"]
 
 
