@@ -21,8 +21,8 @@ for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import cv2  # noqa: E402
 import torch  # noqa: E402
 
-from mocapflow.tasks.flow import DisConfig, dis  # noqa: E402
-from mocapflow.tasks.pdflow import PrimalDualConfig, primal_dual  # noqa: E402
+from mocapflow.tasks.flow import DisConfig, PrimalDualConfig, dis  # noqa: E402
+from mocapflow.tasks.pdflow import primal_dual  # noqa: E402
 from mocapflow.tasks.studio.synth import SequenceSpec, build_rig, synthesize  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -62,7 +62,7 @@ def main() -> None:
         print(f"{name}: {1000 * seconds:.1f} ms per frame pair per view ({1 / seconds:.1f} pairs/s, one core)")
     print(f"primal_dual / dis time ratio: {times['primal_dual'] / times['dis']:.1f}")
     results = {name: epe(name) for name in VARIANTS}
-    for name, r in results.items():
+    for r in results.values():
         print(r["table"])
     print(json.dumps({"seconds_per_pair": times, "epe": {k: r["figures"] for k, r in results.items()}}))
 

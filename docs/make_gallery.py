@@ -14,9 +14,9 @@ from dataclasses import asdict
 import cv2
 import numpy as np
 
-from mocapflow.tasks.flow import DisConfig, dis
+from mocapflow.tasks.flow import DisConfig, PrimalDualConfig, dis
 from mocapflow.tasks.masks import MaskConfig, masks
-from mocapflow.tasks.pdflow import PrimalDualConfig, primal_dual
+from mocapflow.tasks.pdflow import primal_dual
 from mocapflow.tasks.studio.synth import SequenceSpec, build_rig, synthesize
 
 OUT = Path(__file__).resolve().parent / "studio"

@@ -19,6 +19,7 @@ import xarray as xr
 from mocapflow.pipeline import registry
 from mocapflow.pipeline.datasets import read_frames
 from mocapflow.pipeline.errors import MocapflowError
+from mocapflow.pipeline.models import load_weights
 from mocapflow.pipeline.plan import WorkItem, now
 from mocapflow.pipeline.storage import Store
 from mocapflow.schemas import get_schema
@@ -101,6 +102,8 @@ def _compute_region(item: WorkItem, spec: registry.TaskSpec, store: Store, start
     inputs = {role: _load_input(store, up, item.partition.view, lo, hi, spec.reads.get(role))
               for role, up in item.upstream.items()}
     params = {f.name: getattr(item.stage.params, f.name) for f in fields(item.stage.params)}
+    for name, (path, sha) in item.weights.items():  # weight files arrive as tensors, loaded once per worker
+        params[name] = load_weights(path, sha)
     out = spec.fn(**inputs, **params)
     if not isinstance(out, xr.Dataset):
         raise TypeError(f"task {spec.name!r} returned {type(out).__name__}, expected an xarray Dataset")

@@ -53,6 +53,7 @@ class WorkItem:
     upstream: Mapping[str, Upstream]
     sequence: SequenceInfo
     catalog: Catalog
+    weights: Mapping[str, tuple[str, str]] = field(default_factory=dict)  # param -> (path, sha256)
 
     @property
     def stage(self):
@@ -123,23 +124,27 @@ def _work_item(catalog, stage, spec, seq, view, keys, weights) -> WorkItem:
         "upstream": {role: {"stage": u.stage, "keys": {str(k): v for k, v in u.keys.items()}}
                      for role, u in upstream.items()},
         "raw_input": seq.fingerprint if spec.source else None,
-        "weights": weights,
+        "weights": {name: digest_ for name, (_, digest_) in weights.items()},
     }
     key = digest(components)
-    return WorkItem(Partition(stage.name, seq.id, view), key, components, upstream, seq, catalog)
+    return WorkItem(Partition(stage.name, seq.id, view), key, components, upstream, seq, catalog, weights)
 
 
 def _params(params) -> dict:
     return {f.name: getattr(params, f.name) for f in dataclasses.fields(params)}
 
 
-def _weights(catalog, stage, spec) -> dict[str, str]:
+def _weights(catalog, stage, spec) -> dict[str, tuple[str, str]]:
+    """param name -> (resolved path, sha256) of every weight file the stage's task uses."""
     out = {}
     for name in spec.weights_params:
         value = getattr(stage.params, name)
         if value:
             path = catalog.resolve_data_path(str(value), f"stages.{stage.name}.params.{name}")
-            out[name] = file_digest(str(path))
+            if not path.is_file():
+                raise PlanError(f"stages.{stage.name}.params.{name}: weights file {path} does not exist; "
+                                "train it first or point the parameter at an existing file")
+            out[name] = (str(path), file_digest(str(path)))
     return out
 
 

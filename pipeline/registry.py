@@ -48,6 +48,17 @@ class TaskSpec:
 
 
 @dataclass(frozen=True)
+class Lazy:
+    """A task function imported on first call (keeps heavy modules such as torch out of planning)."""
+
+    module: str
+    name: str
+
+    def __call__(self, *args, **kwargs):
+        return getattr(importlib.import_module(self.module), self.name)(*args, **kwargs)
+
+
+@dataclass(frozen=True)
 class NoParams:
     """Params of a task that takes none."""
 

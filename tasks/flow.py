@@ -132,6 +132,27 @@ class DisConfig:
     color_scale_m: float = 0.05
 
 
+@dataclass(frozen=True)
+class PrimalDualConfig:
+    """Stage `flow`, implementation `primal_dual` (pdflow.py): the energy's weights (see the module docstring), the
+    solver's iterations per warp, warps per level and finest pyramid level (0 = full resolution), the
+    IR level mapped to 1, the plausibility checks of the lifting (m), the flow-image scale (m), and
+    the torch device ("auto": a GPU when present)."""
+
+    lambda_uv: float = 0.06
+    lambda_w: float = 0.02
+    mu: float = 20.0
+    z_edge: float = 0.03
+    iterations: int = 20
+    warps: int = 4
+    finest_level: int = 1
+    ir_max: float = 12000.0
+    max_depth_jump: float = 0.15
+    consistency: float = 0.04
+    color_scale_m: float = 0.05
+    device: str = "auto"
+
+
 def dis(frames: xr.Dataset, *, preset: str, refine_iterations: int, ir_max: float, max_depth_jump: float,
         color_scale_m: float) -> xr.Dataset:
     """Stage `flow`, implementation `dis`: DIS optical flow on IR lifted to 3D with both depth maps."""

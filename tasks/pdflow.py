@@ -16,8 +16,6 @@ Chambolle, ICCV 2011). torch runs it on the CPU, or on a GPU when one is given.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -171,27 +169,6 @@ def _solve(ir, zr, mr, io, zo, mo, u0, v0, w0, g, *, lambda_uv, lambda_w, mu, it
 def ir_intensity(ir: np.ndarray, ir_max: float) -> np.ndarray:
     """IR counts to [0, 1] with the same square-root curve the DIS variant uses."""
     return np.sqrt(np.clip(ir.astype(np.float32) / ir_max, 0.0, 1.0))
-
-
-@dataclass(frozen=True)
-class PrimalDualConfig:
-    """Stage `flow`, implementation `primal_dual`: the energy's weights (see the module docstring), the
-    solver's iterations per warp, warps per level and finest pyramid level (0 = full resolution), the
-    IR level mapped to 1, the plausibility checks of the lifting (m), the flow-image scale (m), and
-    the torch device ("auto": a GPU when present)."""
-
-    lambda_uv: float = 0.06
-    lambda_w: float = 0.02
-    mu: float = 20.0
-    z_edge: float = 0.03
-    iterations: int = 20
-    warps: int = 4
-    finest_level: int = 1
-    ir_max: float = 12000.0
-    max_depth_jump: float = 0.15
-    consistency: float = 0.04
-    color_scale_m: float = 0.05
-    device: str = "auto"
 
 
 def primal_dual(frames: xr.Dataset, *, lambda_uv: float, lambda_w: float, mu: float, z_edge: float, iterations: int,

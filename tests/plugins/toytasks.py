@@ -70,6 +70,18 @@ def boom(frames: xr.Dataset, *, bad_view: str) -> xr.Dataset:
     return xr.Dataset({"value": frames["depth"].astype(np.float32)})
 
 
+@dataclass(frozen=True)
+class WeightedParams:
+    weights: str = ""
+
+
+def weighted(frames: xr.Dataset, *, weights) -> xr.Dataset:
+    """depth * the ``gain`` tensor of a weights file (the engine hands over the loaded tensors)."""
+    return xr.Dataset({"value": frames["depth"].astype(np.float32) * np.float32(weights["gain"].item())})
+
+
+register(TaskSpec("weighted", weighted, "1", WeightedParams, "toy_view", "view", {"frames": "raw_sequence"},
+                  weights_params=("weights",)))
 register(TaskSpec("scale", scale, "1", ScaleParams, "toy_view", "view", {"frames": "raw_sequence"}))
 register(TaskSpec("scale_plus", scale_plus, "1", ScaleParams, "toy_view", "view", {"frames": "raw_sequence"}))
 register(TaskSpec("diff", diff, "1", NoParams, "toy_view", "view", {"scaled": "toy_view"}, halo=(1, 0)))

@@ -10,8 +10,8 @@ import xarray as xr
 
 from conftest import plane_sequence
 from mocapflow.schemas import get_schema
-from mocapflow.tasks.flow import DisConfig, dis
-from mocapflow.tasks.pdflow import PrimalDualConfig, primal_dual
+from mocapflow.tasks.flow import DisConfig, PrimalDualConfig, dis
+from mocapflow.tasks.pdflow import primal_dual
 
 VARIANTS = {"dis": lambda ds: dis(ds, **asdict(DisConfig())),
             "primal_dual": lambda ds: primal_dual(ds, **asdict(PrimalDualConfig(device="cpu")))}

@@ -1,0 +1,46 @@
+"""Model weights on the workers: loaded once per process, never shipped through the task graph.
+
+A task declares which of its parameters name weight files (``TaskSpec.weights_params``). The plan
+hashes those files into the cache key; on a worker the runner replaces each such parameter with the
+file's tensors, loaded with ``torch.load(..., weights_only=True)`` (plain tensors, no pickled code)
+and kept in a small per-process cache keyed by the file's hash.
+"""
+
+from __future__ import annotations
+
+import pickle
+import threading
+from collections import OrderedDict
+
+from mocapflow.pipeline.errors import StorageError
+from mocapflow.pipeline.hashing import file_digest
+
+_CACHE: OrderedDict[str, dict] = OrderedDict()
+_LOCK = threading.Lock()
+_MAX_MODELS = 4
+loads = 0  # files actually read by this process (for tests and logs)
+
+
+def load_weights(path: str, digest: str) -> dict:
+    """The tensors in ``path``, whose sha256 must be ``digest`` (as planned); cached per process."""
+    global loads
+    with _LOCK:
+        if digest in _CACHE:
+            _CACHE.move_to_end(digest)
+            return _CACHE[digest]
+    import torch
+
+    actual = file_digest(path)
+    if actual != digest:
+        raise StorageError(f"weights {path} changed since the run was planned (sha256 {actual[:12]}, planned "
+                           f"{digest[:12]}); rerun to plan with the new file")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except (OSError, RuntimeError, ValueError, pickle.UnpicklingError) as exc:
+        raise StorageError(f"cannot load weights {path}: {exc}; it must hold plain tensors (a state dict)") from exc
+    with _LOCK:
+        loads += 1
+        _CACHE[digest] = state
+        while len(_CACHE) > _MAX_MODELS:
+            _CACHE.popitem(last=False)
+    return state
