@@ -6,9 +6,6 @@ sequence's artifacts are read view by view and scored by the pure metrics of tas
 
 from __future__ import annotations
 
-import fnmatch
-import logging
-
 import numpy as np
 
 from mocapflow.pipeline.errors import PlanError
@@ -16,8 +13,6 @@ from mocapflow.pipeline.plan import Plan, build_plan
 from mocapflow.pipeline.storage import Store
 from mocapflow.schemas import get_schema
 from mocapflow.tasks.evaluation import flow_errors, summarize_flow
-
-log = logging.getLogger(__name__)
 
 
 def evaluation_plan(catalog, sequences: str | None) -> Plan:
@@ -75,7 +70,3 @@ def table(result: dict) -> str:
     lines = [f"scene flow ({result['task']}), 3D end-point error on visible body pixels"]
     lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
     return "\n".join(lines)
-
-
-def matches(seq_id: str, pattern: str | None) -> bool:
-    return pattern is None or fnmatch.fnmatchcase(seq_id, pattern)

@@ -1,4 +1,4 @@
-"""Camera geometry shared by the stages: undistorted pixel rays, back-projection, bilinear sampling.
+"""Camera geometry shared by the stages: intrinsics, undistorted pixel rays, back-projection.
 
 Cameras follow OpenCV: intrinsics fx fy cx cy in pixels, distortion k1 k2 p1 p2 k3. A pixel's ray
 is the undistorted direction through its centre, scaled to unit length; a depth value is the
@@ -42,17 +42,3 @@ def _pixel_rays(K: tuple, dist: tuple, width: int, height: int) -> np.ndarray:
 def backproject(z: np.ndarray, rays: np.ndarray) -> np.ndarray:
     """Camera-frame points of depth ``z`` (metres, any shape S) along ``rays`` (S + (3,))."""
     return rays * (z / rays[..., 2])[..., None]
-
-
-def sample_bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """``image`` (y, x[, c]) at float coordinates (clamped to the border)."""
-    h, w = image.shape[:2]
-    x = np.clip(x, 0, w - 1.001)
-    y = np.clip(y, 0, h - 1.001)
-    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
-    ax, ay = x - x0, y - y0
-    if image.ndim == 3:
-        ax, ay = ax[..., None], ay[..., None]
-    top = image[y0, x0] * (1 - ax) + image[y0, x0 + 1] * ax
-    bottom = image[y0 + 1, x0] * (1 - ax) + image[y0 + 1, x0 + 1] * ax
-    return top * (1 - ay) + bottom * ay

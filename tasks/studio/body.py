@@ -12,7 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 # (name, parent, hierarchy level, degrees of freedom)
 JOINTS: tuple[tuple[str, str | None, int, int], ...] = (
@@ -187,15 +186,3 @@ def surface(subject: Subject) -> tuple[Primitive, ...]:
         prims.append(Primitive(name, JOINT_INDEX[joint], "ellipsoid", np.asarray(centre) * h, np.zeros(3),
                                np.asarray(radii) * h * girth))
     return tuple(prims)
-
-
-def rotations_from_euler(angles: dict[str, np.ndarray], n_frames: int, seq: str = "xyz") -> np.ndarray:
-    """Local rotations from per-joint Euler angles (radians, extrinsic ``seq``), identity elsewhere.
-
-    angles: joint name -> (frame, 3) angles about x (right), y (forward), z (up)
-    returns (frame, joint, 3, 3)
-    """
-    rot = np.tile(np.eye(3), (n_frames, len(JOINTS), 1, 1))
-    for name, value in angles.items():
-        rot[:, JOINT_INDEX[name]] = Rotation.from_euler(seq, np.asarray(value).reshape(n_frames, 3)).as_matrix()
-    return rot
