@@ -11,6 +11,12 @@ stages:
   frames:            # each raw sequence imported into the raw-sequence schema
     task: ingest
     dataset: recordings
+  masks:             # reflector mask from IR + colorized depth
+    task: reflector_mask
+    inputs: [frames]
+  flow:              # 3D optical flow (dis: fast; primal_dual: PD-Flow)
+    task: dis
+    inputs: [frames]
 """
 
 

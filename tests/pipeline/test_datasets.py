@@ -31,8 +31,9 @@ def test_image_folder_is_imported_exactly(tmp_path):
     data = write_png_sequence(tmp_path / "recs" / "take1")
     mocapflow("init", tmp_path / "recs", cwd=tmp_path)
     summary = last_json(mocapflow("run", "--json", "--catalog", tmp_path / "recs" / "catalog.yaml", cwd=tmp_path))
-    assert summary["executed"] == ["frames/take1"]
-    [(_, arrays)] = read_artifacts(tmp_path / "recs" / "storage").items()
+    assert sorted(summary["executed"]) == ["flow/take1/k0", "flow/take1/k1", "frames/take1", "masks/take1/k0",
+                                           "masks/take1/k1"]
+    [arrays] = [a for (pid, _), a in read_artifacts(tmp_path / "recs" / "storage").items() if pid == "frames/take1"]
     np.testing.assert_array_equal(arrays["depth"][1], data["k1", "depth"])
     np.testing.assert_array_equal(arrays["ir"][0], data["k0", "ir"])
     np.testing.assert_allclose(arrays["dist"][0], [0.01, 0, 0, 0, 0])
