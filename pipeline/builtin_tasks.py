@@ -33,7 +33,7 @@ register(TaskSpec(
     description="OpenCV DIS optical flow on IR, lifted to 3D with both depth maps",
 ))
 register(TaskSpec(
-    name="primal_dual", fn=Lazy("mocapflow.tasks.pdflow", "primal_dual"), version="1", params=flow.PrimalDualConfig,
+    name="primal_dual", fn=Lazy("mocapflow.tasks.pdflow", "primal_dual"), version="2", params=flow.PrimalDualConfig,
     output="scene_flow",
     partition="view", inputs={"frames": "raw_sequence"}, reads={"frames": ("depth", "ir") + CALIBRATION},
     halo=(1, 0), description="primal-dual RGB-D scene flow (Jaimez et al. 2015) on IR + depth, torch",

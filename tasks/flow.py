@@ -139,10 +139,11 @@ class PrimalDualConfig:
     IR level mapped to 1, the plausibility checks of the lifting (m), the flow-image scale (m), and
     the torch device ("auto": a GPU when present)."""
 
-    lambda_uv: float = 0.06
+    lambda_uv: float = 1.0
     lambda_w: float = 0.02
     mu: float = 20.0
     z_edge: float = 0.03
+    normalize_eps: float = 0.01
     iterations: int = 20
     warps: int = 4
     finest_level: int = 1

@@ -4,12 +4,17 @@ Written from the paper (not from its GPL code). The unknowns are the image motio
 and the depth change w (metres) of every reference pixel towards the other frame. The energy,
 linearized around the current estimate (u0, v0) at each warp of a coarse-to-fine pyramid, is
 
-    E = sum_p  |rho_I| + mu * m_p * |rho_Z|  +  lambda_uv * g_p * (|grad u| + |grad v|)  +  lambda_w * g_p * |grad w|
+    E = sum_p  |rho_I| / n_p + mu * m_p * |rho_Z|  +  lambda_uv * g_p * (|grad u| + |grad v|)  +  lambda_w * g_p * |grad w|
     rho_I = I_o(p + u0) + grad I_o(p + u0) . (u - u0) - I_r(p)                 (intensity constancy)
     rho_Z = Z_o(p + u0) + grad Z_o(p + u0) . (u - u0) - Z_r(p) - w             (range-flow constraint)
+    n_p   = sqrt(|grad I_o(p + u0)|^2 + eps^2)                                  (constraint normalization)
 
 with m_p = 0 where either depth is invalid (holes never drive the motion; the TV term fills them)
-and g_p = 1 / (1 + |grad Z_r| / z_edge) so that motion may change at depth edges. It is solved by
+and g_p = 1 / (1 + |grad Z_r| / z_edge) so that motion may change at depth edges. Dividing the
+intensity residual by the gradient magnitude (constraint normalization, Zimmer, Bruhn & Weickert,
+IJCV 2011) measures it in pixels of displacement, so the faint cloth texture of a thin limb counts
+as much as a strong silhouette edge; without it, thin limbs moving along their axis are pulled
+towards their surroundings' motion. It is solved by
 the first-order primal-dual algorithm of Chambolle & Pock with diagonal preconditioning (Pock &
 Chambolle, ICCV 2011). torch runs it on the CPU, or on a GPU when one is given.
 """
@@ -91,9 +96,9 @@ def _pyramid(i, z, m, min_width: int, factor: float = 0.5):
 
 
 def pd_flow(i_ref: np.ndarray, i_oth: np.ndarray, z_ref: np.ndarray, z_oth: np.ndarray, *,
-            lambda_uv: float = 0.06, lambda_w: float = 0.02, mu: float = 20.0, z_edge: float = 0.03,
+            lambda_uv: float = 1.0, lambda_w: float = 0.02, mu: float = 20.0, z_edge: float = 0.03,
             iterations: int = 20, warps: int = 4, finest_level: int = 1, min_width: int = 32,
-            pyramid_factor: float = 0.5,
+            pyramid_factor: float = 0.5, normalize_eps: float = 0.01,
             max_depth_jump: float = 0.15, device: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Scene flow from the reference to the other frame at the reference pixels.
 
@@ -119,14 +124,15 @@ def pd_flow(i_ref: np.ndarray, i_oth: np.ndarray, z_ref: np.ndarray, z_oth: np.n
         g = _edge_weight(zr, mr, z_edge)
         for _ in range(warps):
             u, v, w = _solve(ir, zr, mr, io, zo, mo, u, v, w, g, lambda_uv=lambda_uv, lambda_w=lambda_w, mu=mu,
-                             iterations=iterations, max_depth_jump=max_depth_jump)
+                             iterations=iterations, max_depth_jump=max_depth_jump, normalize_eps=normalize_eps)
     size = i_ref.shape
     scale = size[1] / u.shape[1]
     u, v, w = _up(u, size) * scale, _up(v, size) * scale, _up(w, size)
     return u.cpu().numpy(), v.cpu().numpy(), w.cpu().numpy()
 
 
-def _solve(ir, zr, mr, io, zo, mo, u0, v0, w0, g, *, lambda_uv, lambda_w, mu, iterations, max_depth_jump):
+def _solve(ir, zr, mr, io, zo, mo, u0, v0, w0, g, *, lambda_uv, lambda_w, mu, iterations, max_depth_jump,
+           normalize_eps):
     """One warp: preconditioned Chambolle-Pock on the linearized energy."""
     gix, giy = _central(io)
     smooth = _smooth_depth_mask(zo * mo, mo, max_step=0.03)
@@ -134,6 +140,9 @@ def _solve(ir, zr, mr, io, zo, mo, u0, v0, w0, g, *, lambda_uv, lambda_w, mu, it
     iw, ixw, iyw, zw, zxw, zyw, mw = _warp([io, gix, giy, zo * mo, gzx * smooth, gzy * smooth, smooth], u0, v0)
     m = mr * (mw > 0.99) * ((zw - zr - w0).abs() <= max_depth_jump)
     a_z = mu * m
+    if normalize_eps > 0:  # constraint normalization: the intensity residual in pixels of displacement
+        scale = 1.0 / torch.sqrt(ixw**2 + iyw**2 + normalize_eps**2)
+        iw, ixw, iyw, ir = iw * scale, ixw * scale, iyw * scale, ir * scale
     it = iw - ixw * u0 - iyw * v0 - ir  # rho_I = it + ixw * u + iyw * v
     zt = zw - zxw * u0 - zyw * v0 - zr  # rho_Z = zt + zxw * u + zyw * v - w
     eps = 1e-6
@@ -171,15 +180,16 @@ def ir_intensity(ir: np.ndarray, ir_max: float) -> np.ndarray:
     return np.sqrt(np.clip(ir.astype(np.float32) / ir_max, 0.0, 1.0))
 
 
-def primal_dual(frames: xr.Dataset, *, lambda_uv: float, lambda_w: float, mu: float, z_edge: float, iterations: int,
-                warps: int, finest_level: int, ir_max: float, max_depth_jump: float, consistency: float,
-                color_scale_m: float, device: str) -> xr.Dataset:
+def primal_dual(frames: xr.Dataset, *, lambda_uv: float, lambda_w: float, mu: float, z_edge: float,
+                normalize_eps: float, iterations: int, warps: int, finest_level: int, ir_max: float,
+                max_depth_jump: float, consistency: float, color_scale_m: float, device: str) -> xr.Dataset:
     """Stage `flow`, implementation `primal_dual`: PD-Flow on IR + depth, on a GPU when one is present."""
     dev = ("cuda" if torch.cuda.is_available() else "cpu") if device == "auto" else device
 
     def estimate(ir_ref, ir_prev, z_ref, z_prev, rays, K):
         u, v, w = pd_flow(ir_intensity(ir_ref, ir_max), ir_intensity(ir_prev, ir_max), z_ref, z_prev,
-                          lambda_uv=lambda_uv, lambda_w=lambda_w, mu=mu, z_edge=z_edge, iterations=iterations,
+                          lambda_uv=lambda_uv, lambda_w=lambda_w, mu=mu, z_edge=z_edge, normalize_eps=normalize_eps,
+                          iterations=iterations,
                           warps=warps, finest_level=finest_level, max_depth_jump=max_depth_jump, device=dev)
         return lift(np.stack([u, v], axis=-1), z_ref, z_prev, rays, max_depth_jump, z_corr=z_ref + w,
                     consistency=consistency)

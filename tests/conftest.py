@@ -98,7 +98,7 @@ def assert_same_artifacts(a: dict, b: dict) -> None:
 
 
 # ---- an analytic scene for the flow stages ---------------------------------------------------
-PLANE_W, PLANE_H, PLANE_F = 160, 120, 150.0
+PLANE_W, PLANE_H, PLANE_F = 512, 424, 365.0  # the Kinect-v2 depth sensor's geometry
 
 
 def plane_texture(x, y):
