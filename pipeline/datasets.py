@@ -13,7 +13,6 @@ driver, and reads a frame region on a worker. Only this module touches raw-input
 from __future__ import annotations
 
 import fnmatch
-import logging
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
@@ -27,8 +26,6 @@ from mocapflow.pipeline.hashing import digest
 from mocapflow.pipeline.storage import check
 from mocapflow.schemas import get_schema
 from mocapflow.schemas.raw import make_raw_sequence
-
-log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)

@@ -201,12 +201,14 @@ def init_zarr(target: str, schema: ArtifactSchema, ds: xr.Dataset, n_frames: int
 
     ``with_data``: ``ds`` already holds all ``n_frames`` frames; write everything in one pass.
     """
-    template, encoding = _template(schema, ds, n_frames)
     if with_data:
+        encoding = {name: {"chunks": schema.chunks(name, var.shape, var.dims)}
+                    for name, var in ds.data_vars.items() if "frame" in var.dims}
         whole = xr.Dataset({n: _variable_strings(v.variable) for n, v in ds.data_vars.items()},
                            coords={n: _variable_strings(c.variable) for n, c in ds.coords.items()}, attrs=ds.attrs)
         whole.to_zarr(target, mode="w", zarr_format=3, consolidated=False, encoding=encoding)
     else:
+        template, encoding = _template(schema, ds, n_frames)
         template.to_zarr(target, mode="w", compute=False, zarr_format=3, consolidated=False, encoding=encoding)
 
 

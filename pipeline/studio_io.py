@@ -96,10 +96,7 @@ def frame_count(spec: SequenceSpec, bvh_text: str | None) -> int:
     """Frames the sequence will have (a BVH clip's length at the studio's fps, less one for scene flow)."""
     if spec.frames is not None:
         return spec.frames
-    clip = bvh_mod.parse_bvh(bvh_text)
-    n = clip.data.shape[0] - (1 if bvh_mod._starts_with_tpose(clip) else 0)
-    available = int(((n - 1) * clip.frame_time - spec.start_s) * spec.fps) + 1
-    return available - 1
+    return bvh_mod.available_frames(bvh_mod.parse_bvh(bvh_text), spec.fps, spec.start_s) - 1
 
 
 def view_names(spec: SequenceSpec) -> tuple[str, ...]:

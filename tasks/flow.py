@@ -89,11 +89,11 @@ def rays_for(frames: xr.Dataset, view) -> np.ndarray:
     """Pixel rays of one view of a raw sequence, from its calibration variables."""
     cam = frames.sel(view=view)
     K = intrinsics(*(float(cam[k]) for k in ("fx", "fy", "cx", "cy")))
-    return pixel_rays(K, cam["dist"].values, int(cam["width"]), int(cam["height"]))
+    return pixel_rays(K, cam["dist"].values, int(cam["width"]), int(cam["height"]))  # memoized per calibration
 
 
 def flow_sequence(frames: xr.Dataset, estimate, *, color_scale_m: float, max_depth_jump: float) -> xr.Dataset:
-    """Apply a pairwise estimator ``estimate(ir_ref, ir_prev, z_ref_m, z_prev_m, rays, K) -> (motion, valid)``
+    """Apply a pairwise estimator ``estimate(ir_ref, ir_prev, z_ref_m, z_prev_m, rays) -> (motion, valid)``
     to every frame with its predecessor in ``frames`` (the first frame of a sequence gets no motion)."""
     depth = frames["depth"].values  # (view, frame, y, x) mm
     ir = frames["ir"].values
@@ -104,11 +104,9 @@ def flow_sequence(frames: xr.Dataset, estimate, *, color_scale_m: float, max_dep
     colored = np.full(depth.shape + (3,), 128, np.uint8)
     for v, view in enumerate(frames["view"].values):
         rays = rays_for(frames, view)
-        cam = frames.sel(view=view)
-        K = intrinsics(*(float(cam[k]) for k in ("fx", "fy", "cx", "cy")))
         z = depth[v].astype(np.float32) / 1000.0  # (frame, y, x) metres
         for i in range(1, len(frame_ids)):
-            m, ok = estimate(ir[v, i], ir[v, i - 1], z[i], z[i - 1], rays, K)
+            m, ok = estimate(ir[v, i], ir[v, i - 1], z[i], z[i - 1], rays)
             motion[v, i], valid[v, i] = m, ok
             colored[v, i] = colorize_flow(m, ok, color_scale_m)
     dims = ("view", "frame", "y", "x")
@@ -160,7 +158,7 @@ def dis(frames: xr.Dataset, *, preset: str, refine_iterations: int, ir_max: floa
     if preset not in DIS_PRESETS:
         raise ValueError(f"unknown DIS preset {preset!r}; use one of {sorted(DIS_PRESETS)}")
 
-    def estimate(ir_ref, ir_prev, z_ref, z_prev, rays, K):
+    def estimate(ir_ref, ir_prev, z_ref, z_prev, rays):
         flow2d = dis_flow(ir_to_8bit(ir_ref, ir_max), ir_to_8bit(ir_prev, ir_max), preset=preset,
                           refine_iterations=refine_iterations)
         return lift(flow2d, z_ref, z_prev, rays, max_depth_jump)

@@ -84,14 +84,18 @@ def _warp(fields: list[torch.Tensor], u: torch.Tensor, v: torch.Tensor) -> list[
     return list(out)
 
 
+def _reduce(i, z, m, size):
+    """Intensity, depth (averaged over valid pixels only) and validity at a smaller ``size``."""
+    mm = _down(m, size)
+    zz = torch.where(mm > 0, _down(z * m, size) / mm.clamp_min(1e-6), torch.zeros_like(mm))
+    return _down(i, size), zz, (mm > 0.74).to(i.dtype)
+
+
 def _pyramid(i, z, m, min_width: int, factor: float = 0.5):
     levels = [(i, z, m)]
     while round(levels[-1][0].shape[1] * factor) >= min_width:
-        i, z, m = levels[-1]
-        size = (max(1, round(i.shape[0] * factor)), round(i.shape[1] * factor))
-        mm = _down(m, size)
-        zz = torch.where(mm > 0, _down(z * m, size) / mm.clamp_min(1e-6), torch.zeros_like(mm))
-        levels.append((_down(i, size), zz, (mm > 0.74).to(i.dtype)))
+        h, w = levels[-1][0].shape
+        levels.append(_reduce(*levels[-1], (max(1, round(h * factor)), round(w * factor))))
     return levels
 
 
@@ -110,7 +114,7 @@ def pd_flow(i_ref: np.ndarray, i_oth: np.ndarray, z_ref: np.ndarray, z_oth: np.n
     full = (t(i_ref), t(z_ref), t(z_ref > 0)), (t(i_oth), t(z_oth), t(z_oth > 0))
     if finest_level > 0:  # the working resolution: halve finest_level times
         size = (i_ref.shape[0] >> finest_level, i_ref.shape[1] >> finest_level)
-        full = tuple(_pyramid(*frame, min_width=1, factor=size[1] / i_ref.shape[1])[1] for frame in full)
+        full = tuple(_reduce(*frame, size) for frame in full)
     ref = _pyramid(*full[0], min_width, pyramid_factor)
     oth = _pyramid(*full[1], min_width, pyramid_factor)
     u = v = w = None
@@ -186,7 +190,7 @@ def primal_dual(frames: xr.Dataset, *, lambda_uv: float, lambda_w: float, mu: fl
     """Stage `flow`, implementation `primal_dual`: PD-Flow on IR + depth, on a GPU when one is present."""
     dev = ("cuda" if torch.cuda.is_available() else "cpu") if device == "auto" else device
 
-    def estimate(ir_ref, ir_prev, z_ref, z_prev, rays, K):
+    def estimate(ir_ref, ir_prev, z_ref, z_prev, rays):
         u, v, w = pd_flow(ir_intensity(ir_ref, ir_max), ir_intensity(ir_prev, ir_max), z_ref, z_prev,
                           lambda_uv=lambda_uv, lambda_w=lambda_w, mu=mu, z_edge=z_edge, normalize_eps=normalize_eps,
                           iterations=iterations,

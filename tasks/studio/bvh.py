@@ -20,30 +20,32 @@ from mocapflow.tasks.studio.motion import Motion, lowest_foot_point
 Y_UP_TO_Z_UP = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])
 
 # template joint: (BVH joint whose rotation it follows, BVH bone start, BVH bone end) or "inherit"
-CMU_MAP: dict[str, tuple[str, str, str] | str] = {
-    "Hips": ("Hips", "Hips", "Spine1"),
-    "SpineBase": ("Spine1", "Spine", "Neck"),
-    "Neck": "inherit",
-    "Head": ("Head", "Head", "Head_End"),
-    **{f"{side}{joint}": (f"{side}{bvh}", f"{side}{bvh}", f"{side}{nxt}")
-       for side in ("Left", "Right")
-       for joint, bvh, nxt in (("Shoulder", "Arm", "ForeArm"), ("Elbow", "ForeArm", "Hand"),
-                               ("Wrist", "Hand", "HandIndex1"), ("Hip", "UpLeg", "Leg"), ("Knee", "Leg", "Foot"),
-                               ("Ankle", "Foot", "ToeBase"))},
-}
-# The other cgspeed naming (e.g. CMU subject 14): LeftHip/LeftKnee/LeftAnkle, Chest/Chest2, lowerneck.
-CMU_MAP_ALT: dict[str, tuple[str, str, str] | str] = {
-    "Hips": ("Hips", "Hips", "Chest2"),
-    "SpineBase": ("Chest2", "Chest", "lowerneck"),
-    "Neck": "inherit",
-    "Head": ("Head", "Head", "Head_End"),
-    **{f"{side}{joint}": (f"{side}{bvh}", f"{side}{bvh}", f"{side}{nxt}")
-       for side in ("Left", "Right")
-       for joint, bvh, nxt in (("Shoulder", "Shoulder", "Elbow"), ("Elbow", "Elbow", "Wrist"),
-                               ("Hip", "Hip", "Knee"), ("Knee", "Knee", "Ankle"), ("Ankle", "Ankle", "Toe"))},
-    "LeftWrist": ("LeftWrist", "LeftWrist", "LFingers"),
-    "RightWrist": ("RightWrist", "RightWrist", "RFingers"),
-}
+def _cmu_map(spine, limbs, wrist: str, finger: str) -> dict:
+    """template joint -> (BVH joint it follows, BVH bone start, BVH bone end), "inherit" for the neck.
+
+    ``limbs``: (template joint, BVH joint, next BVH joint) per side; ``wrist``/``finger`` name the BVH
+    wrist and the finger joint its bone points to ({side} = Left/Right, {s} = L/R).
+    """
+    out: dict[str, tuple[str, str, str] | str] = {"Hips": spine[0], "SpineBase": spine[1], "Neck": "inherit",
+                                                  "Head": ("Head", "Head", "Head_End")}
+    for side in ("Left", "Right"):
+        for joint, bvh, nxt in limbs:
+            out[f"{side}{joint}"] = (f"{side}{bvh}", f"{side}{bvh}", f"{side}{nxt}")
+        hand = wrist.format(side=side, s=side[0])
+        out[f"{side}Wrist"] = (hand, hand, finger.format(side=side, s=side[0]))
+    return out
+
+
+# CMU cgspeed naming as in subject 12 (LeftUpLeg, Spine1, ...).
+CMU_MAP = _cmu_map((("Hips", "Hips", "Spine1"), ("Spine1", "Spine", "Neck")),
+                   (("Shoulder", "Arm", "ForeArm"), ("Elbow", "ForeArm", "Hand"), ("Hip", "UpLeg", "Leg"),
+                    ("Knee", "Leg", "Foot"), ("Ankle", "Foot", "ToeBase")),
+                   "{side}Hand", "{side}HandIndex1")
+# The other cgspeed naming, as in subject 14 (LeftHip, Chest2, lowerneck, ...).
+CMU_MAP_ALT = _cmu_map((("Hips", "Hips", "Chest2"), ("Chest2", "Chest", "lowerneck")),
+                       (("Shoulder", "Shoulder", "Elbow"), ("Elbow", "Elbow", "Wrist"), ("Hip", "Hip", "Knee"),
+                        ("Knee", "Knee", "Ankle"), ("Ankle", "Ankle", "Toe")),
+                       "{side}Wrist", "{s}Fingers")
 MAPPINGS = (CMU_MAP, CMU_MAP_ALT)
 
 
@@ -249,9 +251,19 @@ def _leg_length_bvh(pos: np.ndarray, hip: int, knee: int, ankle: int) -> float:
     return float(np.linalg.norm(pos[knee] - pos[hip]) + np.linalg.norm(pos[ankle] - pos[knee]))
 
 
+def available_frames(bvh: BVH, fps: float, start_s: float = 0.0) -> int:
+    """Frames of ``bvh``'s motion (its added T-pose frame excluded) at ``fps`` from ``start_s`` on."""
+    samples = bvh.data.shape[0] - (1 if _starts_with_tpose(bvh) else 0)
+    return _available(samples, bvh.fps, fps, start_s)
+
+
+def _available(samples: int, src_fps: float, fps: float, start_s: float) -> int:
+    return int(np.floor(((samples - 1) / src_fps - start_s) * fps + 1e-9)) + 1
+
+
 def _resample(local, root, src_fps, fps, n_frames, start_s):
     duration = (root.shape[0] - 1) / src_fps
-    available = int(np.floor((duration - start_s) * fps)) + 1
+    available = _available(root.shape[0], src_fps, fps, start_s)
     if start_s < 0 or available <= 0:
         raise BVHError(f"start {start_s} s is outside the clip ({duration:.2f} s)")
     if n_frames is None:
