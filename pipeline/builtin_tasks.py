@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from mocapflow.pipeline.registry import Lazy, NoParams, TaskSpec, register
-from mocapflow.tasks import flow, masks
+from mocapflow.tasks import flow, masks, training
 
 CALIBRATION = ("fx", "fy", "cx", "cy", "dist", "width", "height")
 
@@ -37,4 +37,19 @@ register(TaskSpec(
     output="scene_flow",
     partition="view", inputs={"frames": "raw_sequence"}, reads={"frames": ("depth", "ir") + CALIBRATION},
     halo=(1, 0), description="primal-dual RGB-D scene flow (Jaimez et al. 2015) on IR + depth, torch",
+))
+
+# 2D reflector-set estimation (DeepMoCap §3.3): training samples, training, inference, greedy inference.
+register(TaskSpec(
+    name="fcn_samples", fn=training.fcn_samples, version="1",
+    params=training.SampleConfig, output="fcn_samples", partition="view",
+    inputs={"masks": "reflector_masks", "flow": "scene_flow", "frames": "raw_sequence"},
+    reads={"masks": ("colorized_depth", "blob_id", "blob_area"), "flow": ("colorized_flow",),
+           "frames": ("gt_reflectors2d", "gt_pixels")},
+    halo=(1, 0), description="FCN training samples: both streams at the sample scale, subject box, 2D ground truth",
+))
+register(TaskSpec(
+    name="train_fcn", fn=training.train_fcn, version="1",
+    params=training.TrainConfig, output="fcn_weights", partition="dataset",
+    inputs={"samples": "fcn_samples"}, description="train the two-stream multi-stage FCN (seeded; GPU if present)",
 ))

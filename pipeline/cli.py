@@ -195,6 +195,42 @@ def init(folder, force):
 
 
 @main.command()
+@click.option("--catalog", "catalog_path", default="training/catalog.yaml", show_default=True,
+              type=click.Path(dir_okay=False), help="training catalog")
+@set_option
+@sequences_option
+@click.option("--stage", default=None, help="the training stage [the catalog's train_fcn stage]")
+@click.option("--out", default="models/deepmocap_fcn.pt", show_default=True, type=click.Path(dir_okay=False),
+              help="weights file to write")
+@click.option("--workers", default=2, show_default=True, help="local worker threads")
+@click.option("--json", "as_json", is_flag=True, help="print a JSON summary as the last line of stdout")
+def train(catalog_path, overrides, sequences, stage, out, workers, as_json):
+    """Train the two-stream FCN (seeded) and write its weights; every step is a cached stage."""
+    import hashlib
+
+    from mocapflow.pipeline.scheduler import run_items
+    from mocapflow.pipeline.training import export_weights, training_item
+
+    started = time.perf_counter()
+    catalog = load_catalog(catalog_path, overrides)
+    store = Store(catalog.root)
+    plan = build_plan(catalog, sequences)
+    item = training_item(plan, catalog, stage)
+    todo = [i for i in select(plan, catalog, store, only=None, until=item.partition.stage)
+            if not store.is_complete(i.partition.stage, i.key)]
+    failed = [r for r in run_items(todo, workers=workers, progress=sys.stderr.isatty()) if not r.ok]
+    if failed:
+        raise MocapflowError("training failed: " + "; ".join(f"{r.partition}: {r.error}" for r in failed[:5]))
+    data = export_weights(store, item, Path(out))
+    sha = hashlib.sha256(data).hexdigest()
+    click.echo(f"wrote {out} ({len(data) / 1e6:.2f} MB, sha256 {sha[:16]}) from {item.partition.id} "
+               f"(key {item.key[:12]}) in {time.perf_counter() - started:.1f} s")
+    if as_json:
+        click.echo(json.dumps({"weights": str(out), "sha256": sha, "bytes": len(data), "key": item.key,
+                               "seconds": round(time.perf_counter() - started, 3)}))
+
+
+@main.command()
 @catalog_option
 @set_option
 @sequences_option

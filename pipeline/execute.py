@@ -14,6 +14,7 @@ import time
 import traceback
 from dataclasses import dataclass, fields
 
+import numpy as np
 import xarray as xr
 
 from mocapflow.pipeline import registry
@@ -97,10 +98,13 @@ def _compute_region(item: WorkItem, spec: registry.TaskSpec, store: Store, start
     if spec.source:
         dataset = item.catalog.datasets[item.stage.dataset]
         return read_frames(item.catalog, dataset, item.sequence, start, stop)
-    lo = max(0, start - spec.halo[0])
-    hi = min(item.sequence.n_frames, stop + spec.halo[1])
-    inputs = {role: _load_input(store, up, item.partition.view, lo, hi, spec.reads.get(role))
-              for role, up in item.upstream.items()}
+    if spec.partition == "dataset":
+        inputs = {role: _load_samples(store, up, spec.reads.get(role)) for role, up in item.upstream.items()}
+    else:
+        lo = max(0, start - spec.halo[0])
+        hi = min(item.sequence.n_frames, stop + spec.halo[1])
+        inputs = {role: _load_input(store, up, item.partition.view, lo, hi, spec.reads.get(role))
+                  for role, up in item.upstream.items()}
     params = {f.name: getattr(item.stage.params, f.name) for f in fields(item.stage.params)}
     for name, (path, sha) in item.weights.items():  # weight files arrive as tensors, loaded once per worker
         params[name] = load_weights(path, sha)
@@ -110,6 +114,25 @@ def _compute_region(item: WorkItem, spec: registry.TaskSpec, store: Store, start
     if "frame" in out.dims:
         out = out.sel(frame=slice(start, stop - 1))
     return out
+
+
+def _load_samples(store: Store, up, variables=None) -> xr.Dataset:
+    """A per-dataset stage's input: every (sequence, view, frame) of the upstream as one ``sample`` dim.
+
+    Each sample carries ``sequence``, ``view`` and ``frame`` coordinates; variables without a frame
+    dimension (calibration, say) are left out, since samples of different sequences cannot share them.
+    """
+    parts = []
+    for sequence, keys in up.by_sequence.items():
+        for key in keys.values():
+            ds = store.open(up.stage, key, get_schema(up.schema))
+            ds = ds[list(variables)] if variables is not None else ds
+            ds = ds.drop_vars([n for n, v in ds.data_vars.items() if "frame" not in v.dims])
+            stacked = ds.stack(sample=[d for d in ("view", "frame") if d in ds.dims]).transpose("sample", ...).load()
+            stacked = stacked.reset_index("sample").assign_coords(
+                sequence=("sample", np.full(stacked.sizes["sample"], sequence, dtype=object)))
+            parts.append(stacked)
+    return xr.concat(parts, dim="sample", data_vars="minimal", coords="minimal", compat="override", join="override")
 
 
 def _load_input(store: Store, up, view: str | None, lo: int, hi: int, variables=None) -> xr.Dataset:

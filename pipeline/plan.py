@@ -1,6 +1,7 @@
 """Planning: partitions, cache keys and their status.
 
-Per-view stages partition by sequence x view, per-sequence stages by sequence. The cache key
+Per-view stages partition by sequence x view, per-sequence stages by sequence, per-dataset stages
+(training, say) have one partition reading every sequence of their dataset. The cache key
 of a partition hashes everything its output depends on: stage name, implementation and its
 explicit code version, canonical params, output schema version, upstream keys, the raw input's
 fingerprint (source stages) and the hash of any weight file a param names.
@@ -41,6 +42,7 @@ class Upstream:
     partition: str  # "view" or "sequence"
     schema: str
     keys: Mapping[str | None, str]  # view (or None) -> key
+    by_sequence: Mapping[str, Mapping[str | None, str]] | None = None  # a per-dataset reader: sequence -> keys
 
 
 @dataclass(frozen=True)
@@ -63,8 +65,8 @@ class WorkItem:
     def depends_on(self) -> list[str]:
         out = []
         for up in self.upstream.values():
-            for view in up.keys:
-                out.append(Partition(up.stage, self.partition.sequence, view).id)
+            for sequence, keys in (up.by_sequence or {self.partition.sequence: up.keys}).items():
+                out.extend(Partition(up.stage, sequence, view).id for view in keys)
         return out
 
     def lineage(self, **extra) -> dict:
@@ -75,6 +77,7 @@ class WorkItem:
 class Plan:
     items: dict[str, WorkItem] = field(default_factory=dict)  # partition id -> item, topological
     sequences: list[SequenceInfo] = field(default_factory=list)
+    dataset_of: dict[str, str] = field(default_factory=dict)  # sequence id -> dataset name
 
     def for_stages(self, stages: list[str]) -> list[WorkItem]:
         return [i for i in self.items.values() if i.partition.stage in stages]
@@ -91,10 +94,14 @@ def build_plan(catalog: Catalog, sequences: str | None = None) -> Plan:
         weights[stage.name] = _weights(catalog, stage, spec)
     for dataset_name, seqs in seqs_by_dataset.items():
         plan.sequences.extend(seqs)
+        plan.dataset_of.update({seq.id: dataset_name for seq in seqs})
+        stages = [s for s in catalog.stages.values() if source_of[s.name] == dataset_name]
+        per_dataset = [s for s in stages if registry.get(s.task).partition == "dataset"]
+        all_keys: dict[str, dict[str, dict[str | None, str]]] = {}  # sequence -> stage -> view -> key
         for seq in seqs:
-            keys: dict[str, dict[str | None, str]] = {}
-            for stage in catalog.stages.values():
-                if source_of[stage.name] != dataset_name:
+            keys: dict[str, dict[str | None, str]] = all_keys.setdefault(seq.id, {})
+            for stage in stages:
+                if stage in per_dataset:
                     continue
                 spec = registry.get(stage.task)
                 views = list(seq.views) if spec.partition == "view" else [None]
@@ -103,7 +110,26 @@ def build_plan(catalog: Catalog, sequences: str | None = None) -> Plan:
                     item = _work_item(catalog, stage, spec, seq, view, keys, weights[stage.name])
                     keys[stage.name][view] = item.key
                     plan.items[item.partition.id] = item
+        for stage in per_dataset:
+            item = _dataset_item(catalog, stage, dataset_name, seqs, all_keys, weights[stage.name])
+            plan.items[item.partition.id] = item
     return plan
+
+
+def _dataset_item(catalog, stage, dataset_name, seqs, all_keys, weights) -> WorkItem:
+    """The one partition of a per-dataset stage: it reads its inputs for every sequence of the dataset."""
+    for role, up_name in stage.inputs.items():
+        if registry.get(catalog.stages[up_name].task).partition == "dataset":
+            raise PlanError(f"stage {stage.name!r} (per dataset) reads {up_name!r}, also per dataset; "
+                            "a per-dataset stage reads per-view or per-sequence stages")
+    whole = SequenceInfo(id=dataset_name, views=(), n_frames=1,
+                         fingerprint=digest([s.fingerprint for s in seqs]), spec={"sequences": [s.id for s in seqs]})
+    upstream = {}
+    for role, up_name in stage.inputs.items():
+        up_spec = registry.get(catalog.stages[up_name].task)
+        by_sequence = {seq.id: dict(all_keys[seq.id][up_name]) for seq in seqs}
+        upstream[role] = Upstream(up_name, up_spec.partition, up_spec.output, {}, by_sequence)
+    return _item(catalog, stage, registry.get(stage.task), whole, None, upstream, weights)
 
 
 def _work_item(catalog, stage, spec, seq, view, keys, weights) -> WorkItem:
@@ -114,6 +140,10 @@ def _work_item(catalog, stage, spec, seq, view, keys, weights) -> WorkItem:
         if up_spec.partition == "view" and view is not None:
             up_keys = {view: up_keys[view]}
         upstream[role] = Upstream(up_name, up_spec.partition, up_spec.output, dict(up_keys))
+    return _item(catalog, stage, spec, seq, view, upstream, weights)
+
+
+def _item(catalog, stage, spec, seq, view, upstream, weights) -> WorkItem:
     components = {
         "stage": stage.name,
         "partition": {"sequence": seq.id, "view": view},
@@ -121,13 +151,18 @@ def _work_item(catalog, stage, spec, seq, view, keys, weights) -> WorkItem:
         "code_version": spec.version,
         "params": _params(stage.params),
         "schema": f"{spec.output}@{get_schema(spec.output).version}",
-        "upstream": {role: {"stage": u.stage, "keys": {str(k): v for k, v in u.keys.items()}}
-                     for role, u in upstream.items()},
+        "upstream": {role: {"stage": u.stage, "keys": _keys_component(u)} for role, u in upstream.items()},
         "raw_input": seq.fingerprint if spec.source else None,
         "weights": {name: digest_ for name, (_, digest_) in weights.items()},
     }
     key = digest(components)
     return WorkItem(Partition(stage.name, seq.id, view), key, components, upstream, seq, catalog, weights)
+
+
+def _keys_component(up: Upstream) -> dict:
+    if up.by_sequence is not None:
+        return {seq: {str(k): v for k, v in keys.items()} for seq, keys in up.by_sequence.items()}
+    return {str(k): v for k, v in up.keys.items()}
 
 
 def _params(params) -> dict:

@@ -19,7 +19,7 @@ from typing import Any, Callable, Literal, Mapping
 
 from mocapflow.pipeline.errors import CatalogError
 
-Partitioning = Literal["view", "sequence"]
+Partitioning = Literal["view", "sequence", "dataset"]
 
 
 @dataclass(frozen=True)
