@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 from mocapflow.pipeline.registry import Lazy, NoParams, TaskSpec, register
-from mocapflow.tasks import flow, masks, training
+from mocapflow.tasks import flow, masks, reflectors2d, training
+from mocapflow.tasks.heatmaps import HeatmapConfig
 
 CALIBRATION = ("fx", "fy", "cx", "cy", "dist", "width", "height")
 
@@ -52,4 +53,17 @@ register(TaskSpec(
     name="train_fcn", fn=training.train_fcn, version="1",
     params=training.TrainConfig, output="fcn_weights", partition="dataset",
     inputs={"samples": "fcn_samples"}, description="train the two-stream multi-stage FCN (seeded; GPU if present)",
+))
+register(TaskSpec(
+    name="fcn_heatmaps", fn=Lazy("mocapflow.tasks.heatmaps", "fcn_heatmaps"), version="1",
+    params=HeatmapConfig, output="heatmaps", partition="view",
+    inputs={"masks": "reflector_masks", "flow": "scene_flow"},
+    reads={"masks": ("colorized_depth", "blob_id", "blob_area"), "flow": ("colorized_flow",)},
+    weights_params=("weights",), description="two-stream FCN inference: confidence maps S and optical flow fields L",
+))
+register(TaskSpec(
+    name="greedy_reflectors", fn=reflectors2d.greedy_reflectors, version="1", params=reflectors2d.GreedyConfig,
+    output="reflectors2d", partition="view", inputs={"heatmaps": "heatmaps", "masks": "reflector_masks"},
+    reads={"masks": ("blob_id", "blob_area")}, halo=(1, 0),
+    description="NMS peaks, OFF line integral (Eq. 7-9), region filtering: labelled 2D reflectors",
 ))

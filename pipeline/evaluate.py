@@ -1,18 +1,22 @@
 """`mocapflow evaluate`: accuracy of the catalog's stages on its evaluation split, against studio ground truth.
 
 Missing partitions are computed first (through the same engine as `mocapflow run`); then each
-sequence's artifacts are read view by view and scored by the pure metrics of tasks/evaluation.py.
+sequence's artifacts are read view by view and scored by the pure metrics of tasks/evaluation.py:
+scene flow (the `flow` stage) and the labelled 2D reflectors (a stage writing `reflectors2d`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from mocapflow.pipeline import registry
 from mocapflow.pipeline.errors import PlanError
 from mocapflow.pipeline.plan import Plan, build_plan
 from mocapflow.pipeline.storage import Store
 from mocapflow.schemas import get_schema
-from mocapflow.tasks.evaluation import flow_errors, summarize_flow
+from mocapflow.tasks.evaluation import Matches2D, flow_errors, match_2d, pck_radius, summarize_2d, summarize_flow
+
+C_MIN_SWEEP = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
 
 
 def evaluation_plan(catalog, sequences: str | None) -> Plan:
@@ -20,53 +24,146 @@ def evaluation_plan(catalog, sequences: str | None) -> Plan:
     return build_plan(catalog, pattern)
 
 
+def stage_writing(catalog, schema: str) -> str | None:
+    """The last stage of the catalog whose implementation writes ``schema``."""
+    found = [s.name for s in catalog.stages.values() if registry.get(s.task).output == schema]
+    return found[-1] if found else None
+
+
 def evaluate(catalog, plan: Plan, store: Store) -> dict:
     """Figures per sequence and overall for every stage the catalog has and the studio can score."""
-    if "flow" not in catalog.stages:
-        raise PlanError("the catalog has no `flow` stage to evaluate; add one (see catalog.yaml)")
     if not plan.sequences:
         raise PlanError("the evaluation split selects no sequence; check evaluation.sequences or --sequences")
-    per_sequence, all_errors, all_eligible = {}, [], 0
+    stage_2d = stage_writing(catalog, "reflectors2d")
+    if "flow" not in catalog.stages and stage_2d is None:
+        raise PlanError("the catalog has no `flow` or reflectors2d stage to evaluate; add one (see catalog.yaml)")
+    result: dict = {"sequences": {}}
+    raws = {}
     for seq in plan.sequences:
-        frames_item = plan.items[f"frames/{seq.id}"]
-        raw = store.open("frames", frames_item.key, get_schema("raw_sequence"))
-        if "gt_scene_flow_prev" not in raw or "gt_body" not in raw:
-            raise PlanError(f"sequence {seq.id!r} has no scene-flow ground truth (gt_scene_flow_prev, gt_body); "
-                            "evaluate on studio sequences")
-        errors, eligible = [], 0
+        raw = store.open("frames", plan.items[f"frames/{seq.id}"].key, get_schema("raw_sequence"))
+        if "gt_body" not in raw:
+            raise PlanError(f"sequence {seq.id!r} has no ground truth (gt_body); evaluate on studio sequences")
+        raws[seq.id] = raw
+        result["sequences"][seq.id] = {"exercise": raw.attrs.get("exercise", "")}
+    if "flow" in catalog.stages:
+        result["flow"] = _evaluate_flow(plan, store, raws, result["sequences"])
+        result["task"] = catalog.stages["flow"].task
+    if stage_2d is not None:
+        result["reflectors2d"] = _evaluate_2d(plan, store, raws, stage_2d, result["sequences"])
+    return result
+
+
+def _evaluate_flow(plan: Plan, store: Store, raws: dict, per_sequence: dict) -> dict:
+    all_errors, all_eligible = [], 0
+    for seq in plan.sequences:
+        raw, errors, eligible = raws[seq.id], [], 0
+        if "gt_scene_flow_prev" not in raw:
+            raise PlanError(f"sequence {seq.id!r} has no scene-flow ground truth (gt_scene_flow_prev)")
         for view in seq.views:
-            item = plan.items[f"flow/{seq.id}/{view}"]
-            est = store.open("flow", item.key, get_schema("scene_flow")).sel(view=view)
+            est = store.open("flow", plan.items[f"flow/{seq.id}/{view}"].key, get_schema("scene_flow")).sel(view=view)
             gt = raw.sel(view=view)
             e, n = flow_errors(est["flow"].values, est["valid"].values, gt["gt_scene_flow_prev"].values,
                                gt["gt_body"].values, gt["depth"].values, est["frame"].values == 0)
             errors.append(e)
             eligible += n
         errors = np.concatenate(errors)
-        per_sequence[seq.id] = {"flow": summarize_flow(errors, eligible), "exercise": raw.attrs.get("exercise", "")}
+        per_sequence[seq.id]["flow"] = summarize_flow(errors, eligible)
         all_errors.append(errors)
         all_eligible += eligible
-    overall = summarize_flow(np.concatenate(all_errors), all_eligible)
-    return {"task": catalog.stages["flow"].task, "sequences": per_sequence, "flow": overall}
+    return summarize_flow(np.concatenate(all_errors), all_eligible)
+
+
+def _evaluate_2d(plan: Plan, store: Store, raws: dict, stage: str, per_sequence: dict) -> dict:
+    """AP per reflector and mAP at PCK 0.05, before (best candidate) and after filtering, and the c_min sweep."""
+    names = None
+    total = {"filtered": None, "unfiltered": None}
+    for seq in plan.sequences:
+        raw = raws[seq.id]
+        if "gt_reflectors2d" not in raw:
+            raise PlanError(f"sequence {seq.id!r} has no 2D reflector ground truth (gt_reflectors2d)")
+        names = list(raw["reflector"].values) if "reflector" in raw.coords else names
+        seq_matches = {k: Matches2D(raw.sizes["reflector"]) for k in total}
+        for view in seq.views:
+            est = store.open(stage, plan.items[f"{stage}/{seq.id}/{view}"].key, get_schema("reflectors2d"))
+            est, gt = est.sel(view=view).load(), raw.sel(view=view)
+            names = list(est["reflector"].values)
+            body, uv, pixels = gt["gt_body"].values, gt["gt_reflectors2d"].values, gt["gt_pixels"].values
+            for i in range(est.sizes["frame"]):
+                radius = pck_radius(body[i])
+                for kind, (x, y, c) in {"filtered": ("x", "y", "confidence"),
+                                        "unfiltered": ("candidate_x", "candidate_y", "candidate_confidence")}.items():
+                    xy = np.stack([est[x].values[i], est[y].values[i]], axis=1)
+                    for matches in (seq_matches[kind], _total(total, kind, raw.sizes["reflector"])):
+                        match_2d(matches, xy, est[c].values[i], uv[i], pixels[i], radius)
+        per_sequence[seq.id]["reflectors2d"] = {k: summarize_2d(m, names) for k, m in seq_matches.items()}
+    out = {k: summarize_2d(m, names) for k, m in total.items()}
+    out["sweep"] = {c: summarize_2d(total["filtered"], names, c_min=c) for c in C_MIN_SWEEP}
+    out["stage"] = stage
+    return out
+
+
+def _total(total: dict, kind: str, n: int) -> Matches2D:
+    if total[kind] is None:
+        total[kind] = Matches2D(n)
+    return total[kind]
 
 
 def headline(result: dict) -> dict:
     """The JSON figures `mocapflow evaluate --json` prints."""
-    flow = result["flow"]
-    return {"flow_task": result["task"], "flow_epe_mm": flow["epe_mean_mm"], "flow_epe_median_mm": flow["epe_median_mm"],
-            "flow_coverage": flow["coverage"], "sequences": len(result["sequences"])}
+    out: dict = {"sequences": len(result["sequences"])}
+    if "flow" in result:
+        flow = result["flow"]
+        out.update({"flow_task": result["task"], "flow_epe_mm": flow["epe_mean_mm"],
+                    "flow_epe_median_mm": flow["epe_median_mm"], "flow_coverage": flow["coverage"]})
+    if "reflectors2d" in result:
+        r = result["reflectors2d"]
+        out.update({"map2d": r["filtered"]["map"], "map2d_unfiltered": r["unfiltered"]["map"],
+                    "map2d_no_end": r["filtered"]["map_no_end"], "map2d_unfiltered_no_end": r["unfiltered"]["map_no_end"],
+                    "precision2d": r["filtered"]["precision"], "recall2d": r["filtered"]["recall"]})
+    return out
+
+
+def _format(rows: list[tuple]) -> list[str]:
+    widths = [max(len(r[c]) for r in rows) for c in range(len(rows[0]))]
+    return ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
 
 
 def table(result: dict) -> str:
+    lines = []
+    if "flow" in result:
+        lines += _flow_table(result)
+    if "reflectors2d" in result:
+        lines += ([""] if lines else []) + _reflectors_table(result)
+    return "\n".join(lines)
+
+
+def _flow_table(result: dict) -> list[str]:
     rows = [("sequence", "motion", "EPE mean mm", "EPE median mm", "EPE p90 mm", "coverage")]
-    for name, r in result["sequences"].items():
+    for name, r in list(result["sequences"].items()) + [("all", {"exercise": "", "flow": result["flow"]})]:
         f = r["flow"]
         rows.append((name, r["exercise"], f"{f['epe_mean_mm']:.2f}", f"{f['epe_median_mm']:.2f}",
                      f"{f['epe_p90_mm']:.2f}", f"{f['coverage']:.3f}"))
-    f = result["flow"]
-    rows.append(("all", "", f"{f['epe_mean_mm']:.2f}", f"{f['epe_median_mm']:.2f}", f"{f['epe_p90_mm']:.2f}",
-                 f"{f['coverage']:.3f}"))
-    widths = [max(len(r[c]) for r in rows) for c in range(len(rows[0]))]
-    lines = [f"scene flow ({result['task']}), 3D end-point error on visible body pixels"]
-    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
-    return "\n".join(lines)
+    return [f"scene flow ({result['task']}), 3D end-point error on visible body pixels"] + _format(rows)
+
+
+def _pct(v: float) -> str:
+    return "-" if np.isnan(v) else f"{100 * v:.2f}"
+
+
+def _reflectors_table(result: dict) -> list[str]:
+    r = result["reflectors2d"]
+    lines = [f"2D reflectors ({r['stage']}): AP % at PCK 0.05 of the subject's box (Tables 2-5 form)"]
+    rows = [("reflector", "AP unfiltered", "AP filtered")]
+    rows += [(n, _pct(r["unfiltered"]["ap"][n]), _pct(r["filtered"]["ap"][n])) for n in r["filtered"]["ap"]]
+    rows += [("mAP", _pct(r["unfiltered"]["map"]), _pct(r["filtered"]["map"])),
+             ("mAP without end-reflectors", _pct(r["unfiltered"]["map_no_end"]), _pct(r["filtered"]["map_no_end"]))]
+    lines += _format(rows) + ["", "per sequence"]
+    rows = [("sequence", "motion", "mAP unfiltered", "mAP filtered", "precision", "recall")]
+    for name, s in result["sequences"].items():
+        u, f = s["reflectors2d"]["unfiltered"], s["reflectors2d"]["filtered"]
+        rows.append((name, s["exercise"], _pct(u["map"]), _pct(f["map"]), _pct(f["precision"]), _pct(f["recall"])))
+    lines += _format(rows) + ["", "c_min sweep of the filtered estimates (Fig. 12 form)"]
+    rows = [("c_min", "mAP", "precision", "recall", "estimates")]
+    rows += [(f"{c:.1f}", _pct(s["map"]), _pct(s["precision"]), _pct(s["recall"]), str(s["estimates"]))
+             for c, s in r["sweep"].items()]
+    return lines + _format(rows)

@@ -8,6 +8,8 @@ coverage: the fraction of those pixels the estimator reports a motion for.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
 
@@ -32,3 +34,80 @@ def summarize_flow(errors: np.ndarray, eligible: int) -> dict[str, float]:
     return {"epe_mean_mm": float(errors.mean()), "epe_median_mm": float(np.median(errors)),
             "epe_p90_mm": float(np.percentile(errors, 90)), "coverage": errors.size / max(eligible, 1),
             "pixels": int(errors.size)}
+
+
+# 2D reflector estimation (DeepMoCap §5.1.2): an estimate is correct when it lies within
+# alpha x the subject's bounding-box size (PCK, alpha = 0.05) of the true position of that reflector.
+# Positives are reflectors with at least ``min_pixels`` visible pixels; an estimate of a reflector
+# that shows fewer pixels but more than none is neither right nor wrong (it is ignored, as a
+# "difficult" instance); anything else is a false positive.
+
+END_REFLECTORS = ("R_HAND", "L_HAND", "R_FOOT", "L_FOOT")  # the ends of the limb chains
+
+
+@dataclass
+class Matches2D:
+    """Per reflector: the confidence and correctness of every scored estimate, and the positives."""
+
+    n_reflectors: int
+    confidence: list = field(default_factory=list)  # per reflector: list of arrays
+    correct: list = field(default_factory=list)
+    positives: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.confidence = [[] for _ in range(self.n_reflectors)]
+        self.correct = [[] for _ in range(self.n_reflectors)]
+        self.positives = np.zeros(self.n_reflectors, np.int64)
+
+
+def pck_radius(body: np.ndarray, alpha: float = 0.05) -> float:
+    """alpha x the longer side of the subject's bounding box in one image.  (y, x) bool -> px"""
+    ys, xs = np.nonzero(body)
+    if len(xs) == 0:
+        return 0.0
+    return alpha * float(max(xs.max() - xs.min() + 1, ys.max() - ys.min() + 1))
+
+
+def match_2d(matches: Matches2D, xy: np.ndarray, confidence: np.ndarray, gt_xy: np.ndarray, gt_pixels: np.ndarray,
+             radius: float, *, min_pixels: int = 5) -> None:
+    """Score one image's estimates into ``matches``.  xy, gt_xy (R, 2) px (NaN: no estimate); (R,) each"""
+    positive = gt_pixels >= min_pixels
+    matches.positives += positive
+    distance = np.linalg.norm(xy - gt_xy, axis=1)
+    for r in np.nonzero(np.isfinite(xy[:, 0]))[0]:
+        near = distance[r] <= radius
+        if near and 0 < gt_pixels[r] < min_pixels:
+            continue  # barely visible: ignored
+        matches.confidence[r].append(float(confidence[r]))
+        matches.correct[r].append(bool(near and positive[r]))
+
+
+def average_precision(confidence, correct, positives: int) -> float:
+    """Area under the precision-recall curve (all points, precision made monotone), NaN without positives."""
+    if positives == 0:
+        return float("nan")
+    order = np.argsort(-np.asarray(confidence, float), kind="stable")
+    hits = np.asarray(correct, bool)[order]
+    tp = np.cumsum(hits)
+    precision = tp / np.arange(1, len(hits) + 1)
+    recall = tp / positives
+    envelope = np.maximum.accumulate(precision[::-1])[::-1] if len(hits) else precision
+    steps = np.diff(np.concatenate([[0.0], recall]))
+    return float((envelope * steps).sum())
+
+
+def summarize_2d(matches: Matches2D, names, c_min: float = 0.0) -> dict:
+    """AP per reflector, mAP (with and without end-reflectors), precision and recall of estimates >= c_min."""
+    ap, tp, n_est = {}, 0, 0
+    for r, name in enumerate(names):
+        conf = np.asarray(matches.confidence[r], float)
+        hit = np.asarray(matches.correct[r], bool)
+        kept = conf >= c_min
+        ap[name] = average_precision(conf[kept], hit[kept], int(matches.positives[r]))
+        tp += int(hit[kept].sum())
+        n_est += int(kept.sum())
+    values = np.array([ap[n] for n in names])
+    core = np.array([ap[n] for n in names if n not in END_REFLECTORS])
+    return {"ap": ap, "map": float(np.nanmean(values)), "map_no_end": float(np.nanmean(core)),
+            "precision": tp / max(n_est, 1), "recall": tp / max(int(matches.positives.sum()), 1),
+            "estimates": n_est, "positives": int(matches.positives.sum())}

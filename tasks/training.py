@@ -63,7 +63,7 @@ class TrainConfig:
     margin: float = 1.3
     min_side: float = 50.0
     # optimization
-    iterations: int = 3000
+    iterations: int = 2500
     batch: int = 16
     learning_rate: float = 2e-3
     frame_step: int = 2  # every n-th frame of each view is a sample

@@ -58,7 +58,7 @@ TRAIN_STAGES = """  samples: {task: fcn_samples, inputs: {masks: masks, flow: fl
   weights:                      # the trained network; `mocapflow train` writes it to models/
     task: train_fcn
     inputs: {samples: samples}
-    params: {iterations: 3000, batch: 16, seed: 0}
+    params: {iterations: 2500, batch: 16, seed: 0}
 """
 
 VALIDATION_STAGES = """  heatmaps: {task: fcn_heatmaps, inputs: {masks: masks, flow: flow}, params: {weights: ../models/deepmocap_fcn.pt}}

@@ -1,0 +1,84 @@
+"""Inference of the two-stream FCN: confidence maps S and optical flow fields L per view and frame
+(DeepMoCap §3.3.1). Each frame's two streams are cropped around the subject exactly as in training
+(tasks/training.py), the network runs on batches of crops, and the last stage's maps are kept with
+the affine that takes their input pixels back to the image.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import xarray as xr
+
+from mocapflow.tasks import targets
+from mocapflow.tasks.studio.reflectors import REFLECTOR_NAMES
+from mocapflow.tasks.training import CropConfig, sample_view
+
+
+@dataclass(frozen=True)
+class HeatmapConfig:
+    weights: str = "models/deepmocap_fcn.pt"  # written by `mocapflow train`; its sha256 is in the cache key
+    batch: int = 8
+
+
+def crop_to_image(m: np.ndarray, sample_scale: float) -> np.ndarray:
+    """2x3 affine: crop pixel -> image pixel, for the image->crop affine ``m`` of a sample-scale image."""
+    to_sample = targets.invert_affine(m)  # crop -> sample pixels
+    # sample pixel s -> image pixel (s + 0.5) / scale - 0.5
+    return np.vstack([to_sample[0] / sample_scale, to_sample[1] / sample_scale]) + np.array(
+        [[0, 0, 0.5 / sample_scale - 0.5], [0, 0, 0.5 / sample_scale - 0.5]])
+
+
+def infer(model, depth_images: np.ndarray, flow_images: np.ndarray, batch: int) -> tuple[np.ndarray, np.ndarray]:
+    """Last-stage maps of ``model`` on crops.  (n, s, s, 3) uint8 x2 -> S (n, 26, g, g), L (n, 26, g, g, 2)"""
+    import torch
+
+    from mocapflow.tasks.fcn import N_REFLECTORS, to_input
+
+    s_out, l_out = [], []
+    with torch.inference_mode():
+        for a in range(0, len(depth_images), batch):
+            depth = to_input(depth_images[a:a + batch])
+            flow = to_input(flow_images[a:a + batch]) if model.arch.flow_stream else None
+            s, l = model(depth, flow)[-1]
+            n, _, gh, gw = s.shape
+            s_out.append(s[:, :N_REFLECTORS].clamp(0, 1).numpy())
+            l_out.append(np.zeros((n, N_REFLECTORS, gh, gw, 2), np.float32) if l is None else
+                         l.reshape(n, N_REFLECTORS, 2, gh, gw).permute(0, 1, 3, 4, 2).numpy())
+    return np.concatenate(s_out), np.concatenate(l_out)
+
+
+def fcn_heatmaps(masks: xr.Dataset, flow: xr.Dataset, *, weights: dict, batch: int) -> xr.Dataset:
+    """Confidence maps, OFFs and crop affines for every view and frame of ``masks``/``flow``."""
+    from mocapflow.tasks.fcn import unpack
+
+    model = unpack(weights)
+    crop = CropConfig(**weights.get("crop", {}))
+    size = model.arch.input_size
+    confidence, off, affines = [], [], []
+    for view in masks["view"].values:
+        m, f = masks.sel(view=view), flow.sel(view=view)
+        depth_crops, flow_crops, per_frame = [], [], []
+        for i in range(m.sizes["frame"]):
+            depth_s, flow_s, box, *_ = sample_view(
+                m["colorized_depth"].values[i], f["colorized_flow"].values[i], m["blob_id"].values[i],
+                m["blob_area"].values[i], np.zeros((1, 2)), np.zeros((1, 2)), np.zeros(1),
+                sample_scale=crop.sample_scale, box_min_area=crop.box_min_area)
+            a = targets.crop_affine(box, size=size, margin=crop.margin, min_side=crop.min_side,
+                                    jitter=targets.CropJitter(scale=crop.scale))
+            depth_crops.append(targets.warp_depth(depth_s, a, size))
+            flow_crops.append(targets.warp_flow(flow_s, a, size))
+            per_frame.append(crop_to_image(a, crop.sample_scale).ravel())
+        s, l = infer(model, np.stack(depth_crops), np.stack(flow_crops), batch)
+        confidence.append(s)
+        off.append(l)
+        affines.append(np.stack(per_frame))
+    dims = ("view", "frame", "reflector", "hy", "hx")
+    return xr.Dataset(
+        {"confidence": (dims, np.stack(confidence).astype(np.float16)),
+         "off": (dims + ("uv",), np.stack(off).astype(np.float16)),
+         "crop": (("view", "frame", "affine"), np.stack(affines))},
+        coords={"view": masks["view"].values, "frame": masks["frame"].values, "reflector": list(REFLECTOR_NAMES)},
+        attrs={"stride": int(model.arch.stride)},
+    )

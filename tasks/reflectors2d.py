@@ -1,0 +1,207 @@
+"""Greedy inference of the labelled 2D reflector set (DeepMoCap §3.3.3, filtering of §5.1.3).
+
+Per reflector channel: candidates are the confidence-map peaks (non-maximum suppression, E^S); each
+candidate at frame f is scored against the candidates of the same reflector at f-1 by the line
+integral of the optical flow field L along the segment between them (Eq. 7-8, sampled uniformly);
+the fused confidence is E = E^S + (1 - E^S)·E^L (Eq. 9) and the best candidate is the estimate.
+Filtering: the estimate must lie in a reflector (black) region of at least b_min pixels; its final
+position is that region's centre at full resolution (sub-pixel; a region shared by touching
+reflectors is cut to the pixels near the estimate); of estimates closer than 3 px the more confident
+stays; one estimate per reflector and image; an estimate below c_min is dropped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import xarray as xr
+from scipy import ndimage
+
+from mocapflow.tasks import targets
+
+
+@dataclass(frozen=True)
+class GreedyConfig:
+    peak_threshold: float = 0.1  # E^S of the weakest candidate
+    max_candidates: int = 3  # per reflector and frame
+    line_samples: int = 10  # points of the Eq. (8) sum
+    b_min: int = 5  # smallest reflector region, pixels
+    min_distance_px: float = 3.0  # of two estimates closer than this, the more confident stays
+    snap_px: float = 6.0  # how far from an estimate its reflector region may start, pixels
+    region_radius_px: float = 10.0  # pixels of a region counted towards its centre
+    c_min: float = 0.1  # smallest accepted fused confidence E
+
+
+def peaks(confidence: np.ndarray, threshold: float, max_n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Local maxima of one confidence map, strongest first, refined to sub-cell by a 3x3 centroid.
+    (hy, hx) -> cells (n, 2) as (x, y), values (n,)"""
+    c = np.asarray(confidence, np.float32)
+    is_peak = (c == ndimage.maximum_filter(c, size=3, mode="constant")) & (c >= threshold)
+    ys, xs = np.nonzero(is_peak)
+    order = np.argsort(-c[ys, xs])[:max_n]
+    ys, xs = ys[order], xs[order]
+    padded = np.pad(c, 1)
+    out = []
+    for y, x in zip(ys, xs):
+        w = np.clip(padded[y:y + 3, x:x + 3], 0, None)  # the 3x3 neighbourhood
+        dy, dx = np.mgrid[-1:2, -1:2]
+        out.append((x + (w * dx).sum() / w.sum(), y + (w * dy).sum() / w.sum()))
+    return np.asarray(out, np.float64).reshape(-1, 2), c[ys, xs].astype(np.float64)
+
+
+def bilinear(field: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Sample a (hy, hx, k) field at points (n, 2) (x, y cells), zero outside.  -> (n, k)"""
+    h, w = field.shape[:2]
+    x, y = points[:, 0], points[:, 1]
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    out = np.zeros((len(points), field.shape[2]))
+    for dx in (0, 1):
+        for dy in (0, 1):
+            xi, yi = x0 + dx, y0 + dy
+            weight = (1 - np.abs(x - xi)) * (1 - np.abs(y - yi))
+            inside = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
+            out[inside] += weight[inside, None] * field[yi[inside], xi[inside]]
+    return out
+
+
+def line_integral(field: np.ndarray, start: np.ndarray, end: np.ndarray, samples: int) -> float:
+    """E^L: mean of L(p(u)) . (end - start)/||end - start|| over u uniform in [0, 1].  field (hy, hx, 2)
+
+    E^L = integral_0^1 L(p(u)) . (d2 - d1) / ||d2 - d1|| du, p(u) = (1 - u) d1 + u d2   # Eq. (7)-(8), DeepMoCap
+    """
+    delta = np.asarray(end, float) - np.asarray(start, float)
+    length = np.linalg.norm(delta)
+    if length < 1e-9:
+        return 0.0
+    u = np.linspace(0.0, 1.0, samples)[:, None]
+    values = bilinear(field, (1 - u) * start + u * end)  # (samples, 2)
+    return float((values @ (delta / length)).mean())
+
+
+def fuse(e_s: float, e_l: float) -> float:
+    """E = E^S + (1 - E^S)·E^L, with E^L clipped to [0, 1].   # Eq. (9), DeepMoCap"""
+    return e_s + (1.0 - e_s) * min(max(e_l, 0.0), 1.0)
+
+
+def reflector_region(xy: np.ndarray, blob_id: np.ndarray, blob_area: np.ndarray, *, snap_px: float,
+                     radius_px: float) -> tuple[np.ndarray, int] | None:
+    """Centre (x, y) and area of the reflector region at (or within ``snap_px`` of) image point ``xy``; None if none.
+    A region wider than ``radius_px`` (touching reflectors, a strap seen along) gives the mean of its pixels
+    within ``radius_px`` of the point."""
+    h, w = blob_id.shape
+    r = int(np.ceil(radius_px))
+    x0, y0 = max(int(xy[0]) - r, 0), max(int(xy[1]) - r, 0)
+    window = blob_id[y0:min(int(xy[1]) + r + 2, h), x0:min(int(xy[0]) + r + 2, w)]
+    ys, xs = np.nonzero(window)
+    if len(xs) == 0:
+        return None
+    px = np.stack([xs + x0, ys + y0], axis=1).astype(np.float64)
+    d = np.linalg.norm(px - xy, axis=1)
+    nearest = int(np.argmin(d))
+    if d[nearest] > snap_px:
+        return None
+    label = window[ys[nearest], xs[nearest]]
+    region = px[window[ys, xs] == label]
+    centre = region.mean(axis=0)
+    area = int(blob_area[label - 1])
+    if len(region) == area and np.linalg.norm(region - centre, axis=1).max() <= radius_px:
+        return centre, area  # a reflector-sized region: its centre
+    return px[(window[ys, xs] == label) & (d <= radius_px)].mean(axis=0), area  # a shared or long one: the near part
+
+
+def suppress_close(xy: np.ndarray, confidence: np.ndarray, min_distance: float) -> np.ndarray:
+    """Keep mask: of estimates closer than ``min_distance``, the more confident.  (R, 2), (R,) -> (R,)"""
+    keep = np.isfinite(xy[:, 0])
+    for i in np.argsort(-confidence):
+        if not keep[i]:
+            continue
+        close = np.linalg.norm(xy - xy[i], axis=1) < min_distance
+        close[i] = False
+        keep &= ~(close & (confidence <= confidence[i]))
+    return keep
+
+
+def _candidates(confidence: np.ndarray, threshold: float, max_n: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """NMS candidates of every reflector of one frame.  (R, hy, hx) -> R x (cells (n, 2), E^S (n,))"""
+    return [peaks(c, threshold, max_n) for c in confidence]
+
+
+def _to_image(affine: np.ndarray, cells: np.ndarray, stride: int) -> np.ndarray:
+    return targets.apply_affine(affine.reshape(2, 3), targets.from_cells(cells, stride))
+
+
+def _to_cells(affine: np.ndarray, image_xy: np.ndarray, stride: int) -> np.ndarray:
+    return targets.to_cells(targets.apply_affine(targets.invert_affine(affine.reshape(2, 3)), image_xy), stride)
+
+
+def estimate_frame(confidence, off, affine, prev, *, stride: int, line_samples: int, peak_threshold: float,
+                   max_candidates: int):
+    """Best candidate of every reflector of one frame, scored with the OFF against the previous frame.
+
+    confidence (R, hy, hx), off (R, hy, hx, 2), affine (6,) crop -> image; prev: (candidates, affine) of
+    f-1 or None.  -> image xy (R, 2) NaN where no candidate, fused confidence E (R,), candidates
+    """
+    cands = _candidates(confidence, peak_threshold, max_candidates)
+    xy = np.full((len(cands), 2), np.nan)
+    best = np.zeros(len(cands))
+    for r, (cells, e_s) in enumerate(cands):
+        earlier = np.empty((0, 2))
+        if prev is not None and len(prev[0][r][0]):  # f-1 candidates, moved into this frame's crop
+            earlier = _to_cells(affine, _to_image(prev[1], prev[0][r][0], stride), stride)
+        for p, es in zip(cells, e_s):
+            e_l = max((line_integral(off[r], q, p, line_samples) for q in earlier), default=0.0)
+            e = fuse(float(es), e_l)
+            if e > best[r]:
+                best[r], xy[r] = e, _to_image(affine, p[None], stride)[0]
+    return xy, best, cands
+
+
+def filter_frame(xy, confidence, blob_id, blob_area, *, b_min: int, min_distance_px: float, snap_px: float,
+                 region_radius_px: float, c_min: float):
+    """§5.1.3 filtering of one image's estimates.  -> region centres (R, 2) NaN if rejected, E (R,), sizes (R,)"""
+    out = np.full_like(xy, np.nan)
+    size = np.zeros(len(xy), np.int32)
+    for r in np.nonzero(np.isfinite(xy[:, 0]) & (confidence >= c_min))[0]:
+        region = reflector_region(xy[r], blob_id, blob_area, snap_px=snap_px, radius_px=region_radius_px)
+        if region is not None and region[1] >= b_min:
+            out[r], size[r] = region
+    keep = suppress_close(out, confidence, min_distance_px)
+    out[~keep] = np.nan
+    size[~keep] = 0
+    return out, np.where(keep, confidence, 0.0), size
+
+
+def greedy_reflectors(heatmaps: xr.Dataset, masks: xr.Dataset, *, peak_threshold: float, max_candidates: int,
+                      line_samples: int, b_min: int, min_distance_px: float, snap_px: float, region_radius_px: float,
+                      c_min: float) -> xr.Dataset:
+    """Labelled 2D reflectors of every view and frame (``heatmaps`` starts one frame early, for f-1)."""
+    stride = int(heatmaps.attrs["stride"])
+    shape = (heatmaps.sizes["view"], heatmaps.sizes["frame"], heatmaps.sizes["reflector"])
+    out = {k: np.full(shape + (2,), np.nan) for k in ("xy", "candidate")}
+    out.update({k: np.zeros(shape) for k in ("confidence", "candidate_confidence")})
+    out["size"] = np.zeros(shape, np.int32)
+    frames = heatmaps["frame"].values
+    for v, view in enumerate(heatmaps["view"].values):
+        h, m = heatmaps.sel(view=view), masks.sel(view=view)
+        conf, off, crop = h["confidence"].values.astype(np.float32), h["off"].values.astype(np.float32), h["crop"].values
+        prev = None
+        for i, frame in enumerate(frames):
+            xy, e, cands = estimate_frame(conf[i], off[i], crop[i], prev if i and frames[i - 1] == frame - 1 else None,
+                                          stride=stride, line_samples=line_samples, peak_threshold=peak_threshold,
+                                          max_candidates=max_candidates)
+            prev = (cands, crop[i])
+            out["candidate"][v, i], out["candidate_confidence"][v, i] = xy, e
+            j = int(np.nonzero(m["frame"].values == frame)[0][0])
+            out["xy"][v, i], out["confidence"][v, i], out["size"][v, i] = filter_frame(
+                xy, e, m["blob_id"].values[j], m["blob_area"].values[j], b_min=b_min, min_distance_px=min_distance_px,
+                snap_px=snap_px, region_radius_px=region_radius_px, c_min=c_min)
+    dims = ("view", "frame", "reflector")
+    f32 = lambda a: (dims, a.astype(np.float32))  # noqa: E731
+    return xr.Dataset(
+        {"x": f32(out["xy"][..., 0]), "y": f32(out["xy"][..., 1]), "confidence": f32(out["confidence"]),
+         "region_size": (dims, out["size"]), "candidate_x": f32(out["candidate"][..., 0]),
+         "candidate_y": f32(out["candidate"][..., 1]), "candidate_confidence": f32(out["candidate_confidence"])},
+        coords={"view": heatmaps["view"].values, "frame": frames, "reflector": heatmaps["reflector"].values},
+        attrs={"b_min": int(b_min), "c_min": float(c_min)},
+    )

@@ -1,0 +1,54 @@
+"""The two-stream FCN: stage outputs and their feedback (Eq. 1), ablation options, loss (Eq. 2-3), weights round-trip."""
+
+import io
+
+import numpy as np
+import pytest
+import torch
+
+from mocapflow.tasks import fcn
+
+
+def test_stages_and_branches_have_the_declared_shapes():
+    arch = fcn.FcnArchitecture(input_size=64, stream_width=8, fused_width=16, stage_width=16, stages=3)
+    model = fcn.TwoStreamFCN(arch).eval()
+    x = torch.zeros(2, 3, 64, 64)
+    outputs = model(x, x)
+    assert len(outputs) == 3
+    for s, l in outputs:
+        assert s.shape == (2, 27, 16, 16) and l.shape == (2, 52, 16, 16)
+    # stage t > 1 reads (F, S_{t-1}, L_{t-1}): 16 + 27 + 52 channels
+    assert model.stages[1].body[0][0].in_channels == 16 + 27 + 52
+    assert model.stages[0].body[0][0].in_channels == 16
+
+
+def test_ablations_drop_the_flow_stream_and_the_off_branch():
+    depth_only = fcn.TwoStreamFCN(fcn.FcnArchitecture(input_size=32, stream_width=8, fused_width=8, stage_width=8,
+                                                      stages=2, flow_stream=False, off_branch=False))
+    assert depth_only.flow is None and depth_only.stages[1].off is None
+    outputs = depth_only(torch.zeros(1, 3, 32, 32))
+    assert outputs[-1][1] is None and outputs[-1][0].shape == (1, 27, 8, 8)
+    assert depth_only.stages[1].body[0][0].in_channels == 8 + 27
+
+
+def test_loss_sums_both_branches_over_stages():
+    s = torch.ones(2, 27, 4, 4)
+    l = torch.zeros(2, 52, 4, 4)
+    outputs = [(s, l), (s, l)]
+    loss = fcn.stage_losses(outputs, torch.zeros_like(s), torch.ones_like(l))
+    assert float(loss) == pytest.approx(2 * (27 * 16 + 52 * 16))  # per sample: 2 stages x (S + L) squared errors
+
+
+def test_weights_round_trip_through_plain_tensors():
+    arch = fcn.FcnArchitecture(input_size=32, stream_width=8, fused_width=8, stage_width=8, stages=2)
+    torch.manual_seed(0)
+    model = fcn.TwoStreamFCN(arch).eval()
+    buffer = io.BytesIO()
+    torch.save(fcn.pack(model), buffer)
+    buffer.seek(0)
+    again = fcn.unpack(torch.load(buffer, weights_only=True))
+    x = torch.from_numpy(np.random.default_rng(0).random((1, 3, 32, 32), np.float32))
+    with torch.no_grad():
+        torch.testing.assert_close(model(x, x)[-1][0], again(x, x)[-1][0])
+    with pytest.raises(ValueError, match="mocapflow train"):
+        fcn.unpack({"architecture": {"input_size": 32}, "state": {}})
