@@ -59,7 +59,8 @@ register(TaskSpec(
     params=HeatmapConfig, output="heatmaps", partition="view",
     inputs={"masks": "reflector_masks", "flow": "scene_flow"},
     reads={"masks": ("colorized_depth", "blob_id", "blob_area"), "flow": ("colorized_flow",)},
-    weights_params=("weights",), description="two-stream FCN inference: confidence maps S and optical flow fields L",
+    weights_params=("weights",), packaged_weights={"weights": "deepmocap_fcn.pt"},
+    description="two-stream FCN inference: confidence maps S and optical flow fields L",
 ))
 register(TaskSpec(
     name="greedy_reflectors", fn=reflectors2d.greedy_reflectors, version="1", params=reflectors2d.GreedyConfig,

@@ -20,6 +20,7 @@ from mocapflow.pipeline.datasets import SequenceInfo, discover
 from mocapflow.pipeline.errors import PlanError
 from mocapflow.pipeline.hashing import digest, file_digest
 from mocapflow.pipeline.storage import Store
+from mocapflow.models import packaged
 from mocapflow.schemas import get_schema
 
 
@@ -118,7 +119,7 @@ def build_plan(catalog: Catalog, sequences: str | None = None) -> Plan:
 
 def _dataset_item(catalog, stage, dataset_name, seqs, all_keys, weights) -> WorkItem:
     """The one partition of a per-dataset stage: it reads its inputs for every sequence of the dataset."""
-    for role, up_name in stage.inputs.items():
+    for up_name in stage.inputs.values():
         if registry.get(catalog.stages[up_name].task).partition == "dataset":
             raise PlanError(f"stage {stage.name!r} (per dataset) reads {up_name!r}, also per dataset; "
                             "a per-dataset stage reads per-view or per-sequence stages")
@@ -176,10 +177,14 @@ def _weights(catalog, stage, spec) -> dict[str, tuple[str, str]]:
         value = getattr(stage.params, name)
         if value:
             path = catalog.resolve_data_path(str(value), f"stages.{stage.name}.params.{name}")
-            if not path.is_file():
-                raise PlanError(f"stages.{stage.name}.params.{name}: weights file {path} does not exist; "
-                                "train it first or point the parameter at an existing file")
-            out[name] = (str(path), file_digest(str(path)))
+        elif name in spec.packaged_weights:
+            path = packaged(spec.packaged_weights[name])
+        else:
+            continue
+        if not path.is_file():
+            raise PlanError(f"stages.{stage.name}.params.{name}: weights file {path} does not exist; "
+                            "train it first (`mocapflow train`) or point the parameter at an existing file")
+        out[name] = (str(path), file_digest(str(path)))
     return out
 
 

@@ -3,7 +3,8 @@
 tasks/ holds pure array functions; this module says how the engine drives each one: which
 stage partition kind it runs on, which artifacts it reads (role -> schema) and writes, its
 frozen params dataclass, its explicit code version (bump it when results change), the frame
-halo it needs around a region, and which params name weight files (hashed into the cache key).
+halo it needs around a region, and which params name weight files (hashed into the cache key;
+an empty one means the file shipped in mocapflow.models).
 Plugins listed in a catalog register further implementations with :func:`register`.
 """
 
@@ -43,6 +44,7 @@ class TaskSpec:
     halo: tuple[int, int] = (0, 0)
     reads: Mapping[str, tuple[str, ...]] = field(default_factory=dict)  # role -> the variables it needs
     weights_params: tuple[str, ...] = ()
+    packaged_weights: Mapping[str, str] = field(default_factory=dict)  # param -> file in mocapflow.models, when empty
     source: bool = False
     description: str = ""
 

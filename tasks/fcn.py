@@ -95,19 +95,19 @@ class TwoStreamFCN(nn.Module):
         fused = self.fuse(torch.cat(features, dim=1))  # F = F_OF ⊕ F_D
         outputs, x = [], fused
         for stage in self.stages:
-            s, l = stage(x)
-            outputs.append((s, l))
-            x = torch.cat([fused, s] + ([l] if l is not None else []), dim=1)  # Eq. (1): (F, S_{t-1}, L_{t-1})
+            s, fields = stage(x)
+            outputs.append((s, fields))
+            x = torch.cat([fused, s] + ([fields] if fields is not None else []), dim=1)  # Eq. (1): (F, S_{t-1}, L_{t-1})
         return outputs
 
 
 def stage_losses(outputs, s_target: torch.Tensor, l_target: torch.Tensor | None) -> torch.Tensor:
     """Sum over stages of the L2 losses of both branches, per sample.   # Eq. (2)-(3), DeepMoCap"""
     total = 0.0
-    for s, l in outputs:
+    for s, fields in outputs:
         total = total + ((s - s_target) ** 2).sum() / len(s)
-        if l is not None and l_target is not None:
-            total = total + ((l - l_target) ** 2).sum() / len(l)
+        if fields is not None and l_target is not None:
+            total = total + ((fields - l_target) ** 2).sum() / len(fields)
     return total
 
 

@@ -18,7 +18,7 @@ from mocapflow.tasks.training import CropConfig, sample_view
 
 @dataclass(frozen=True)
 class HeatmapConfig:
-    weights: str = "models/deepmocap_fcn.pt"  # written by `mocapflow train`; its sha256 is in the cache key
+    weights: str = ""  # a file written by `mocapflow train`; empty: the weights shipped with mocapflow
     batch: int = 8
 
 
@@ -41,11 +41,11 @@ def infer(model, depth_images: np.ndarray, flow_images: np.ndarray, batch: int) 
         for a in range(0, len(depth_images), batch):
             depth = to_input(depth_images[a:a + batch])
             flow = to_input(flow_images[a:a + batch]) if model.arch.flow_stream else None
-            s, l = model(depth, flow)[-1]
+            s, fields = model(depth, flow)[-1]
             n, _, gh, gw = s.shape
             s_out.append(s[:, :N_REFLECTORS].clamp(0, 1).numpy())
-            l_out.append(np.zeros((n, N_REFLECTORS, gh, gw, 2), np.float32) if l is None else
-                         l.reshape(n, N_REFLECTORS, 2, gh, gw).permute(0, 1, 3, 4, 2).numpy())
+            l_out.append(np.zeros((n, N_REFLECTORS, gh, gw, 2), np.float32) if fields is None else
+                         fields.reshape(n, N_REFLECTORS, 2, gh, gw).permute(0, 1, 3, 4, 2).numpy())
     return np.concatenate(s_out), np.concatenate(l_out)
 
 
@@ -70,9 +70,9 @@ def fcn_heatmaps(masks: xr.Dataset, flow: xr.Dataset, *, weights: dict, batch: i
             depth_crops.append(targets.warp_depth(depth_s, a, size))
             flow_crops.append(targets.warp_flow(flow_s, a, size))
             per_frame.append(crop_to_image(a, crop.sample_scale).ravel())
-        s, l = infer(model, np.stack(depth_crops), np.stack(flow_crops), batch)
+        s, fields = infer(model, np.stack(depth_crops), np.stack(flow_crops), batch)
         confidence.append(s)
-        off.append(l)
+        off.append(fields)
         affines.append(np.stack(per_frame))
     dims = ("view", "frame", "reflector", "hy", "hx")
     return xr.Dataset(

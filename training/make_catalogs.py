@@ -61,7 +61,7 @@ TRAIN_STAGES = """  samples: {task: fcn_samples, inputs: {masks: masks, flow: fl
     params: {iterations: 2500, batch: 16, seed: 0}
 """
 
-VALIDATION_STAGES = """  heatmaps: {task: fcn_heatmaps, inputs: {masks: masks, flow: flow}, params: {weights: ../models/deepmocap_fcn.pt}}
+VALIDATION_STAGES = """  heatmaps: {task: fcn_heatmaps, inputs: {masks: masks, flow: flow}}
   reflectors2d: {task: greedy_reflectors, inputs: {heatmaps: heatmaps, masks: masks}, params: {c_min: 0.0}}
 
 evaluation:

@@ -55,15 +55,15 @@ def test_train_caches_reproduces_and_feeds_inference(tmp_path):
 
     again = last_json(mocapflow("train", "--catalog", "catalog.yaml", "--out", "again.pt", "--json", cwd=tmp_path))
     assert again["key"] == first["key"] and (tmp_path / "again.pt").read_bytes() == data  # cached, same bytes
-    reseeded = last_json(mocapflow("train", "--catalog", "catalog.yaml", "--out", "other.pt", "--json", "--set", "stages.weights.params.seed=1",
-                                   cwd=tmp_path, timeout=600))
+    reseeded = last_json(mocapflow("train", "--catalog", "catalog.yaml", "--out", "other.pt", "--json",
+                                   "--set", "stages.weights.params.seed=1", cwd=tmp_path, timeout=600))
     assert reseeded["key"] != first["key"] and reseeded["sha256"] != first["sha256"]
 
     (tmp_path / "infer.yaml").write_text(INFERENCE)
     run = last_json(mocapflow("run", "--catalog", "infer.yaml", "--json", cwd=tmp_path, timeout=600))
     assert not [p for p in run["executed"] if p.startswith(("frames", "masks", "flow"))]  # shared with training
     assert sorted(p for p in run["executed"] if p.startswith("reflectors2d")) == [
-        "reflectors2d/jj/kinect0", "reflectors2d/jj/kinect1", "reflectors2d/squat/kinect0", "reflectors2d/squat/kinect1"]
+        f"reflectors2d/{s}/kinect{v}" for s in ("jj", "squat") for v in (0, 1)]
     plan = build_plan(load_catalog(tmp_path / "infer.yaml", ()))
     heat = store.open("heatmaps", plan.items["heatmaps/jj/kinect0"].key, get_schema("heatmaps"))
     assert heat["confidence"].shape == (1, 6, 26, 16, 16) and heat["off"].shape == (1, 6, 26, 16, 16, 2)

@@ -15,8 +15,8 @@ def test_stages_and_branches_have_the_declared_shapes():
     x = torch.zeros(2, 3, 64, 64)
     outputs = model(x, x)
     assert len(outputs) == 3
-    for s, l in outputs:
-        assert s.shape == (2, 27, 16, 16) and l.shape == (2, 52, 16, 16)
+    for s, fields in outputs:
+        assert s.shape == (2, 27, 16, 16) and fields.shape == (2, 52, 16, 16)
     # stage t > 1 reads (F, S_{t-1}, L_{t-1}): 16 + 27 + 52 channels
     assert model.stages[1].body[0][0].in_channels == 16 + 27 + 52
     assert model.stages[0].body[0][0].in_channels == 16
@@ -33,9 +33,9 @@ def test_ablations_drop_the_flow_stream_and_the_off_branch():
 
 def test_loss_sums_both_branches_over_stages():
     s = torch.ones(2, 27, 4, 4)
-    l = torch.zeros(2, 52, 4, 4)
-    outputs = [(s, l), (s, l)]
-    loss = fcn.stage_losses(outputs, torch.zeros_like(s), torch.ones_like(l))
+    fields = torch.zeros(2, 52, 4, 4)
+    outputs = [(s, fields), (s, fields)]
+    loss = fcn.stage_losses(outputs, torch.zeros_like(s), torch.ones_like(fields))
     assert float(loss) == pytest.approx(2 * (27 * 16 + 52 * 16))  # per sample: 2 stages x (S + L) squared errors
 
 

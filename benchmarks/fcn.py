@@ -1,0 +1,76 @@
+"""2D reflector estimation benchmark: inference time per view-frame on one CPU core at the default input
+size (the `heatmaps` stage function whole: resize, crop, network; and the greedy `reflectors2d` step),
+the training wall time and the weight file's size. Accuracy comes from the held-out split:
+
+    taskset -c 0 python benchmarks/fcn.py
+    mocapflow evaluate --catalog benchmarks/catalog.yaml --json
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import statistics
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(var, "1")
+
+import torch  # noqa: E402
+
+from mocapflow.pipeline.catalog import load_catalog  # noqa: E402
+from mocapflow.pipeline.plan import build_plan  # noqa: E402
+from mocapflow.pipeline.storage import Store  # noqa: E402
+from mocapflow.schemas import get_schema  # noqa: E402
+from mocapflow.tasks.flow import DisConfig, dis  # noqa: E402
+from mocapflow.tasks.heatmaps import fcn_heatmaps  # noqa: E402
+from mocapflow.tasks.masks import MaskConfig, masks  # noqa: E402
+from mocapflow.tasks.reflectors2d import GreedyConfig, greedy_reflectors  # noqa: E402
+from mocapflow.tasks.studio.synth import SequenceSpec, build_rig, synthesize  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+WEIGHTS = ROOT / "models" / "deepmocap_fcn.pt"
+
+
+def time_per_view_frame(frames: int = 16) -> dict[str, float]:
+    """Median milliseconds per view-frame of the heatmaps stage function (batch of one) and of greedy inference."""
+    torch.set_num_threads(1)
+    raw = synthesize(build_rig(SequenceSpec("jumping_jack", frames=frames, seed=9100, random_layout=True)), 0, frames)
+    m = masks(raw[["depth", "ir"]], **asdict(MaskConfig()))
+    f = dis(raw, **asdict(DisConfig()))
+    weights = torch.load(WEIGHTS, weights_only=True)
+    heat_ms, greedy_ms = [], []
+    for view in raw["view"].values[:1]:
+        for i in range(frames):
+            one_m, one_f = m.sel(view=[view]).isel(frame=[i]), f.sel(view=[view]).isel(frame=[i])
+            t = time.perf_counter()
+            h = fcn_heatmaps(one_m, one_f, weights=weights, batch=1)
+            heat_ms.append(1000 * (time.perf_counter() - t))
+            t = time.perf_counter()
+            greedy_reflectors(h, one_m, **asdict(GreedyConfig()))
+            greedy_ms.append(1000 * (time.perf_counter() - t))
+    return {"heatmaps_ms": statistics.median(heat_ms[2:]), "reflectors2d_ms": statistics.median(greedy_ms[2:])}
+
+
+def training_figures() -> dict:
+    """Wall time and samples of the training run that made the committed weights (from its artifact)."""
+    catalog = load_catalog(ROOT / "training" / "catalog.yaml", ())
+    item = build_plan(catalog).items["weights/train"]
+    store = Store(catalog.root)
+    if not store.is_complete("weights", item.key):
+        return {"training": "not in storage; run `mocapflow train`"}
+    attrs = store.open("weights", item.key, get_schema("fcn_weights")).attrs["training"]
+    return {"training_seconds": attrs["seconds"], "training_samples": attrs["samples"], "device": attrs["device"],
+            "iterations": attrs["config"]["iterations"], "batch": attrs["config"]["batch"]}
+
+
+def main() -> None:
+    figures = {"input_size": torch.load(WEIGHTS, weights_only=True)["architecture"]["input_size"],
+               "weights_mb": round(WEIGHTS.stat().st_size / 1e6, 2), **time_per_view_frame(), **training_figures()}
+    print(json.dumps(figures, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,14 @@
+"""Trained weights shipped with mocapflow.
+
+``deepmocap_fcn.pt``: the two-stream FCN of the `heatmaps` stage (plain tensors, read with
+``torch.load(..., weights_only=True)``), trained on studio data by ``mocapflow train`` from
+``training/catalog.yaml``; a stage whose ``weights`` parameter is empty uses it.
+"""
+
+from importlib import resources
+from pathlib import Path
+
+
+def packaged(name: str) -> Path:
+    """Path of a weights file shipped in this package."""
+    return Path(str(resources.files(__name__) / name))
