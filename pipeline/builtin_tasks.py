@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from mocapflow.pipeline.registry import Lazy, NoParams, TaskSpec, register
-from mocapflow.tasks import flow, masks, reflectors2d, training
+from mocapflow.tasks import flow, markers3d, masks, reflectors2d, smoothing, training
 from mocapflow.tasks.heatmaps import HeatmapConfig
 
 CALIBRATION = ("fx", "fy", "cx", "cy", "dist", "width", "height")
@@ -68,3 +68,19 @@ register(TaskSpec(
     reads={"masks": ("blob_id", "blob_area")}, halo=(1, 0),
     description="NMS peaks, OFF line integral (Eq. 7-9), region filtering: labelled 2D reflectors",
 ))
+
+# 3D optical data (DeepMoCap §3.4): 2D -> 3D and fusion, then temporal filtering.
+register(TaskSpec(
+    name="fuse_views", fn=markers3d.markers3d, version="1", params=markers3d.Markers3DConfig, output="markers3d",
+    partition="sequence", inputs={"reflectors": "reflectors2d", "masks": "reflector_masks", "frames": "raw_sequence"},
+    reads={"reflectors": ("x", "y", "confidence"), "masks": ("blob_id",), "frames": ("depth",) + CALIBRATION
+           + ("cam_to_world",)},
+    description="region-contour depth, back-projection, patch mean / strap normal-line fusion (Eq. 10, A1)",
+))
+for name, fn, params, what in (
+        ("kalman", smoothing.kalman, smoothing.KalmanConfig,
+         "filterpy Kalman filter: gating, gap prediction, optional RTS smoothing"),
+        ("butterworth", smoothing.butterworth, smoothing.ButterworthConfig, "zero-phase Butterworth low-pass"),
+        ("none", smoothing.no_smoothing, smoothing.NoSmoothing, "the fused markers unchanged")):
+    register(TaskSpec(name=name, fn=fn, version="1", params=params, output="smoothed_markers", partition="sequence",
+                      inputs={"markers": "markers3d"}, whole_sequence=True, description=what))

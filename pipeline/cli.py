@@ -294,14 +294,16 @@ def synth(out_dir, motions, views, frames, fps, seed, subject_height, noise, lay
 
 
 def _matrix(plan: Plan, stages: list[str], cells: dict[str, str]) -> str:
-    """Rows: stages; columns: sequence/view. A per-sequence stage fills every view column of its sequence."""
+    """Rows: stages; columns: sequence/view. A per-sequence stage fills every view column of its sequence,
+    a per-dataset stage every column of its dataset."""
     columns = [(s.id, v) for s in plan.sequences for v in s.views]
     header = ["stage"] + [f"{s}/{v}" for s, v in columns]
     rows = [header]
     for stage in stages:
         row = [stage]
         for seq, view in columns:
-            row.append(cells.get(f"{stage}/{seq}/{view}") or cells.get(f"{stage}/{seq}") or "")
+            row.append(cells.get(f"{stage}/{seq}/{view}") or cells.get(f"{stage}/{seq}")
+                       or cells.get(f"{stage}/{plan.dataset_of.get(seq)}") or "")
         rows.append(row)
     widths = [max(len(r[c]) for r in rows) for c in range(len(header))]
     return "\n".join("  ".join(cell.ljust(w) for cell, w in zip(r, widths)).rstrip() for r in rows)

@@ -14,7 +14,8 @@ from mocapflow.pipeline.errors import PlanError
 from mocapflow.pipeline.plan import Plan, build_plan
 from mocapflow.pipeline.storage import Store
 from mocapflow.schemas import get_schema
-from mocapflow.tasks.evaluation import Matches2D, flow_errors, match_2d, pck_radius, summarize_2d, summarize_flow
+from mocapflow.tasks.evaluation import (Matches2D, flow_errors, jitter, marker_errors, match_2d, pck_radius, summarize_2d,
+                                       summarize_flow, summarize_markers)
 
 C_MIN_SWEEP = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
 
@@ -35,6 +36,7 @@ def evaluate(catalog, plan: Plan, store: Store) -> dict:
     if not plan.sequences:
         raise PlanError("the evaluation split selects no sequence; check evaluation.sequences or --sequences")
     stage_2d = stage_writing(catalog, "reflectors2d")
+    stages_3d = {k: stage_writing(catalog, schema) for k, schema in (("fused", "markers3d"), ("smoothed", "smoothed_markers"))}
     if "flow" not in catalog.stages and stage_2d is None:
         raise PlanError("the catalog has no `flow` or reflectors2d stage to evaluate; add one (see catalog.yaml)")
     result: dict = {"sequences": {}}
@@ -50,7 +52,34 @@ def evaluate(catalog, plan: Plan, store: Store) -> dict:
         result["task"] = catalog.stages["flow"].task
     if stage_2d is not None:
         result["reflectors2d"] = _evaluate_2d(plan, store, raws, stage_2d, result["sequences"])
+    for kind, stage in stages_3d.items():
+        if stage is not None:
+            result[f"markers_{kind}"] = _evaluate_markers(plan, store, raws, stage, kind, result["sequences"])
     return result
+
+
+def _evaluate_markers(plan: Plan, store: Store, raws: dict, stage: str, kind: str, per_sequence: dict) -> dict:
+    """3D error of each reflector against the studio's ground truth, completeness and jitter."""
+    schema = get_schema(registry.get(plan.items[f"{stage}/{plan.sequences[0].id}"].stage.task).output)
+    errors, names, jitters, gt_jitters = [], None, [], []
+    for seq in plan.sequences:
+        raw = raws[seq.id]
+        if "gt_reflectors" not in raw:
+            raise PlanError(f"sequence {seq.id!r} has no 3D reflector ground truth (gt_reflectors)")
+        est = store.open(stage, plan.items[f"{stage}/{seq.id}"].key, schema).load()
+        names = [str(n) for n in est["reflector"].values]
+        gt = raw["gt_reflectors"].values
+        e = marker_errors(est["xyz"].values, gt)
+        fps = float(raw.attrs["fps"])
+        per_sequence[seq.id][f"markers_{kind}"] = summarize_markers(
+            e, names, jitter_value=jitter(est["xyz"].values, fps), gt_jitter=jitter(gt, fps))
+        errors.append(e)
+        jitters.append(per_sequence[seq.id][f"markers_{kind}"]["jitter_ms2"])
+        gt_jitters.append(per_sequence[seq.id][f"markers_{kind}"]["gt_jitter_ms2"])
+    out = summarize_markers(np.concatenate(errors), names, jitter_value=float(np.nanmean(jitters)),
+                            gt_jitter=float(np.nanmean(gt_jitters)))
+    out["stage"] = stage
+    return out
 
 
 def _evaluate_flow(plan: Plan, store: Store, raws: dict, per_sequence: dict) -> dict:
@@ -120,6 +149,12 @@ def headline(result: dict) -> dict:
         out.update({"map2d": r["filtered"]["map"], "map2d_unfiltered": r["unfiltered"]["map"],
                     "map2d_no_end": r["filtered"]["map_no_end"], "map2d_unfiltered_no_end": r["unfiltered"]["map_no_end"],
                     "precision2d": r["filtered"]["precision"], "recall2d": r["filtered"]["recall"]})
+    for kind, prefix in (("fused", "marker_fused_"), ("smoothed", "marker_")):
+        if f"markers_{kind}" in result:
+            m = result[f"markers_{kind}"]
+            out.update({f"{prefix}err_median_mm": m["median_mm"], f"{prefix}err_mean_mm": m["mean_mm"],
+                        f"{prefix}err_p95_mm": m["p95_mm"], f"{prefix}completeness": m["completeness"],
+                        f"{prefix}jitter_ms2": m["jitter_ms2"]})
     return out
 
 
@@ -134,7 +169,27 @@ def table(result: dict) -> str:
         lines += _flow_table(result)
     if "reflectors2d" in result:
         lines += ([""] if lines else []) + _reflectors_table(result)
+    if "markers_fused" in result or "markers_smoothed" in result:
+        lines += ([""] if lines else []) + _markers_table(result)
     return "\n".join(lines)
+
+
+def _markers_table(result: dict) -> list[str]:
+    kinds = [k for k in ("fused", "smoothed") if f"markers_{k}" in result]
+    lines = ["3D reflectors: error against ground truth (mm), completeness, jitter (mean |acceleration|, m/s^2)"]
+    rows = [("sequence", "motion", "markers", "median", "mean", "p95", "complete %", "jitter", "true jitter")]
+    for name, s in list(result["sequences"].items()) + [("all", {"exercise": "", **{f"markers_{k}": result[f"markers_{k}"]
+                                                                                    for k in kinds}})]:
+        for k in kinds:
+            m = s[f"markers_{k}"]
+            rows.append((name, s["exercise"], f"{k} ({result[f'markers_{k}']['stage']})", f"{m['median_mm']:.1f}",
+                         f"{m['mean_mm']:.1f}", f"{m['p95_mm']:.1f}", f"{100 * m['completeness']:.2f}",
+                         f"{m['jitter_ms2']:.2f}", f"{m['gt_jitter_ms2']:.2f}"))
+    lines += _format(rows) + ["", "median error per reflector (mm)"]
+    rows = [("reflector",) + tuple(kinds)]
+    names = result[f"markers_{kinds[0]}"]["per_reflector_median_mm"]
+    rows += [(n,) + tuple(f"{result[f'markers_{k}']['per_reflector_median_mm'][n]:.1f}" for k in kinds) for n in names]
+    return lines + _format(rows)
 
 
 def _flow_table(result: dict) -> list[str]:

@@ -81,7 +81,8 @@ def _produce(item: WorkItem, store: Store) -> int:
     n = item.sequence.n_frames
     written = 0
     t0 = time.perf_counter()
-    for start, stop in regions(n, item.stage.region_frames, schema.frame_chunk):
+    spans = [(0, n)] if spec.whole_sequence else regions(n, item.stage.region_frames, schema.frame_chunk)
+    for start, stop in spans:
         if store.region_done(stage, key, start, stop):
             continue
         out = _compute_region(item, spec, store, start, stop)

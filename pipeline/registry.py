@@ -42,6 +42,7 @@ class TaskSpec:
     partition: Partitioning
     inputs: Mapping[str, str] = field(default_factory=dict)
     halo: tuple[int, int] = (0, 0)
+    whole_sequence: bool = False  # the task needs every frame at once (temporal filters): one region
     reads: Mapping[str, tuple[str, ...]] = field(default_factory=dict)  # role -> the variables it needs
     weights_params: tuple[str, ...] = ()
     packaged_weights: Mapping[str, str] = field(default_factory=dict)  # param -> file in mocapflow.models, when empty

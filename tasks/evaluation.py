@@ -111,3 +111,32 @@ def summarize_2d(matches: Matches2D, names, c_min: float = 0.0) -> dict:
     return {"ap": ap, "map": float(np.nanmean(values)), "map_no_end": float(np.nanmean(core)),
             "precision": tp / max(n_est, 1), "recall": tp / max(int(matches.positives.sum()), 1),
             "estimates": n_est, "positives": int(matches.positives.sum())}
+
+
+# 3D optical data (DeepMoCap §3.4): per-reflector error against the studio's ground truth (a strap's
+# ground truth is the limb centre at the strap, a patch's the tape's centre), completeness and jitter.
+
+def marker_errors(xyz: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """Distances in mm, NaN where no estimate.  (frame, reflector, 3) m x2 -> (frame, reflector)"""
+    return 1000.0 * np.linalg.norm(xyz.astype(np.float64) - gt.astype(np.float64), axis=-1)
+
+
+def jitter(xyz: np.ndarray, fps: float) -> float:
+    """Mean acceleration magnitude (m/s^2) over frames whose neighbours are observed too.  (frame, reflector, 3)"""
+    acc = (xyz[2:] - 2 * xyz[1:-1] + xyz[:-2]) * fps**2
+    norms = np.linalg.norm(acc, axis=-1)
+    return float(np.nanmean(norms)) if np.isfinite(norms).any() else float("nan")
+
+
+def summarize_markers(errors: np.ndarray, names, *, jitter_value: float = float("nan"),
+                      gt_jitter: float = float("nan")) -> dict:
+    """Median, mean, p95 error (mm), completeness (fraction of frame x reflector with a value), per reflector."""
+    seen = np.isfinite(errors)
+    values = errors[seen]
+    per = {str(n): float(np.median(errors[:, r][seen[:, r]])) if seen[:, r].any() else float("nan")
+           for r, n in enumerate(names)}
+    return {"median_mm": float(np.median(values)) if values.size else float("nan"),
+            "mean_mm": float(values.mean()) if values.size else float("nan"),
+            "p95_mm": float(np.percentile(values, 95)) if values.size else float("nan"),
+            "completeness": float(seen.mean()), "jitter_ms2": jitter_value, "gt_jitter_ms2": gt_jitter,
+            "per_reflector_median_mm": per}
