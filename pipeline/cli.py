@@ -234,6 +234,39 @@ def train(catalog_path, overrides, sequences, stage, out, workers, as_json):
 @catalog_option
 @set_option
 @sequences_option
+@click.option("--format", "fmt", type=click.Choice(["c3d", "trc"]), default="c3d", show_default=True)
+@click.option("--stage", default=None, help="the markers stage to export [the last smoothed stage, else markers3d]")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="folder for <sequence>.<format>")
+@click.option("--workers", default=2, show_default=True, help="local worker threads for missing partitions")
+def export(catalog_path, overrides, sequences, fmt, stage, out_dir, workers):
+    """Write labelled 3D markers as C3D or TRC, one file per sequence (computes missing partitions first)."""
+    from mocapflow.pipeline import registry
+    from mocapflow.pipeline.evaluate import stage_writing
+    from mocapflow.pipeline.export import WRITERS
+    from mocapflow.pipeline.scheduler import run_items
+    from mocapflow.schemas import get_schema
+
+    catalog = load_catalog(catalog_path, overrides)
+    stage = stage or stage_writing(catalog, "smoothed_markers") or stage_writing(catalog, "markers3d")
+    if stage not in catalog.stages:
+        raise MocapflowError(f"no markers stage {stage!r} to export; the catalog's stages: {list(catalog.stages)}")
+    store = Store(catalog.root)
+    plan = build_plan(catalog, sequences)
+    items = [i for i in select(plan, catalog, store, only=None, until=stage) if not store.is_complete(i.partition.stage, i.key)]
+    failed = [r for r in run_items(items, workers=workers, progress=sys.stderr.isatty()) if not r.ok]
+    if failed:
+        raise MocapflowError("cannot export: " + "; ".join(f"{r.partition}: {r.error}" for r in failed[:5]))
+    schema = get_schema(registry.get(catalog.stages[stage].task).output)
+    for item in plan.for_stages([stage]):
+        path = Path(out_dir) / f"{item.partition.sequence}.{fmt}"
+        WRITERS[fmt](store.open(stage, item.key, schema).load(), path)
+        click.echo(f"wrote {path}")
+
+
+@main.command()
+@catalog_option
+@set_option
+@sequences_option
 @click.option("--workers", default=2, show_default=True, help="local worker threads for missing partitions")
 @click.option("--json", "as_json", is_flag=True, help="print the figures as one JSON object, the last line of stdout")
 def evaluate(catalog_path, overrides, sequences, workers, as_json):

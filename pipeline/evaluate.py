@@ -69,10 +69,10 @@ def _evaluate_markers(plan: Plan, store: Store, raws: dict, stage: str, kind: st
         est = store.open(stage, plan.items[f"{stage}/{seq.id}"].key, schema).load()
         names = [str(n) for n in est["reflector"].values]
         gt = raw["gt_reflectors"].values
-        e = marker_errors(est["xyz"].values, gt)
+        e = marker_errors(est["position"].values, gt)
         fps = float(raw.attrs["fps"])
         per_sequence[seq.id][f"markers_{kind}"] = summarize_markers(
-            e, names, jitter_value=jitter(est["xyz"].values, fps), gt_jitter=jitter(gt, fps))
+            e, names, jitter_value=jitter(est["position"].values, fps), gt_jitter=jitter(gt, fps))
         errors.append(e)
         jitters.append(per_sequence[seq.id][f"markers_{kind}"]["jitter_ms2"])
         gt_jitters.append(per_sequence[seq.id][f"markers_{kind}"]["gt_jitter_ms2"])

@@ -13,7 +13,7 @@ MARKERS3D = register_schema(ArtifactSchema(
     version=1,
     coords={**_COORDS, "view": VarSpec(("view",), "str")},
     variables={
-        "xyz": VarSpec(("frame", "reflector", "xyz"), "float32", "m", description="world position, NaN if unseen"),
+        "position": VarSpec(("frame", "reflector", "xyz"), "float32", "m", description="world position, NaN if unseen"),
         "confidence": VarSpec(("frame", "reflector"), "float32", description="C_f: mean of the fused views' E"),
         "views": VarSpec(("frame", "reflector"), "int8", description="views fused"),
         "residual": VarSpec(("frame", "reflector", "view"), "float32", "m",
@@ -29,7 +29,7 @@ SMOOTHED = register_schema(ArtifactSchema(
     version=1,
     coords=_COORDS,
     variables={
-        "xyz": VarSpec(("frame", "reflector", "xyz"), "float32", "m", description="filtered position, NaN if missing"),
+        "position": VarSpec(("frame", "reflector", "xyz"), "float32", "m", description="filtered position, NaN if missing"),
         "confidence": VarSpec(("frame", "reflector"), "float32", description="0 where predicted or missing"),
         "predicted": VarSpec(("frame", "reflector"), "bool", description="no measurement used: predicted in a gap"),
     },

@@ -61,15 +61,18 @@ def region_depths(xy: np.ndarray, region_of: np.ndarray, blob_id: np.ndarray, de
         if len(xs) == 0:
             continue
         z = depth[ys, xs].astype(np.float64)
-        near = z <= np.percentile(z, 25) + max_depth_spread_mm  # drop background seen past the limb's edge
-        xs, ys, z = xs[near], ys[near], z[near]
         if len(members) == 1 or len(xs) < len(members):
-            out[members] = np.median(z)
+            out[members] = _surface_depth(z, max_depth_spread_mm)
             continue
         groups = split_region(np.stack([xs, ys], 1).astype(np.float64), z, xy[members])
         for k, m in enumerate(members):
-            out[m] = np.median(z[groups == k]) if (groups == k).any() else np.median(z)
+            out[m] = _surface_depth(z[groups == k] if (groups == k).any() else z, max_depth_spread_mm)
     return out
+
+
+def _surface_depth(z: np.ndarray, max_spread_mm: float) -> float:
+    """Median of the contour depths on the body: background seen past a limb's edge lies far behind."""
+    return float(np.median(z[z <= np.percentile(z, 25) + max_spread_mm]))
 
 
 def split_region(pixels: np.ndarray, z: np.ndarray, estimates: np.ndarray) -> np.ndarray:
@@ -216,7 +219,7 @@ def markers3d(reflectors: xr.Dataset, masks: xr.Dataset, frames: xr.Dataset, *, 
         K = intrinsics(*(float(cam[k]) for k in ("fx", "fy", "cx", "cy")))
         calib = (K, cam["dist"].values.astype(np.float64), cam["cam_to_world"].values.astype(np.float64))
         if not all(np.isfinite(c).all() for c in calib):
-            raise ValueError(f"view {view!r} has a non-finite calibration (intrinsics, distortion or extrinsics); "
+            raise ValueError(f"view {str(view)!r} has a non-finite calibration (intrinsics, distortion or extrinsics); "
                              "fix the recording's calibration or drop the view")
         for i in range(n_frames):
             points[v, i], rays[v, i] = lift_view(
@@ -227,7 +230,7 @@ def markers3d(reflectors: xr.Dataset, masks: xr.Dataset, frames: xr.Dataset, *, 
                         strap_tolerance_m=strap_tolerance_m) for i in range(n_frames)]
     xyz, conf, used, residual = (np.stack(column) for column in zip(*fused))
     return xr.Dataset(
-        {"xyz": (("frame", "reflector", "xyz"), xyz.astype(np.float32)),
+        {"position": (("frame", "reflector", "xyz"), xyz.astype(np.float32)),
          "confidence": (("frame", "reflector"), conf.astype(np.float32)),
          "views": (("frame", "reflector"), used.astype(np.int8)),
          "residual": (("frame", "reflector", "view"), residual.astype(np.float32))},

@@ -115,7 +115,7 @@ def butterworth_track(z: np.ndarray, *, fps: float, cutoff_hz: float, order: int
 def _result(markers: xr.Dataset, xyz: np.ndarray, predicted: np.ndarray, method: str) -> xr.Dataset:
     conf = np.where(predicted | np.isnan(xyz[..., 0]), 0.0, markers["confidence"].values).astype(np.float32)
     return xr.Dataset(
-        {"xyz": (("frame", "reflector", "xyz"), xyz.astype(np.float32)),
+        {"position": (("frame", "reflector", "xyz"), xyz.astype(np.float32)),
          "confidence": (("frame", "reflector"), conf),
          "predicted": (("frame", "reflector"), predicted)},
         coords={k: markers[k].values for k in ("frame", "reflector", "xyz")},
@@ -125,19 +125,19 @@ def _result(markers: xr.Dataset, xyz: np.ndarray, predicted: np.ndarray, method:
 
 def kalman(markers: xr.Dataset, **config) -> xr.Dataset:
     """`kalman` smoothing of a sequence's markers (frame, reflector, xyz)."""
-    xyz, conf = markers["xyz"].values.astype(np.float64), markers["confidence"].values
+    xyz, conf = markers["position"].values.astype(np.float64), markers["confidence"].values
     dt = 1.0 / float(markers.attrs["fps"])
     tracks = [kalman_track(xyz[:, r], conf[:, r], dt=dt, **config) for r in range(xyz.shape[1])]
     return _result(markers, np.stack([t[0] for t in tracks], 1), np.stack([t[1] for t in tracks], 1), "kalman")
 
 
 def butterworth(markers: xr.Dataset, *, cutoff_hz: float, order: int) -> xr.Dataset:
-    xyz = markers["xyz"].values.astype(np.float64)
+    xyz = markers["position"].values.astype(np.float64)
     out = np.stack([butterworth_track(xyz[:, r], fps=float(markers.attrs["fps"]), cutoff_hz=cutoff_hz, order=order)
                     for r in range(xyz.shape[1])], 1)
     return _result(markers, out, np.zeros(out.shape[:2], bool), "butterworth")
 
 
 def no_smoothing(markers: xr.Dataset) -> xr.Dataset:
-    xyz = markers["xyz"].values.astype(np.float64)
+    xyz = markers["position"].values.astype(np.float64)
     return _result(markers, xyz, np.zeros(xyz.shape[:2], bool), "none")

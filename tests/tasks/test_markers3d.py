@@ -1,0 +1,86 @@
+"""2D -> 3D and fusion (DeepMoCap §3.4): back-projection round trip, shared regions split by depth,
+the Appendix A construction on a cylinder, patch fusion with a disagreeing view, bad calibration."""
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from mocapflow.tasks import markers3d as m3d
+from mocapflow.tasks.studio.cameras import kinect_v2, look_at, project
+
+
+def _camera(position, target=(0.0, 0.0, 1.0)):
+    return kinect_v2("cam", look_at(np.array(position, float), np.array(target, float)))
+
+
+def test_backprojection_round_trips_a_known_point():
+    cam = _camera([2.5, -1.0, 1.2])
+    world = np.array([[0.1, 0.2, 1.3], [-0.3, 0.1, 0.4]])
+    uv, z = project(cam, world)  # distorted pixels, camera depth (m)
+    points, rays = m3d.backproject_points(uv, z * 1000.0, cam.K, np.asarray(cam.dist), cam.cam_to_world)
+    np.testing.assert_allclose(points, world, atol=1e-6)
+    to_point = world - cam.cam_to_world[:3, 3]
+    np.testing.assert_allclose(rays, to_point / np.linalg.norm(to_point, axis=1, keepdims=True), atol=1e-6)
+
+
+def test_region_depth_is_the_median_of_its_contour_and_shared_regions_split():
+    depth = np.full((40, 60), 3000, np.uint16)  # background wall
+    depth[5:35, 5:30] = 2000  # a limb at 2 m ...
+    depth[5:35, 30:55] = 2400  # ... beside one at 2.4 m
+    blob_id = np.zeros((40, 60), np.uint16)
+    blob_id[15:20, 10:15] = 1
+    blob_id[15:20, 26:34] = 2  # one region straddling both surfaces: two reflectors touching
+    depth[blob_id > 0] = 0  # reflectors return no depth
+    xy = np.array([[12.0, 17.0], [27.5, 17.0], [32.5, 17.0]])
+    d = m3d.region_depths(xy, np.array([1, 2, 2]), blob_id, depth, contour_px=2, max_depth_spread_mm=150.0)
+    np.testing.assert_allclose(d, [2000.0, 2000.0, 2400.0])
+
+
+def test_normal_lines_of_a_cylinder_meet_on_its_axis():
+    """Points on a vertical cylinder (radius 4 cm, axis through (0.3, -0.2)) facing two sensors; the
+    lines along each sensor's ray through its surface point meet on the axis (Eq. A1)."""
+    axis, radius, height = np.array([0.3, -0.2]), 0.04, 1.1
+    cams = [np.array([3.0, 0.5, 1.0]), np.array([-1.5, 2.5, 1.2])]
+    points, rays = [], []
+    for c in cams:
+        towards = np.append(axis, height) - c
+        ray = towards / np.linalg.norm(towards)
+        horizontal = np.append(axis - c[:2], 0.0)
+        # the surface point the sensor sees in front of the axis, on the ray through the axis
+        t = np.linalg.norm(towards) - radius / np.linalg.norm(horizontal[:2] / np.linalg.norm(towards))
+        points.append(c + ray * t)
+        rays.append(ray)
+    points, rays = np.array(points), np.array(rays)
+    np.testing.assert_allclose(np.linalg.norm(points[:, :2] - axis, axis=1), radius, atol=1e-9)  # on the surface
+    p, q = m3d.closest_points(points[0], rays[0], points[1], rays[1])
+    np.testing.assert_allclose((p + q) / 2, [axis[0], axis[1], height], atol=1e-9)
+    centre, used = m3d.fuse_strap(points, rays, np.array([0.9, 0.8]), radius=0.035, tolerance=0.08)
+    np.testing.assert_allclose(centre, [axis[0], axis[1], height], atol=1e-6)
+    assert used.all()
+    single, _ = m3d.fuse_strap(points[:1], rays[:1], np.array([0.9]), radius=0.04, tolerance=0.08)
+    # pushed one radius along its ray, which is almost perpendicular to the limb
+    np.testing.assert_allclose(single, [axis[0], axis[1], height], atol=1e-3)
+    assert m3d.closest_points(points[0], rays[0], points[0] + 1.0, rays[0]) is None  # parallel lines
+
+
+def test_patch_fusion_is_the_confidence_weighted_mean_without_a_disagreeing_view():
+    points = np.array([[1.0, 0.0, 1.0], [1.02, 0.0, 1.0], [1.0, 0.03, 1.0], [1.5, 0.0, 1.0]])
+    centre, used = m3d.fuse_patch(points, np.array([1.0, 1.0, 2.0, 1.0]), tolerance=0.05)
+    np.testing.assert_array_equal(used, [True, True, True, False])
+    np.testing.assert_allclose(centre, [(1.0 + 1.02 + 2.0) / 4, 0.06 / 4, 1.0])
+
+
+def test_a_view_with_nan_calibration_is_a_clear_error():
+    names = ["F_SPINEMID"]
+    reflectors = xr.Dataset({k: (("view", "frame", "reflector"), np.ones((1, 1, 1), np.float32))
+                             for k in ("x", "y", "confidence")},
+                            coords={"view": ["cam"], "frame": [0], "reflector": names})
+    masks = xr.Dataset({"blob_id": (("view", "frame", "y", "x"), np.zeros((1, 1, 4, 4), np.uint16))},
+                       coords={"view": ["cam"], "frame": [0]})
+    frames = xr.Dataset({"depth": (("view", "frame", "y", "x"), np.zeros((1, 1, 4, 4), np.uint16)),
+                         **{k: (("view",), [np.nan if k == "fx" else 1.0]) for k in ("fx", "fy", "cx", "cy")},
+                         "dist": (("view", "dist_coef"), np.zeros((1, 5))),
+                         "cam_to_world": (("view", "row", "col"), np.eye(4)[None])},
+                        coords={"view": ["cam"], "frame": [0]}, attrs={"fps": 30.0})
+    with pytest.raises(ValueError, match="'cam' has a non-finite calibration"):
+        m3d.markers3d(reflectors, masks, frames, **vars(m3d.Markers3DConfig()))
