@@ -87,3 +87,22 @@ register(TaskSpec("scale_plus", scale_plus, "1", ScaleParams, "toy_view", "view"
 register(TaskSpec("diff", diff, "1", NoParams, "toy_view", "view", {"scaled": "toy_view"}, halo=(1, 0)))
 register(TaskSpec("total", total, "1", NoParams, "toy_sequence", "sequence", {"scaled": "toy_view"}))
 register(TaskSpec("boom", boom, "1", BoomParams, "toy_view", "view", {"frames": "raw_sequence"}))
+
+
+def true_reflectors(frames: xr.Dataset) -> xr.Dataset:
+    """The studio's ground-truth 2D reflectors (seen with >= 5 px) as a `reflectors2d` artifact: a stand-in
+    for the FCN, to test the 3D stages alone."""
+    seen = frames["gt_pixels"].values >= 5
+    uv = frames["gt_reflectors2d"].values
+    x, y = (np.where(seen, uv[..., k], np.nan).astype(np.float32) for k in (0, 1))
+    dims = ("view", "frame", "reflector")
+    return xr.Dataset({"x": (dims, x), "y": (dims, y), "confidence": (dims, seen.astype(np.float32)),
+                       "region_size": (dims, frames["gt_pixels"].values.astype(np.int32)),
+                       "candidate_x": (dims, x), "candidate_y": (dims, y),
+                       "candidate_confidence": (dims, seen.astype(np.float32))},
+                      coords={"view": frames["view"].values, "frame": frames["frame"].values,
+                              "reflector": frames["reflector"].values}, attrs={"b_min": 5, "c_min": 0.0})
+
+
+register(TaskSpec("true_reflectors", true_reflectors, "1", NoParams, "reflectors2d", "view", {"frames": "raw_sequence"},
+                  reads={"frames": ("gt_pixels", "gt_reflectors2d")}))

@@ -1,0 +1,46 @@
+"""The 3D stages on studio renders, fed the true 2D reflectors (so the FCN is out of the picture):
+markers3d -> smoothed through the engine, scored by `mocapflow evaluate`, exported and read back."""
+
+import numpy as np
+
+from conftest import PLUGINS, last_json, mocapflow
+from mocapflow.pipeline.catalog import load_catalog
+from mocapflow.pipeline.export import read_c3d
+from mocapflow.pipeline.plan import build_plan
+from mocapflow.pipeline.storage import Store
+from mocapflow.schemas import get_schema
+
+CATALOG = """\
+plugins: [toytasks]
+storage: {root: storage/, region_frames: 8}
+datasets:
+  studio:
+    kind: studio
+    defaults: {frames: 24, views: 3}
+    sequences:
+      jj: {motion: jumping_jack, seed: 21}
+stages:
+  frames: {task: ingest, dataset: studio}
+  masks: {task: reflector_mask, inputs: [frames]}
+  reflectors2d: {task: true_reflectors, inputs: [frames]}
+  markers3d: {task: fuse_views, inputs: {reflectors: reflectors2d, masks: masks, frames: frames}}
+  smoothed: {task: kalman, inputs: {markers: markers3d}}
+"""
+
+
+def test_markers_from_true_2d_are_accurate_and_export(tmp_path, monkeypatch):
+    (tmp_path / "catalog.yaml").write_text(CATALOG)
+    figures = last_json(mocapflow("evaluate", "--json", cwd=tmp_path, timeout=600))
+    assert figures["marker_fused_err_median_mm"] < 15.0, figures
+    assert figures["marker_err_median_mm"] < 15.0 and figures["marker_completeness"] > 0.95, figures
+    assert figures["marker_jitter_ms2"] < figures["marker_fused_jitter_ms2"]  # the filter calms the tracks
+
+    mocapflow("export", "--format", "c3d", "--out", "out", cwd=tmp_path)
+    xyz, labels, rate, _ = read_c3d(tmp_path / "out" / "jj.c3d")
+    monkeypatch.syspath_prepend(str(PLUGINS))
+    catalog = load_catalog(tmp_path / "catalog.yaml", ())
+    item = build_plan(catalog).items["smoothed/jj"]
+    smoothed = Store(catalog.root).open("smoothed", item.key, get_schema("smoothed_markers"))
+    assert labels[:2] == ["F_SPINEMID", "F_R_CHEST"] and rate == 30.0
+    np.testing.assert_allclose(xyz, smoothed["position"].values * 1000.0, atol=1e-2)
+    assert smoothed.attrs["up_axis"] == "Z" and smoothed.attrs["length_unit"] == "m"
