@@ -50,7 +50,7 @@ register(TaskSpec(
     halo=(1, 0), description="FCN training samples: both streams at the sample scale, subject box, 2D ground truth",
 ))
 register(TaskSpec(
-    name="train_fcn", fn=training.train_fcn, version="1",
+    name="train_fcn", fn=training.train_fcn, version="2",
     params=training.TrainConfig, output="fcn_weights", partition="dataset",
     inputs={"samples": "fcn_samples"}, description="train the two-stream multi-stage FCN (seeded; GPU if present)",
 ))

@@ -14,9 +14,21 @@ stages:
   masks:             # reflector mask from IR + colorized depth
     task: reflector_mask
     inputs: [frames]
-  flow:              # 3D optical flow (dis: fast; primal_dual: PD-Flow)
+  flow:              # 3D optical flow (dis: fast, what the shipped FCN was trained on; primal_dual: PD-Flow)
     task: dis
     inputs: [frames]
+  heatmaps:          # the two-stream FCN's confidence maps and optical flow fields (shipped weights)
+    task: fcn_heatmaps
+    inputs: {masks: masks, flow: flow}
+  reflectors2d:      # labelled 2D reflectors per view
+    task: greedy_reflectors
+    inputs: {heatmaps: heatmaps, masks: masks}
+  markers3d:         # labelled 3D reflectors fused over views
+    task: fuse_views
+    inputs: {reflectors: reflectors2d, masks: masks, frames: frames}
+  smoothed:          # Kalman-filtered tracks (or butterworth, none)
+    task: kalman
+    inputs: {markers: markers3d}
 """
 
 

@@ -101,13 +101,19 @@ class TwoStreamFCN(nn.Module):
         return outputs
 
 
-def stage_losses(outputs, s_target: torch.Tensor, l_target: torch.Tensor | None) -> torch.Tensor:
-    """Sum over stages of the L2 losses of both branches, per sample.   # Eq. (2)-(3), DeepMoCap"""
+def stage_losses(outputs, s_target: torch.Tensor, l_target: torch.Tensor | None,
+                 weight: torch.Tensor | None = None) -> torch.Tensor:
+    """Sum over stages of the L2 losses of both branches, per sample.   # Eq. (2)-(3), DeepMoCap
+
+    ``weight`` (batch, 1, h, w), optional, scales each cell's squared error (a weighted L2 that
+    makes the few reflector cells count against the many background ones).
+    """
+    w = 1.0 if weight is None else weight
     total = 0.0
     for s, fields in outputs:
-        total = total + ((s - s_target) ** 2).sum() / len(s)
+        total = total + (w * (s - s_target) ** 2).sum() / len(s)
         if fields is not None and l_target is not None:
-            total = total + ((fields - l_target) ** 2).sum() / len(fields)
+            total = total + (w * (fields - l_target) ** 2).sum() / len(fields)
     return total
 
 

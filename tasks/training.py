@@ -54,6 +54,7 @@ class TrainConfig:
     sigma: float = 1.0
     sigma_r: float = 1.0
     min_pixels: int = 3  # a reflector with fewer visible pixels has no target
+    foreground_weight: float = 10.0  # L2 weight of a cell: 1 + this x the strongest reflector target there
     # augmentation (§5.1.1)
     scale_min: float = 0.6
     scale_max: float = 1.1
@@ -162,12 +163,14 @@ def train_fcn(samples: xr.Dataset, **params) -> xr.Dataset:
         depth, flow, s_target, l_target = (np.stack(column) for column in zip(*batch))
         outputs = model(fcn.to_input(depth).to(device), fcn.to_input(flow).to(device) if arch.flow_stream else None)
         l_target = torch.from_numpy(l_target.reshape(len(batch), -1, *l_target.shape[-2:])).to(device)
-        loss = fcn.stage_losses(outputs, torch.from_numpy(s_target).to(device), l_target)
+        s_target = torch.from_numpy(s_target).to(device)
+        weight = 1.0 + config.foreground_weight * s_target[:, :fcn.N_REFLECTORS].amax(dim=1, keepdim=True)
+        loss = fcn.stage_losses(outputs, s_target, l_target, weight)
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
         schedule.step()
-        losses.append(float(loss))
+        losses.append(loss.item())
         if iteration % 100 == 0 or iteration == config.iterations - 1:
             log.info("iteration %d/%d: loss %.3f (%.0f s)", iteration, config.iterations,
                      np.mean(losses[-100:]), time.perf_counter() - started)
