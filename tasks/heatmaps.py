@@ -13,7 +13,7 @@ import xarray as xr
 
 from mocapflow.tasks import targets
 from mocapflow.tasks.studio.reflectors import REFLECTOR_NAMES
-from mocapflow.tasks.training import CropConfig, sample_view
+from mocapflow.tasks.training import CropConfig, sample_inputs
 
 
 @dataclass(frozen=True)
@@ -61,10 +61,9 @@ def fcn_heatmaps(masks: xr.Dataset, flow: xr.Dataset, *, weights: dict, batch: i
         m, f = masks.sel(view=view), flow.sel(view=view)
         depth_crops, flow_crops, per_frame = [], [], []
         for i in range(m.sizes["frame"]):
-            depth_s, flow_s, box, *_ = sample_view(
+            depth_s, flow_s, box = sample_inputs(
                 m["colorized_depth"].values[i], f["colorized_flow"].values[i], m["blob_id"].values[i],
-                m["blob_area"].values[i], np.zeros((1, 2)), np.zeros((1, 2)), np.zeros(1),
-                sample_scale=crop.sample_scale, box_min_area=crop.box_min_area)
+                m["blob_area"].values[i], sample_scale=crop.sample_scale, box_min_area=crop.box_min_area)
             a = targets.crop_affine(box, size=size, margin=crop.margin, min_side=crop.min_side,
                                     jitter=targets.CropJitter(scale=crop.scale))
             depth_crops.append(targets.warp_depth(depth_s, a, size))

@@ -71,17 +71,27 @@ class TrainConfig:
     seed: int = 0
 
 
-def sample_view(depth_image, flow_image, blob_id, blob_area, uv, uv_prev, pixels, *, sample_scale: float,
-                box_min_area: int):
-    """One view-frame's sample.  (y, x, 3) x2, (y, x), (blob,), (26, 2) x2, (26,) -> resized streams, box, 2D"""
+def to_sample_scale(points: np.ndarray, sample_scale: float) -> np.ndarray:
+    """Image pixel coordinates -> sample-scale ones (pixel centres stay centres)."""
+    return ((points + 0.5) * sample_scale - 0.5).astype(np.float32)
+
+
+def sample_inputs(depth_image, flow_image, blob_id, blob_area, *, sample_scale: float, box_min_area: int):
+    """Both streams at the sample scale and the subject box in its pixels (training and inference alike).
+    (y, x, 3) x2, (y, x), (blob,) -> (y', x', 3) x2, (4,)"""
     h, w = depth_image.shape[:2]
     size = (int(round(w * sample_scale)), int(round(h * sample_scale)))
-    to_sample = lambda p: (p + 0.5) * sample_scale - 0.5  # noqa: E731  (pixel centres stay centres)
     box = targets.subject_box(blob_id, blob_area, min_area=box_min_area)
     return (cv2.resize(depth_image, size, interpolation=cv2.INTER_AREA),
-            cv2.resize(flow_image, size, interpolation=cv2.INTER_AREA),
-            to_sample(box).astype(np.float32), to_sample(uv).astype(np.float32),
-            to_sample(uv_prev).astype(np.float32), pixels.astype(np.int32))
+            cv2.resize(flow_image, size, interpolation=cv2.INTER_AREA), to_sample_scale(box, sample_scale))
+
+
+def sample_view(depth_image, flow_image, blob_id, blob_area, uv, uv_prev, pixels, *, sample_scale: float,
+                box_min_area: int):
+    """One view-frame's training sample: :func:`sample_inputs` and the 2D ground truth at f and f-1."""
+    return (*sample_inputs(depth_image, flow_image, blob_id, blob_area, sample_scale=sample_scale,
+                           box_min_area=box_min_area),
+            to_sample_scale(uv, sample_scale), to_sample_scale(uv_prev, sample_scale), pixels.astype(np.int32))
 
 
 def fcn_samples(masks: xr.Dataset, flow: xr.Dataset, frames: xr.Dataset, *, sample_scale: float,
