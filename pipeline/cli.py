@@ -208,7 +208,6 @@ def train(catalog_path, overrides, sequences, stage, out, workers, as_json):
     """Train the two-stream FCN (seeded) and write its weights; every step is a cached stage."""
     import hashlib
 
-    from mocapflow.pipeline.scheduler import run_items
     from mocapflow.pipeline.training import export_weights, training_item
 
     started = time.perf_counter()
@@ -216,11 +215,8 @@ def train(catalog_path, overrides, sequences, stage, out, workers, as_json):
     store = Store(catalog.root)
     plan = build_plan(catalog, sequences)
     item = training_item(plan, catalog, stage)
-    todo = [i for i in select(plan, catalog, store, only=None, until=item.partition.stage)
-            if not store.is_complete(i.partition.stage, i.key)]
-    failed = [r for r in run_items(todo, workers=workers, progress=sys.stderr.isatty()) if not r.ok]
-    if failed:
-        raise MocapflowError("training failed: " + "; ".join(f"{r.partition}: {r.error}" for r in failed[:5]))
+    _compute_missing(select(plan, catalog, store, only=None, until=item.partition.stage), store, workers,
+                     "training failed")
     data = export_weights(store, item, Path(out))
     sha = hashlib.sha256(data).hexdigest()
     click.echo(f"wrote {out} ({len(data) / 1e6:.2f} MB, sha256 {sha[:16]}) from {item.partition.id} "
@@ -243,7 +239,6 @@ def export(catalog_path, overrides, sequences, fmt, stage, out_dir, workers):
     from mocapflow.pipeline import registry
     from mocapflow.pipeline.evaluate import stage_writing
     from mocapflow.pipeline.export import WRITERS
-    from mocapflow.pipeline.scheduler import run_items
     from mocapflow.schemas import get_schema
 
     catalog = load_catalog(catalog_path, overrides)
@@ -252,10 +247,7 @@ def export(catalog_path, overrides, sequences, fmt, stage, out_dir, workers):
         raise MocapflowError(f"no markers stage {stage!r} to export; the catalog's stages: {list(catalog.stages)}")
     store = Store(catalog.root)
     plan = build_plan(catalog, sequences)
-    items = [i for i in select(plan, catalog, store, only=None, until=stage) if not store.is_complete(i.partition.stage, i.key)]
-    failed = [r for r in run_items(items, workers=workers, progress=sys.stderr.isatty()) if not r.ok]
-    if failed:
-        raise MocapflowError("cannot export: " + "; ".join(f"{r.partition}: {r.error}" for r in failed[:5]))
+    _compute_missing(select(plan, catalog, store, only=None, until=stage), store, workers, "cannot export")
     schema = get_schema(registry.get(catalog.stages[stage].task).output)
     for item in plan.for_stages([stage]):
         path = Path(out_dir) / f"{item.partition.sequence}.{fmt}"
@@ -273,15 +265,11 @@ def evaluate(catalog_path, overrides, sequences, workers, as_json):
     """Accuracy of the catalog's stages on its evaluation split (computes missing partitions first)."""
     from mocapflow.pipeline.evaluate import evaluate as run_evaluation
     from mocapflow.pipeline.evaluate import evaluation_plan, headline, table
-    from mocapflow.pipeline.scheduler import run_items
 
     catalog = load_catalog(catalog_path, overrides)
     store = Store(catalog.root)
     plan = evaluation_plan(catalog, sequences)
-    todo = [i for i in plan.items.values() if not store.is_complete(i.partition.stage, i.key)]
-    failed = [r for r in run_items(todo, workers=workers, progress=sys.stderr.isatty()) if not r.ok]
-    if failed:
-        raise MocapflowError("cannot evaluate: " + "; ".join(f"{r.partition}: {r.error}" for r in failed[:5]))
+    _compute_missing(plan.items.values(), store, workers, "cannot evaluate")
     result = run_evaluation(catalog, plan, store)
     click.echo(table(result))
     if as_json:
@@ -324,6 +312,16 @@ def synth(out_dir, motions, views, frames, fps, seed, subject_height, noise, lay
         write_sequence(rig, str(target))
         click.echo(f"wrote {target} ({rig.n_frames} frames x {len(rig.views)} views, "
                    f"{time.perf_counter() - started:.1f} s)")
+
+
+def _compute_missing(items, store: Store, workers: int, what: str) -> None:
+    """Run the items not yet complete; raise naming the first failures (``what``: the command's purpose)."""
+    from mocapflow.pipeline.scheduler import run_items
+
+    todo = [i for i in items if not store.is_complete(i.partition.stage, i.key)]
+    failed = [r for r in run_items(todo, workers=workers, progress=sys.stderr.isatty()) if not r.ok]
+    if failed:
+        raise MocapflowError(f"{what}: " + "; ".join(f"{r.partition}: {r.error}" for r in failed[:5]))
 
 
 def _matrix(plan: Plan, stages: list[str], cells: dict[str, str]) -> str:

@@ -36,7 +36,8 @@ def evaluate(catalog, plan: Plan, store: Store) -> dict:
     if not plan.sequences:
         raise PlanError("the evaluation split selects no sequence; check evaluation.sequences or --sequences")
     stage_2d = stage_writing(catalog, "reflectors2d")
-    stages_3d = {k: stage_writing(catalog, schema) for k, schema in (("fused", "markers3d"), ("smoothed", "smoothed_markers"))}
+    stages_3d = {(kind, schema): stage_writing(catalog, schema)
+                 for kind, schema in (("fused", "markers3d"), ("smoothed", "smoothed_markers"))}
     if "flow" not in catalog.stages and stage_2d is None:
         raise PlanError("the catalog has no `flow` or reflectors2d stage to evaluate; add one (see catalog.yaml)")
     result: dict = {"sequences": {}}
@@ -52,15 +53,16 @@ def evaluate(catalog, plan: Plan, store: Store) -> dict:
         result["task"] = catalog.stages["flow"].task
     if stage_2d is not None:
         result["reflectors2d"] = _evaluate_2d(plan, store, raws, stage_2d, result["sequences"])
-    for kind, stage in stages_3d.items():
+    for (kind, schema), stage in stages_3d.items():
         if stage is not None:
-            result[f"markers_{kind}"] = _evaluate_markers(plan, store, raws, stage, kind, result["sequences"])
+            result[f"markers_{kind}"] = _evaluate_markers(plan, store, raws, stage, schema, kind, result["sequences"])
     return result
 
 
-def _evaluate_markers(plan: Plan, store: Store, raws: dict, stage: str, kind: str, per_sequence: dict) -> dict:
+def _evaluate_markers(plan: Plan, store: Store, raws: dict, stage: str, schema_name: str, kind: str,
+                      per_sequence: dict) -> dict:
     """3D error of each reflector against the studio's ground truth, completeness and jitter."""
-    schema = get_schema(registry.get(plan.items[f"{stage}/{plan.sequences[0].id}"].stage.task).output)
+    schema = get_schema(schema_name)
     errors, names, jitters, gt_jitters = [], None, [], []
     for seq in plan.sequences:
         raw = raws[seq.id]
@@ -105,13 +107,13 @@ def _evaluate_flow(plan: Plan, store: Store, raws: dict, per_sequence: dict) -> 
 def _evaluate_2d(plan: Plan, store: Store, raws: dict, stage: str, per_sequence: dict) -> dict:
     """AP per reflector and mAP at PCK 0.05, before (best candidate) and after filtering, and the c_min sweep."""
     names = None
-    total = {"filtered": None, "unfiltered": None}
+    n_reflectors = raws[plan.sequences[0].id].sizes["reflector"]
+    total = {k: Matches2D(n_reflectors) for k in ("filtered", "unfiltered")}
     for seq in plan.sequences:
         raw = raws[seq.id]
         if "gt_reflectors2d" not in raw:
             raise PlanError(f"sequence {seq.id!r} has no 2D reflector ground truth (gt_reflectors2d)")
-        names = list(raw["reflector"].values) if "reflector" in raw.coords else names
-        seq_matches = {k: Matches2D(raw.sizes["reflector"]) for k in total}
+        seq_matches = {k: Matches2D(n_reflectors) for k in total}
         for view in seq.views:
             est = store.open(stage, plan.items[f"{stage}/{seq.id}/{view}"].key, get_schema("reflectors2d"))
             est, gt = est.sel(view=view).load(), raw.sel(view=view)
@@ -122,19 +124,13 @@ def _evaluate_2d(plan: Plan, store: Store, raws: dict, stage: str, per_sequence:
                 for kind, (x, y, c) in {"filtered": ("x", "y", "confidence"),
                                         "unfiltered": ("candidate_x", "candidate_y", "candidate_confidence")}.items():
                     xy = np.stack([est[x].values[i], est[y].values[i]], axis=1)
-                    for matches in (seq_matches[kind], _total(total, kind, raw.sizes["reflector"])):
+                    for matches in (seq_matches[kind], total[kind]):
                         match_2d(matches, xy, est[c].values[i], uv[i], pixels[i], radius)
         per_sequence[seq.id]["reflectors2d"] = {k: summarize_2d(m, names) for k, m in seq_matches.items()}
     out = {k: summarize_2d(m, names) for k, m in total.items()}
     out["sweep"] = {c: summarize_2d(total["filtered"], names, c_min=c) for c in C_MIN_SWEEP}
     out["stage"] = stage
     return out
-
-
-def _total(total: dict, kind: str, n: int) -> Matches2D:
-    if total[kind] is None:
-        total[kind] = Matches2D(n)
-    return total[kind]
 
 
 def headline(result: dict) -> dict:

@@ -8,8 +8,6 @@ coverage: the fraction of those pixels the estimator reports a motion for.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
 
@@ -45,19 +43,13 @@ def summarize_flow(errors: np.ndarray, eligible: int) -> dict[str, float]:
 END_REFLECTORS = ("R_HAND", "L_HAND", "R_FOOT", "L_FOOT")  # the ends of the limb chains
 
 
-@dataclass
 class Matches2D:
     """Per reflector: the confidence and correctness of every scored estimate, and the positives."""
 
-    n_reflectors: int
-    confidence: list = field(default_factory=list)  # per reflector: list of arrays
-    correct: list = field(default_factory=list)
-    positives: np.ndarray | None = None
-
-    def __post_init__(self):
-        self.confidence = [[] for _ in range(self.n_reflectors)]
-        self.correct = [[] for _ in range(self.n_reflectors)]
-        self.positives = np.zeros(self.n_reflectors, np.int64)
+    def __init__(self, n_reflectors: int):
+        self.confidence: list[list[float]] = [[] for _ in range(n_reflectors)]
+        self.correct: list[list[bool]] = [[] for _ in range(n_reflectors)]
+        self.positives = np.zeros(n_reflectors, np.int64)
 
 
 def pck_radius(body: np.ndarray, alpha: float = 0.05) -> float:
