@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from mocapflow.pipeline.registry import Lazy, NoParams, TaskSpec, register
-from mocapflow.tasks import flow, markers3d, masks, reflectors2d, smoothing, training
+from mocapflow.tasks import flow, markers3d, masks, poses, reflectors2d, skeleton, smoothing, training
 from mocapflow.tasks.heatmaps import HeatmapConfig
 
 CALIBRATION = ("fx", "fy", "cx", "cy", "dist", "width", "height")
@@ -84,3 +84,15 @@ for name, fn, params, what in (
         ("none", smoothing.no_smoothing, smoothing.NoSmoothing, "the fused markers unchanged")):
     register(TaskSpec(name=name, fn=fn, version="1", params=params, output="smoothed_markers", partition="sequence",
                       inputs={"markers": "markers3d"}, whole_sequence=True, description=what))
+
+# Motion capture (DeepMoCap §3.5): template calibration per sequence, then the poses.
+register(TaskSpec(
+    name="calibrate_skeleton", fn=skeleton.calibrate_skeleton, version="1", params=skeleton.SkeletonConfig,
+    output="skeleton", partition="sequence", inputs={"markers": "smoothed_markers"}, whole_sequence=True,
+    description="coarse scaling, per-level particle joint estimation (Eq. 11), reflector offsets per bone",
+))
+register(TaskSpec(
+    name="solve_poses", fn=poses.solve_poses, version="1", params=poses.PoseConfig, output="poses",
+    partition="sequence", inputs={"skeleton": "skeleton", "markers": "smoothed_markers"}, whole_sequence=True,
+    description="40-DoF least squares per frame against the calibrated reflector offsets, warm-started",
+))

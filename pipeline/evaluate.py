@@ -2,7 +2,8 @@
 
 Missing partitions are computed first (through the same engine as `mocapflow run`); then each
 sequence's artifacts are read view by view and scored by the pure metrics of tasks/evaluation.py:
-scene flow (the `flow` stage) and the labelled 2D reflectors (a stage writing `reflectors2d`).
+scene flow (the `flow` stage), the labelled 2D reflectors (a stage writing `reflectors2d`), the 3D
+reflectors (`markers3d`, `smoothed_markers`) and the joints of the solved poses (`poses`).
 """
 
 from __future__ import annotations
@@ -14,8 +15,9 @@ from mocapflow.pipeline.errors import PlanError
 from mocapflow.pipeline.plan import Plan, build_plan
 from mocapflow.pipeline.storage import Store
 from mocapflow.schemas import get_schema
-from mocapflow.tasks.evaluation import (Matches2D, flow_errors, jitter, marker_errors, match_2d, pck_radius, summarize_2d,
-                                       summarize_flow, summarize_markers)
+from mocapflow.tasks.evaluation import (TABLE8_JOINTS, Matches2D, flow_errors, jitter, joint_errors, marker_errors,
+                                       match_2d, pck_radius, summarize_2d, summarize_flow, summarize_joints,
+                                       summarize_markers)
 
 C_MIN_SWEEP = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
 
@@ -38,7 +40,8 @@ def evaluate(catalog, plan: Plan, store: Store) -> dict:
     stage_2d = stage_writing(catalog, "reflectors2d")
     stages_3d = {(kind, schema): stage_writing(catalog, schema)
                  for kind, schema in (("fused", "markers3d"), ("smoothed", "smoothed_markers"))}
-    if "flow" not in catalog.stages and stage_2d is None:
+    stage_poses = stage_writing(catalog, "poses")
+    if "flow" not in catalog.stages and stage_2d is None and stage_poses is None:
         raise PlanError("the catalog has no `flow` or reflectors2d stage to evaluate; add one (see catalog.yaml)")
     result: dict = {"sequences": {}}
     raws = {}
@@ -56,7 +59,30 @@ def evaluate(catalog, plan: Plan, store: Store) -> dict:
     for (kind, schema), stage in stages_3d.items():
         if stage is not None:
             result[f"markers_{kind}"] = _evaluate_markers(plan, store, raws, stage, schema, kind, result["sequences"])
+    if stage_poses is not None:
+        result["poses"] = _evaluate_poses(plan, store, raws, stage_poses, result["sequences"])
     return result
+
+
+def _evaluate_poses(plan: Plan, store: Store, raws: dict, stage: str, per_sequence: dict) -> dict:
+    """3D joint error of the Table 8 joints: overall, per joint (Table 8 form) and per exercise (Table 7 form)."""
+    errors, by_exercise = [], {}
+    for seq in plan.sequences:
+        raw = raws[seq.id]
+        if "gt_joints" not in raw:
+            raise PlanError(f"sequence {seq.id!r} has no joint ground truth (gt_joints)")
+        est = store.open(stage, plan.items[f"{stage}/{seq.id}"].key, get_schema("poses")).load()
+        est_joints = [str(j) for j in est["joint"].values]
+        gt_names = [str(j) for j in raw["joint"].values]
+        e = joint_errors(est["position"].values[:, [est_joints.index(j) for j in TABLE8_JOINTS]],
+                         raw["gt_joints"].values[:, [gt_names.index(j) for j in TABLE8_JOINTS]])
+        per_sequence[seq.id]["poses"] = summarize_joints(e, TABLE8_JOINTS)
+        by_exercise.setdefault(per_sequence[seq.id]["exercise"] or seq.id, []).append(e)
+        errors.append(e)
+    out = summarize_joints(np.concatenate(errors), TABLE8_JOINTS)
+    out["per_exercise"] = {k: summarize_joints(np.concatenate(v), TABLE8_JOINTS) for k, v in by_exercise.items()}
+    out["stage"] = stage
+    return out
 
 
 def _evaluate_markers(plan: Plan, store: Store, raws: dict, stage: str, schema_name: str, kind: str,
@@ -151,6 +177,10 @@ def headline(result: dict) -> dict:
             out.update({f"{prefix}err_median_mm": m["median_mm"], f"{prefix}err_mean_mm": m["mean_mm"],
                         f"{prefix}err_p95_mm": m["p95_mm"], f"{prefix}completeness": m["completeness"],
                         f"{prefix}jitter_ms2": m["jitter_ms2"]})
+    if "poses" in result:
+        p = result["poses"]
+        out.update({"pck3d_20cm": p["pck_20cm"], "pck3d_5cm": p["pck_5cm"], "mae3d_cm": p["mae_cm"],
+                    "rmse3d_cm": p["rmse_cm"], "poses_solved": p["solved"]})
     return out
 
 
@@ -167,7 +197,24 @@ def table(result: dict) -> str:
         lines += ([""] if lines else []) + _reflectors_table(result)
     if "markers_fused" in result or "markers_smoothed" in result:
         lines += ([""] if lines else []) + _markers_table(result)
+    if "poses" in result:
+        lines += ([""] if lines else []) + poses_table(result["poses"])
     return "\n".join(lines)
+
+
+def poses_table(p: dict) -> list[str]:
+    """Per joint (Table 8 form) and per exercise (Table 7 form) 3D joint accuracy."""
+    lines = [f"3D joints ({p['stage']}): MAE / RMSE (cm) and 3D PCK (%) on the 12 joints of Table 8"]
+    rows = [("joint", "MAE cm", "PCK@5cm", "PCK@20cm")]
+    rows += [(n, f"{j['mae_cm']:.2f}", _pct(j["pck_5cm"]), _pct(j["pck_20cm"])) for n, j in p["per_joint"].items()]
+    rows += [("all", f"{p['mae_cm']:.2f}", _pct(p["pck_5cm"]), _pct(p["pck_20cm"]))]
+    lines += _format(rows) + ["", "per exercise"]
+    rows = [("exercise", "MAE cm", "RMSE cm", "PCK@5cm", "PCK@20cm", "solved %")]
+    rows += [(n, f"{e['mae_cm']:.2f}", f"{e['rmse_cm']:.2f}", _pct(e["pck_5cm"]), _pct(e["pck_20cm"]), _pct(e["solved"]))
+             for n, e in p["per_exercise"].items()]
+    rows += [("all", f"{p['mae_cm']:.2f}", f"{p['rmse_cm']:.2f}", _pct(p["pck_5cm"]), _pct(p["pck_20cm"]),
+              _pct(p["solved"]))]
+    return lines + _format(rows)
 
 
 def _markers_table(result: dict) -> list[str]:

@@ -132,3 +132,35 @@ def summarize_markers(errors: np.ndarray, names, *, jitter_value: float = float(
             "p95_mm": float(np.percentile(values, 95)) if values.size else float("nan"),
             "completeness": float(seen.mean()), "jitter_ms2": jitter_value, "gt_jitter_ms2": gt_jitter,
             "per_reflector_median_mm": per}
+
+
+# Motion capture (DeepMoCap §5.3, Tables 6-8, Fig. 14): 3D joint error on the 12 joints of Table 8.
+# An unsolved joint (NaN) counts as a miss in PCK and is left out of MAE and RMSE.
+
+TABLE8_JOINTS = ("LeftShoulder", "RightShoulder", "LeftElbow", "RightElbow", "LeftHand", "RightHand",
+                 "LeftHip", "RightHip", "LeftKnee", "RightKnee", "LeftFoot", "RightFoot")
+PCK_CURVE_CM = tuple(float(t) for t in range(0, 21))
+
+
+def joint_errors(position: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """Distances in cm, NaN where unsolved.  (frame, joint, 3) m x2 -> (frame, joint)"""
+    return 100.0 * np.linalg.norm(position.astype(np.float64) - gt.astype(np.float64), axis=-1)
+
+
+def pck(errors: np.ndarray, threshold_cm: float) -> float:
+    """Fraction of (frame, joint) within ``threshold_cm``; NaN (unsolved) counts as a miss."""
+    return float(np.mean(np.nan_to_num(errors, nan=np.inf) <= threshold_cm)) if errors.size else float("nan")
+
+
+def summarize_joints(errors: np.ndarray, names) -> dict:
+    """MAE, RMSE (cm), 3D PCK at 5 and 20 cm, the PCK curve over 0-20 cm, per joint.  (frame, joint) cm"""
+    solved = errors[np.isfinite(errors)]
+    per = {str(n): {"mae_cm": float(np.nanmean(errors[:, j])) if np.isfinite(errors[:, j]).any() else float("nan"),
+                    "pck_20cm": pck(errors[:, j], 20.0), "pck_5cm": pck(errors[:, j], 5.0)}
+           for j, n in enumerate(names)}
+    return {"mae_cm": float(solved.mean()) if solved.size else float("nan"),
+            "rmse_cm": float(np.sqrt(np.mean(solved**2))) if solved.size else float("nan"),
+            "median_cm": float(np.median(solved)) if solved.size else float("nan"),
+            "pck_20cm": pck(errors, 20.0), "pck_5cm": pck(errors, 5.0),
+            "solved": float(np.isfinite(errors).mean()) if errors.size else float("nan"),
+            "curve": {t: pck(errors, t) for t in PCK_CURVE_CM}, "per_joint": per}

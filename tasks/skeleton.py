@@ -1,0 +1,218 @@
+"""Template skeleton calibration (DeepMoCap §3.5, Figure 9a, Eq. 11).
+
+The template is the 20-joint, 40-DoF body of Figure 9a with hierarchy levels L0-L6 (the studio's
+body at 1.75 m) and the rest position of every reflector on its bone. Each joint j has a reflector
+subset RS_j (``REFLECTOR_SUBSETS``). Sides are anatomical everywhere: a reflector named ``L_...``
+sits on the subject's left and a left joint's subset holds left reflectors. (The paper's Table
+lists "Left Shoulder {R9, R10}", which are B_R_SHOULDER and F_R_SHOULDER in the released code's
+channel order; we follow the anatomy, not that table.)
+
+Calibration of one sequence:
+1. coarse scaling: the median ratio of observed to template distances between reflectors that
+   share a rigid segment, over the first batch of frames;
+2. per hierarchy level L1-L6, G particles around each joint's current position in its parent's
+   frame, moved with the optical data by forward kinematics of the poses solved on the current
+   skeleton; Eq. (11): keep the particle whose distances to the high-confidence (C > 0.6)
+   reflectors of RS_j and of the joint's own bone vary least over the frames (it moves most
+   rigidly with them), with a weak pull to the template where the data cannot tell (a joint that
+   never bends);
+3. each reflector's offset in its bone frame: the median over frames of its observed position in
+   the solved bone frame. Steps 2-3 alternate ``iterations`` times.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import xarray as xr
+
+from mocapflow.tasks.poses import forward_kinematics, solve_sequence
+from mocapflow.tasks.studio.body import JOINT_NAMES, LEVELS, PARENTS, Subject, rest_offsets, surface
+from mocapflow.tasks.studio.reflectors import place
+
+TEMPLATE_HEIGHT = 1.75  # metres
+
+
+REFLECTOR_SUBSETS: dict[str, tuple[str, ...]] = {
+    "Hips": ("F_SPINEMID", "B_SPINEMID", "R_PELVIS", "L_PELVIS"),
+    "SpineBase": ("F_SPINEMID", "B_SPINEMID"),
+    "Neck": ("F_R_CHEST", "F_L_CHEST", "B_BACK"),
+    "Head": ("F_R_HEAD", "F_L_HEAD", "B_HEAD"),
+}
+for _joint, _subset in {"Shoulder": ("F_x_SHOULDER", "B_x_SHOULDER"), "Elbow": ("x_ELBOW",), "Wrist": ("x_WRIST",),
+                        "Hand": ("x_HAND",), "Hip": ("x_PELVIS",), "Knee": ("x_CALF",), "Ankle": ("x_ANKLE",),
+                        "Foot": ("x_FOOT",)}.items():
+    for _side in ("Left", "Right"):
+        REFLECTOR_SUBSETS[_side + _joint] = tuple(n.replace("x", _side[0]) for n in _subset)  # anatomical side
+assert set(REFLECTOR_SUBSETS) == set(JOINT_NAMES)
+
+# reflectors on one rigid segment (and the joints that segment carries)
+_SEGMENT_GROUPS = (
+    (("F_R_HEAD", "F_L_HEAD", "B_HEAD"), ("Head",)),
+    (("F_R_CHEST", "F_L_CHEST", "B_BACK", "F_SPINEMID", "B_SPINEMID"), ("SpineBase", "Neck")),
+    (("F_R_SHOULDER", "B_R_SHOULDER", "F_L_SHOULDER", "B_L_SHOULDER"), ("LeftShoulder", "RightShoulder")),
+    (("R_ELBOW", "R_WRIST"), ("RightElbow", "RightWrist", "RightHand")),
+    (("L_ELBOW", "L_WRIST"), ("LeftElbow", "LeftWrist", "LeftHand")),
+    (("R_CALF", "R_ANKLE"), ("RightKnee", "RightAnkle", "RightFoot")),
+    (("L_CALF", "L_ANKLE"), ("LeftKnee", "LeftAnkle", "LeftFoot")),
+)
+
+
+@dataclass(frozen=True)
+class Template:
+    offsets: np.ndarray  # (joint, 3) rest offset from the parent, metres
+    bones: np.ndarray  # (reflector,) joint whose frame carries the reflector
+    reflector_offsets: np.ndarray  # (reflector, 3) position in that joint's frame, metres
+
+
+@dataclass(frozen=True)
+class SkeletonConfig:
+    batch_frames: int = 30  # frames of the coarse scaling
+    frames: int = 60  # frames (evenly spread over the sequence) used by the particle calibration
+    particles: int = 500  # G, per joint and round
+    spread_m: float = 0.04  # particle spread (std) in the first round; halved each further round
+    rounds: int = 2  # particle rounds per joint, each around the previous best
+    min_confidence: float = 0.6  # C threshold of the data used to calibrate
+    prior_weight: float = 0.05  # m^2 of Eq. (11) cost per m^2 of distance from the template
+    iterations: int = 2  # alternations of joint (step 2) and reflector-offset (step 3) estimation
+    seed: int = 0
+
+
+def template(names: list[str]) -> Template:
+    """The template body at 1.75 m and the rest position of each named reflector on its bone."""
+    prims = surface(Subject(height=TEMPLATE_HEIGHT))
+    placements = {p.name: p for p in place(prims)}
+    unknown = sorted(set(names) - set(placements))
+    if unknown:
+        raise ValueError(f"reflectors {unknown} are not on the template; expected names from {sorted(placements)}")
+    bones = np.array([prims[placements[n].prim].joint for n in names])
+    return Template(rest_offsets(Subject(height=TEMPLATE_HEIGHT)), bones,
+                    np.stack([placements[n].centre for n in names]))
+
+
+def coarse_scale(position: np.ndarray, names: list[str], tmpl: Template) -> np.ndarray:
+    """Subject size over template size, per joint, from distances between reflectors of one rigid segment.
+
+    One median ratio over every segment scales the whole body. (Per-segment medians were tried and
+    were worse: the strap placement jitter on a forearm or shin is as large as the proportion spread.)
+    position (frame, reflector, 3) -> (joint,)
+    """
+    index = {n: i for i, n in enumerate(names)}
+    _, joints = forward_kinematics(np.zeros((1, 40)), tmpl.offsets)
+    rest = tmpl.reflector_offsets + joints[0, tmpl.bones]  # rest pose (segments are rigid: any pose will do)
+    ratios = {}
+    for group, scaled in _SEGMENT_GROUPS:
+        members = [index[n] for n in group if n in index]
+        pairs = [(i, k) for a, i in enumerate(members) for k in members[a + 1:]]
+        r = np.concatenate([np.linalg.norm(position[:, i] - position[:, k], axis=1) / np.linalg.norm(rest[i] - rest[k])
+                            for i, k in pairs]) if pairs else np.array([])
+        ratios[scaled] = r[np.isfinite(r)]
+    every = np.concatenate(list(ratios.values()))
+    if every.size == 0:
+        raise ValueError("no rigid reflector pair is seen in the first frames; the skeleton cannot be scaled — "
+                         "check the markers stage or raise skeleton.batch_frames")
+    return np.full(len(JOINT_NAMES), float(np.median(every)))
+
+
+def calibration_frames(position: np.ndarray, confidence: np.ndarray, *, frames: int, min_confidence: float) -> np.ndarray:
+    """Indices of up to ``frames`` well-observed frames spread over the sequence.  (frame, reflector, 3) -> (k,)"""
+    good = np.isfinite(position).all(2) & (np.nan_to_num(confidence) > min_confidence)
+    count = good.sum(1)
+    candidates = np.flatnonzero(count >= max(4, 0.5 * position.shape[1]))
+    if candidates.size == 0:
+        candidates = np.argsort(-count)[: max(1, frames)]
+    take = np.unique(np.linspace(0, candidates.size - 1, min(frames, candidates.size)).round().astype(int))
+    return np.sort(candidates[take])
+
+
+def rigidity_cost(particles_world: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """Eq. (11): summed variance over frames of each particle's distance to each target.
+
+    particles_world (frame, particle, 3), targets (frame, target, 3) NaN where unseen -> (particle,)
+    """
+    d = np.linalg.norm(particles_world[:, :, None] - targets[:, None], axis=-1)  # (frame, particle, target)
+    seen = np.isfinite(d)
+    n = seen.sum(0)
+    mean = np.where(seen, d, 0.0).sum(0) / np.maximum(n, 1)
+    var = np.where(seen, (d - mean) ** 2, 0.0).sum(0) / np.maximum(n - 1, 1)
+    return np.where(n >= 3, var, 0.0).sum(1)
+
+
+def best_particle(parent_rot: np.ndarray, parent_pos: np.ndarray, targets: np.ndarray, current: np.ndarray,
+                  prior: np.ndarray, *, particles: int, spread_m: float, rounds: int, prior_weight: float,
+                  rng: np.random.Generator) -> np.ndarray:
+    """The joint offset (in its parent's frame) that moves most rigidly with ``targets``.
+
+    parent_rot (frame, 3, 3), parent_pos (frame, 3), targets (frame, target, 3), current/prior (3,) -> (3,)
+    """
+    best = current
+    for k in range(rounds):
+        cloud = best + rng.normal(0.0, spread_m / 2**k, (particles, 3))
+        cloud[0] = best
+        world = np.einsum("fij,pj->fpi", parent_rot, cloud) + parent_pos[:, None]  # (frame, particle, 3)
+        cost = rigidity_cost(world, targets) + prior_weight * np.sum((cloud - prior) ** 2, axis=1)
+        best = cloud[np.argmin(cost)]
+    return best
+
+
+def reflector_offsets(position: np.ndarray, rot: np.ndarray, pos: np.ndarray, bones: np.ndarray,
+                      fallback: np.ndarray) -> np.ndarray:
+    """Median position of each reflector in its bone frame.  (frame, reflector, 3), (frame, joint, 3, 3) -> (reflector, 3)"""
+    local = np.einsum("frji,frj->fri", rot[:, bones], position - pos[:, bones])  # R^T (x - p)
+    out = np.nanmedian(np.where(np.isfinite(local), local, np.nan), axis=0) if np.isfinite(local).any() else fallback
+    return np.where(np.isfinite(out), out, fallback)
+
+
+def calibrate(position: np.ndarray, confidence: np.ndarray, names: list[str], *, batch_frames: int, frames: int,
+              particles: int, spread_m: float, rounds: int, min_confidence: float, prior_weight: float,
+              iterations: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Joint offsets, reflector bones and offsets, and the coarse scale of one sequence's optical data.
+
+    position (frame, reflector, 3) NaN where missing, confidence (frame, reflector)
+    -> offsets (joint, 3), bones (reflector,), reflector offsets (reflector, 3), coarse scale (joint,)
+    """
+    tmpl = template(names)
+    scale = coarse_scale(position[:batch_frames], names, tmpl)
+    offsets, refl = tmpl.offsets * scale[:, None], tmpl.reflector_offsets * scale[tmpl.bones, None]
+    prior = offsets.copy()
+    sel = calibration_frames(position, confidence, frames=frames, min_confidence=min_confidence)
+    obs = np.where((np.nan_to_num(confidence[sel]) > min_confidence)[..., None], position[sel], np.nan)
+    conf = np.where(np.isfinite(obs[..., 0]), 1.0, 0.0)
+    rng = np.random.default_rng(seed)
+    solve = dict(min_confidence=0.5, temporal_weight=0.01, rest_weight=0.002, distal_rest_weight=0.02, max_iterations=50, min_reflectors=4)
+    for _ in range(iterations):
+        for level in range(1, LEVELS.max() + 1):
+            params, _, _ = solve_sequence(obs, conf, offsets, tmpl.bones, refl, **solve)
+            ok = np.isfinite(params).all(1)
+            rot, pos = forward_kinematics(params[ok], offsets)
+            for j in np.flatnonzero(LEVELS == level):
+                own = [r for r, b in enumerate(tmpl.bones) if b == j]
+                targets = sorted({names.index(n) for n in REFLECTOR_SUBSETS[JOINT_NAMES[j]] if n in names} | set(own))
+                offsets[j] = best_particle(rot[:, PARENTS[j]], pos[:, PARENTS[j]], obs[ok][:, targets], offsets[j],
+                                           prior[j], particles=particles, spread_m=spread_m, rounds=rounds,
+                                           prior_weight=prior_weight, rng=rng)
+        params, _, _ = solve_sequence(obs, conf, offsets, tmpl.bones, refl, **solve)
+        ok = np.isfinite(params).all(1)
+        rot, pos = forward_kinematics(params[ok], offsets)
+        refl = reflector_offsets(obs[ok], rot, pos, tmpl.bones, refl)
+    return offsets, tmpl.bones, refl, scale
+
+
+def calibrate_skeleton(markers: xr.Dataset, **config) -> xr.Dataset:
+    """`skeleton` stage: the calibrated template of one sequence from its 3D optical data."""
+    names = [str(n) for n in markers["reflector"].values]
+    offsets, bones, refl, scale = calibrate(markers["position"].values.astype(np.float64),
+                                            markers["confidence"].values.astype(np.float64), names, **config)
+    return xr.Dataset(
+        {"offset": (("joint", "xyz"), offsets.astype(np.float32)),
+         "bone_length": (("joint",), np.linalg.norm(offsets, axis=1).astype(np.float32)),
+         "scale": (("joint",), scale.astype(np.float32)),
+         "parent": (("joint",), PARENTS.astype(np.int16)),
+         "level": (("joint",), LEVELS.astype(np.int8)),
+         "bone": (("reflector",), bones.astype(np.int16)),
+         "reflector_offset": (("reflector", "xyz"), refl.astype(np.float32))},
+        coords={"joint": np.array(JOINT_NAMES, dtype=object), "reflector": np.array(names, dtype=object),
+                "xyz": ["x", "y", "z"]},
+        attrs={"length_unit": "m", "up_axis": "Z", "template_height_m": TEMPLATE_HEIGHT},
+    )
