@@ -230,29 +230,40 @@ def train(catalog_path, overrides, sequences, stage, out, workers, as_json):
 @catalog_option
 @set_option
 @sequences_option
-@click.option("--format", "fmt", type=click.Choice(["c3d", "trc"]), default="c3d", show_default=True)
-@click.option("--stage", default=None, help="the markers stage to export [the last smoothed stage, else markers3d]")
+@click.option("--format", "fmt", type=click.Choice(["c3d", "trc", "bvh"]), default="c3d", show_default=True,
+              help="c3d/trc: labelled 3D markers; bvh: the solved poses")
+@click.option("--stage", default=None,
+              help="the stage to export [c3d/trc: the last smoothed stage, else markers3d; bvh: the poses stage]")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="folder for <sequence>.<format>")
 @click.option("--workers", default=2, show_default=True, help="local worker threads for missing partitions")
 def export(catalog_path, overrides, sequences, fmt, stage, out_dir, workers):
-    """Write labelled 3D markers as C3D or TRC, one file per sequence (computes missing partitions first)."""
+    """Write markers as C3D or TRC, or poses as BVH, one file per sequence (computes missing partitions first)."""
+    for path in export_files(load_catalog(catalog_path, overrides), sequences, fmt, stage, Path(out_dir), workers):
+        click.echo(f"wrote {path}")
+
+
+def export_files(catalog, sequences, fmt: str, stage: str | None, out_dir: Path, workers: int) -> list[Path]:
     from mocapflow.pipeline import registry
     from mocapflow.pipeline.evaluate import stage_writing
-    from mocapflow.pipeline.export import WRITERS
+    from mocapflow.pipeline.export import SCHEMAS, WRITERS
     from mocapflow.schemas import get_schema
 
-    catalog = load_catalog(catalog_path, overrides)
-    stage = stage or stage_writing(catalog, "smoothed_markers") or stage_writing(catalog, "markers3d")
+    stage = stage or next((s for s in map(lambda k: stage_writing(catalog, k), SCHEMAS[fmt]) if s), None)
     if stage not in catalog.stages:
-        raise MocapflowError(f"no markers stage {stage!r} to export; the catalog's stages: {list(catalog.stages)}")
+        raise MocapflowError(f"no stage {stage!r} to export as {fmt} (it needs one writing {' or '.join(SCHEMAS[fmt])}); "
+                             f"the catalog's stages: {list(catalog.stages)}")
+    output = registry.get(catalog.stages[stage].task).output
+    if output not in SCHEMAS[fmt]:
+        raise MocapflowError(f"stage {stage!r} writes {output}; {fmt} exports {' or '.join(SCHEMAS[fmt])} — pick another --stage")
     store = Store(catalog.root)
     plan = build_plan(catalog, sequences)
     _compute_missing(select(plan, catalog, store, only=None, until=stage), store, workers, "cannot export")
-    schema = get_schema(registry.get(catalog.stages[stage].task).output)
+    written = []
     for item in plan.for_stages([stage]):
-        path = Path(out_dir) / f"{item.partition.sequence}.{fmt}"
-        WRITERS[fmt](store.open(stage, item.key, schema).load(), path)
-        click.echo(f"wrote {path}")
+        path = out_dir / f"{item.partition.sequence}.{fmt}"
+        WRITERS[fmt](store.open(stage, item.key, get_schema(output)).load(), path)
+        written.append(path)
+    return written
 
 
 @main.command()

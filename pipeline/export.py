@@ -1,9 +1,13 @@
-"""`mocapflow export`: labelled 3D markers as C3D (ezc3d) or TRC files.
+"""`mocapflow export`: labelled 3D markers as C3D (ezc3d) or TRC files, solved poses as BVH.
 
 Both carry the labels (DeepMoCap's reflector names), the frame rate, the unit (millimetres, the
 convention of both formats) and the up axis (Z, the world frame of mocapflow): C3D in POINT:UNITS
 and POINT:X_SCREEN/Y_SCREEN, TRC in its Units column and an UpAxis column after the standard ones.
 Missing samples are NaN with residual -1 in C3D and empty fields in TRC.
+
+BVH follows the convention of animation tools: Y up, the subject facing +Z, centimetres, the template's 20 joints (each
+leaf closed by an End Site continuing its bone), root channels ``X/Y/Zposition Z/X/Yrotation`` and
+``Z/X/Yrotation`` elsewhere. Frames the solver left unsolved hold the nearest solved pose.
 """
 
 from __future__ import annotations
@@ -13,9 +17,15 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from scipy.spatial.transform import Rotation
+
 from mocapflow.pipeline.errors import InputError, StorageError
+from mocapflow.tasks.studio.bvh import parse_bvh
 
 UNIT_SCALE = 1000.0  # metres -> millimetres
+BVH_SCALE = 100.0  # metres -> centimetres
+# mocapflow world (x right, y forward, z up) -> BVH (Y up, facing +Z, the subject's left +X)
+Z_UP_TO_Y_UP = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
 
 
 def _arrays(markers: xr.Dataset) -> tuple[np.ndarray, list[str], float, np.ndarray]:
@@ -81,9 +91,88 @@ def read_trc(path: Path) -> tuple[np.ndarray, list[str], float]:
     return np.array(data).reshape(len(data), len(names), 3), names, float(header["DataRate"])
 
 
+def _filled(poses: xr.Dataset) -> tuple[np.ndarray, np.ndarray]:
+    """Local rotations (frame, joint, 4) and root positions (frame, 3), unsolved frames held from the nearest solved."""
+    quat = poses["rotation"].transpose("frame", "joint", "quat").values.astype(np.float64)
+    root = poses["position"].transpose("frame", "joint", "xyz").values[:, 0].astype(np.float64)
+    solved = np.isfinite(quat).all(axis=(1, 2)) & np.isfinite(root).all(axis=1)
+    if not solved.any():
+        raise InputError("the poses hold no solved frame; nothing to write as BVH (check the markers and skeleton stages)")
+    nearest = np.flatnonzero(solved)[np.abs(np.arange(len(solved))[:, None] - np.flatnonzero(solved)).argmin(axis=1)]
+    return quat[nearest], root[nearest]
+
+
+def bvh_text(poses: xr.Dataset) -> str:
+    """BVH text (Y up, centimetres) of solved poses on their skeleton."""
+    names = [str(n) for n in poses["joint"].values]
+    offsets = poses["offset"].transpose("joint", "xyz").values.astype(np.float64) @ Z_UP_TO_Y_UP.T * BVH_SCALE
+    parents = _parents(poses)
+    quat, root = _filled(poses)
+    children = {j: [c for c in range(len(names)) if parents[c] == j] for j in range(len(names))}
+    lines = ["HIERARCHY"]
+
+    def emit(j: int, depth: int) -> None:
+        pad = "  " * depth
+        kind = "ROOT" if parents[j] < 0 else "JOINT"
+        chans = "6 Xposition Yposition Zposition Zrotation Xrotation Yrotation" if parents[j] < 0 else \
+            "3 Zrotation Xrotation Yrotation"
+        lines.extend([f"{pad}{kind} {names[j]}", f"{pad}{{", f"{pad}  OFFSET {_xyz(offsets[j])}",
+                      f"{pad}  CHANNELS {chans}"])
+        for c in children[j]:
+            emit(c, depth + 1)
+        if not children[j]:
+            lines.extend([f"{pad}  End Site", f"{pad}  {{", f"{pad}    OFFSET {_xyz(0.3 * offsets[j])}", f"{pad}  }}"])
+        lines.append(f"{pad}}}")
+
+    emit(int(np.flatnonzero(parents < 0)[0]), 0)
+    local = Z_UP_TO_Y_UP @ Rotation.from_quat(quat.reshape(-1, 4)).as_matrix() @ Z_UP_TO_Y_UP.T
+    euler = Rotation.from_matrix(local).as_euler("ZXY", degrees=True).reshape(quat.shape[:2] + (3,))  # R = Rz Rx Ry
+    order = _depth_first(parents, children)
+    motion = np.concatenate([root @ Z_UP_TO_Y_UP.T * BVH_SCALE, euler[:, order].reshape(len(euler), -1)], axis=1)
+    fps = float(poses.attrs["fps"])
+    lines += ["MOTION", f"Frames: {len(motion)}", f"Frame Time: {1.0 / fps:.8f}"]
+    lines += [" ".join(f"{v:.5f}" for v in row) for row in motion]
+    return "\n".join(lines) + "\n"
+
+
+def _parents(poses: xr.Dataset) -> np.ndarray:
+    from mocapflow.tasks.studio.body import JOINT_NAMES, PARENTS
+
+    names = [str(n) for n in poses["joint"].values]
+    if names != list(JOINT_NAMES):
+        raise InputError(f"poses joints {names} are not the template's {list(JOINT_NAMES)}; BVH export needs the template")
+    return PARENTS
+
+
+def _depth_first(parents: np.ndarray, children: dict) -> list[int]:
+    out, stack = [], [int(np.flatnonzero(parents < 0)[0])]
+    while stack:
+        j = stack.pop()
+        out.append(j)
+        stack.extend(reversed(children[j]))
+    return out
+
+
+def _xyz(v: np.ndarray) -> str:
+    return " ".join(f"{x:.5f}" for x in v)
+
+
+def write_bvh(poses: xr.Dataset, path: Path) -> None:
+    text = bvh_text(poses)
+    _write(path, lambda p: p.write_text(text))
+
+
+def read_bvh_joints(path: Path) -> tuple[np.ndarray, list[str], float]:
+    """World joint positions (frame, joint, 3) in metres, Z up, of a BVH file, its joint names (no End Sites), rate."""
+    bvh = parse_bvh(path.read_text())
+    _, pos = bvh.forward_kinematics()
+    keep = [i for i, n in enumerate(bvh.names) if not n.endswith("_End")]
+    return pos[:, keep] @ Z_UP_TO_Y_UP / BVH_SCALE, [bvh.names[i] for i in keep], bvh.fps  # row @ M = M^T p
+
+
 def _write(path: Path, write) -> None:
-    if path.suffix.lower() not in (".c3d", ".trc"):
-        raise InputError(f"export file {path} must end in .c3d or .trc")
+    if path.suffix.lower() not in (".c3d", ".trc", ".bvh"):
+        raise InputError(f"export file {path} must end in .c3d, .trc or .bvh")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.name + ".partial" + path.suffix)
@@ -93,4 +182,5 @@ def _write(path: Path, write) -> None:
         raise StorageError(f"cannot write {path}: {exc.strerror}; choose another --out") from exc
 
 
-WRITERS = {"c3d": write_c3d, "trc": write_trc}
+WRITERS = {"c3d": write_c3d, "trc": write_trc, "bvh": write_bvh}
+SCHEMAS = {"c3d": ("smoothed_markers", "markers3d"), "trc": ("smoothed_markers", "markers3d"), "bvh": ("poses",)}
