@@ -254,7 +254,8 @@ def export_files(catalog, sequences, fmt: str, stage: str | None, out_dir: Path,
                              f"the catalog's stages: {list(catalog.stages)}")
     output = registry.get(catalog.stages[stage].task).output
     if output not in SCHEMAS[fmt]:
-        raise MocapflowError(f"stage {stage!r} writes {output}; {fmt} exports {' or '.join(SCHEMAS[fmt])} — pick another --stage")
+        raise MocapflowError(f"stage {stage!r} writes {output}; {fmt} exports {' or '.join(SCHEMAS[fmt])} — "
+                             "pick another --stage")
     store = Store(catalog.root)
     plan = build_plan(catalog, sequences)
     _compute_missing(select(plan, catalog, store, only=None, until=stage), store, workers, "cannot export")
@@ -264,6 +265,61 @@ def export_files(catalog, sequences, fmt: str, stage: str | None, out_dir: Path,
         WRITERS[fmt](store.open(stage, item.key, get_schema(output)).load(), path)
         written.append(path)
     return written
+
+
+@main.command()
+@click.option("--out", "out_dir", default="mocapflow-demo", show_default=True, type=click.Path(file_okay=False),
+              help="folder for the demo's catalog, cache, exports and report")
+@click.option("--motion", "motions", multiple=True, metavar="EXERCISE",
+              help="a studio exercise (repeatable) [jumping_jack, classic_squat, elbow_flexion]")
+@click.option("--frames", default=90, show_default=True, help="frames per sequence (30 fps)")
+@click.option("--workers", default=2, show_default=True, help="local worker threads")
+@click.option("--json", "as_json", is_flag=True, help="print the figures as one JSON object, the last line of stdout")
+def demo(out_dir, motions, frames, workers, as_json):
+    """Run the whole system on a small studio dataset: accuracy table, BVH + C3D, and an HTML report."""
+    from mocapflow.pipeline.demo import DEFAULT_MOTIONS, DemoOptions, prepare
+    from mocapflow.pipeline.evaluate import evaluate as run_evaluation
+    from mocapflow.pipeline.evaluate import headline, table
+    from mocapflow.pipeline.report import figures, write_html
+    from mocapflow.schemas import get_schema
+
+    started = time.perf_counter()
+    out = Path(out_dir)
+    catalog = prepare(out, DemoOptions(motions=tuple(motions) or DEFAULT_MOTIONS, frames=frames))
+    store = Store(catalog.root)
+    plan = build_plan(catalog, None)
+    todo = [i for i in plan.items.values() if not store.is_complete(i.partition.stage, i.key)]
+    _compute_missing(plan.items.values(), store, workers, "the demo failed")
+    result = run_evaluation(catalog, plan, store)
+    text = table(result)
+    click.echo(text)
+    files = export_files(catalog, None, "bvh", None, out / "export", workers)
+    files += export_files(catalog, None, "c3d", None, out / "export", workers)
+    seq = plan.sequences[0].id
+    opened = {stage: store.open(stage, plan.items[f"{stage}/{seq}"].key if f"{stage}/{seq}" in plan.items else
+                                plan.items[f"{stage}/{seq}/{plan.sequences[0].views[0]}"].key, get_schema(schema))
+              for stage, schema in (("frames", "raw_sequence"), ("poses", "poses"))}
+    reflectors = xr_concat_views(store, plan, seq)
+    images = figures(out / "report", opened["frames"], reflectors, opened["poses"].load(), result)
+    figures_json = headline(result)
+    summary = {**figures_json, "partitions computed": len(todo), "seconds": round(time.perf_counter() - started, 1)}
+    write_html(out / "report" / "report.html", title="mocapflow demo", summary=summary, table=text, images=images,
+               files=files)
+    for f in files + images + [out / "report" / "report.html"]:
+        click.echo(f"wrote {f}")
+    if as_json:
+        click.echo(json.dumps(summary))
+
+
+def xr_concat_views(store: Store, plan: Plan, seq: str):
+    """The 2D reflectors of every view of ``seq`` as one dataset (view, frame, reflector)."""
+    import xarray as xr
+
+    from mocapflow.schemas import get_schema
+
+    views = [s for s in plan.sequences if s.id == seq][0].views
+    return xr.concat([store.open("reflectors2d", plan.items[f"reflectors2d/{seq}/{v}"].key,
+                                 get_schema("reflectors2d")).sel(view=v).load() for v in views], dim="view")
 
 
 @main.command()

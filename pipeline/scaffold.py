@@ -29,6 +29,12 @@ stages:
   smoothed:          # Kalman-filtered tracks (or butterworth, none)
     task: kalman
     inputs: {markers: markers3d}
+  skeleton:          # the template calibrated to each sequence
+    task: calibrate_skeleton
+    inputs: {markers: smoothed}
+  poses:             # joint rotations and positions per frame
+    task: solve_poses
+    inputs: {skeleton: skeleton, markers: smoothed}
 """
 
 

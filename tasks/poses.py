@@ -155,7 +155,8 @@ def solve_frame(observed: np.ndarray, weights: np.ndarray, start: np.ndarray, of
 
 def solve_sequence(position: np.ndarray, confidence: np.ndarray, offsets: np.ndarray, bones: np.ndarray,
                    reflector_offsets: np.ndarray, *, min_confidence: float, temporal_weight: float,
-                   rest_weight: float, distal_rest_weight: float, max_iterations: int, min_reflectors: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   rest_weight: float, distal_rest_weight: float, max_iterations: int,
+                   min_reflectors: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Parameters of every frame, warm-started from the previous solved frame.
 
     position (frame, reflector, 3) NaN where missing, confidence (frame, reflector)

@@ -8,8 +8,8 @@ lists "Left Shoulder {R9, R10}", which are B_R_SHOULDER and F_R_SHOULDER in the 
 channel order; we follow the anatomy, not that table.)
 
 Calibration of one sequence:
-1. coarse scaling: the median ratio of observed to template distances between reflectors that
-   share a rigid segment, over the first batch of frames;
+1. coarse scaling: the median ratio of observed to template distances between the two straps of
+   each forearm and shin, over the first batch of frames;
 2. per hierarchy level L1-L6, G particles around each joint's current position in its parent's
    frame, moved with the optical data by forward kinematics of the poses solved on the current
    skeleton; Eq. (11): keep the particle whose distances to the high-confidence (C > 0.6)
@@ -47,16 +47,9 @@ for _joint, _subset in {"Shoulder": ("F_x_SHOULDER", "B_x_SHOULDER"), "Elbow": (
         REFLECTOR_SUBSETS[_side + _joint] = tuple(n.replace("x", _side[0]) for n in _subset)  # anatomical side
 assert set(REFLECTOR_SUBSETS) == set(JOINT_NAMES)
 
-# reflectors on one rigid segment (and the joints that segment carries)
-_SEGMENT_GROUPS = (
-    (("F_R_HEAD", "F_L_HEAD", "B_HEAD"), ("Head",)),
-    (("F_R_CHEST", "F_L_CHEST", "B_BACK", "F_SPINEMID", "B_SPINEMID"), ("SpineBase", "Neck")),
-    (("F_R_SHOULDER", "B_R_SHOULDER", "F_L_SHOULDER", "B_L_SHOULDER"), ("LeftShoulder", "RightShoulder")),
-    (("R_ELBOW", "R_WRIST"), ("RightElbow", "RightWrist", "RightHand")),
-    (("L_ELBOW", "L_WRIST"), ("LeftElbow", "LeftWrist", "LeftHand")),
-    (("R_CALF", "R_ANKLE"), ("RightKnee", "RightAnkle", "RightFoot")),
-    (("L_CALF", "L_ANKLE"), ("LeftKnee", "LeftAnkle", "LeftFoot")),
-)
+# straps on one limb segment: their distance depends on the limb's length only (patches sit on the
+# surface, so their distances also follow girth and placement, which vary far more between subjects)
+_SCALE_PAIRS = (("R_ELBOW", "R_WRIST"), ("L_ELBOW", "L_WRIST"), ("R_CALF", "R_ANKLE"), ("L_CALF", "L_ANKLE"))
 
 
 @dataclass(frozen=True)
@@ -92,36 +85,24 @@ def template(names: list[str]) -> Template:
 
 
 def coarse_scale(position: np.ndarray, names: list[str], tmpl: Template) -> np.ndarray:
-    """Subject size over template size, per joint, from distances between reflectors of one rigid segment.
-
-    One median ratio over every segment scales the whole body. (Per-segment medians were tried and
-    were worse: the strap placement jitter on a forearm or shin is as large as the proportion spread.)
-    position (frame, reflector, 3) -> (joint,)
-    """
+    """Subject size over template size, per joint: the median ratio of observed to template distances
+    between the two straps of each forearm and shin.  position (frame, reflector, 3) -> (joint,)"""
     index = {n: i for i, n in enumerate(names)}
     _, joints = forward_kinematics(np.zeros((1, 40)), tmpl.offsets)
-    rest = tmpl.reflector_offsets + joints[0, tmpl.bones]  # rest pose (segments are rigid: any pose will do)
-    ratios = {}
-    for group, scaled in _SEGMENT_GROUPS:
-        members = [index[n] for n in group if n in index]
-        pairs = [(i, k) for a, i in enumerate(members) for k in members[a + 1:]]
-        r = np.concatenate([np.linalg.norm(position[:, i] - position[:, k], axis=1) / np.linalg.norm(rest[i] - rest[k])
-                            for i, k in pairs]) if pairs else np.array([])
-        ratios[scaled] = r[np.isfinite(r)]
-    every = np.concatenate(list(ratios.values()))
-    if every.size == 0:
-        raise ValueError("no rigid reflector pair is seen in the first frames; the skeleton cannot be scaled — "
-                         "check the markers stage or raise skeleton.batch_frames")
-    return np.full(len(JOINT_NAMES), float(np.median(every)))
+    rest = tmpl.reflector_offsets + joints[0, tmpl.bones]  # rest pose (the pairs share a bone: any pose will do)
+    ratios = [np.linalg.norm(position[:, index[a]] - position[:, index[b]], axis=1) / np.linalg.norm(rest[index[a]]
+              - rest[index[b]]) for a, b in _SCALE_PAIRS if a in index and b in index]
+    ratios = np.concatenate(ratios) if ratios else np.array([])
+    ratios = ratios[np.isfinite(ratios)]
+    return np.full(len(JOINT_NAMES), float(np.median(ratios)) if ratios.size else 1.0)  # nothing seen: the template
 
 
 def calibration_frames(position: np.ndarray, confidence: np.ndarray, *, frames: int, min_confidence: float) -> np.ndarray:
     """Indices of up to ``frames`` well-observed frames spread over the sequence.  (frame, reflector, 3) -> (k,)"""
     good = np.isfinite(position).all(2) & (np.nan_to_num(confidence) > min_confidence)
-    count = good.sum(1)
-    candidates = np.flatnonzero(count >= max(4, 0.5 * position.shape[1]))
+    candidates = np.flatnonzero(good.sum(1) >= max(4, 0.5 * position.shape[1]))
     if candidates.size == 0:
-        candidates = np.argsort(-count)[: max(1, frames)]
+        return candidates
     take = np.unique(np.linspace(0, candidates.size - 1, min(frames, candidates.size)).round().astype(int))
     return np.sort(candidates[take])
 
@@ -166,11 +147,12 @@ def reflector_offsets(position: np.ndarray, rot: np.ndarray, pos: np.ndarray, bo
 
 def calibrate(position: np.ndarray, confidence: np.ndarray, names: list[str], *, batch_frames: int, frames: int,
               particles: int, spread_m: float, rounds: int, min_confidence: float, prior_weight: float,
-              iterations: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+              iterations: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
     """Joint offsets, reflector bones and offsets, and the coarse scale of one sequence's optical data.
 
     position (frame, reflector, 3) NaN where missing, confidence (frame, reflector)
-    -> offsets (joint, 3), bones (reflector,), reflector offsets (reflector, 3), coarse scale (joint,)
+    -> offsets (joint, 3), bones (reflector,), reflector offsets (reflector, 3), coarse scale (joint,),
+       frames used (0: too few well-observed frames, the scaled template is returned)
     """
     tmpl = template(names)
     scale = coarse_scale(position[:batch_frames], names, tmpl)
@@ -179,8 +161,11 @@ def calibrate(position: np.ndarray, confidence: np.ndarray, names: list[str], *,
     sel = calibration_frames(position, confidence, frames=frames, min_confidence=min_confidence)
     obs = np.where((np.nan_to_num(confidence[sel]) > min_confidence)[..., None], position[sel], np.nan)
     conf = np.where(np.isfinite(obs[..., 0]), 1.0, 0.0)
+    if sel.size < 3:
+        return offsets, tmpl.bones, refl, scale, 0
     rng = np.random.default_rng(seed)
-    solve = dict(min_confidence=0.5, temporal_weight=0.01, rest_weight=0.002, distal_rest_weight=0.02, max_iterations=50, min_reflectors=4)
+    solve = dict(min_confidence=0.5, temporal_weight=0.01, rest_weight=0.002, distal_rest_weight=0.02,
+                 max_iterations=50, min_reflectors=4)
     for _ in range(iterations):
         for level in range(1, LEVELS.max() + 1):
             params, _, _ = solve_sequence(obs, conf, offsets, tmpl.bones, refl, **solve)
@@ -196,13 +181,13 @@ def calibrate(position: np.ndarray, confidence: np.ndarray, names: list[str], *,
         ok = np.isfinite(params).all(1)
         rot, pos = forward_kinematics(params[ok], offsets)
         refl = reflector_offsets(obs[ok], rot, pos, tmpl.bones, refl)
-    return offsets, tmpl.bones, refl, scale
+    return offsets, tmpl.bones, refl, scale, int(sel.size)
 
 
 def calibrate_skeleton(markers: xr.Dataset, **config) -> xr.Dataset:
     """`skeleton` stage: the calibrated template of one sequence from its 3D optical data."""
     names = [str(n) for n in markers["reflector"].values]
-    offsets, bones, refl, scale = calibrate(markers["position"].values.astype(np.float64),
+    offsets, bones, refl, scale, used = calibrate(markers["position"].values.astype(np.float64),
                                             markers["confidence"].values.astype(np.float64), names, **config)
     return xr.Dataset(
         {"offset": (("joint", "xyz"), offsets.astype(np.float32)),
@@ -214,5 +199,5 @@ def calibrate_skeleton(markers: xr.Dataset, **config) -> xr.Dataset:
          "reflector_offset": (("reflector", "xyz"), refl.astype(np.float32))},
         coords={"joint": np.array(JOINT_NAMES, dtype=object), "reflector": np.array(names, dtype=object),
                 "xyz": ["x", "y", "z"]},
-        attrs={"length_unit": "m", "up_axis": "Z", "template_height_m": TEMPLATE_HEIGHT},
+        attrs={"length_unit": "m", "up_axis": "Z", "template_height_m": TEMPLATE_HEIGHT, "calibration_frames": used},
     )

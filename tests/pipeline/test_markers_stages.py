@@ -1,11 +1,12 @@
 """The 3D stages on studio renders, fed the true 2D reflectors (so the FCN is out of the picture):
-markers3d -> smoothed through the engine, scored by `mocapflow evaluate`, exported and read back."""
+markers3d -> smoothed -> skeleton -> poses through the engine, scored by `mocapflow evaluate`,
+exported (C3D, BVH) and read back."""
 
 import numpy as np
 
 from conftest import PLUGINS, last_json, mocapflow
 from mocapflow.pipeline.catalog import load_catalog
-from mocapflow.pipeline.export import read_c3d
+from mocapflow.pipeline.export import read_bvh_joints, read_c3d
 from mocapflow.pipeline.plan import build_plan
 from mocapflow.pipeline.storage import Store
 from mocapflow.schemas import get_schema
@@ -16,7 +17,7 @@ storage: {root: storage/, region_frames: 8}
 datasets:
   studio:
     kind: studio
-    defaults: {frames: 24, views: 3}
+    defaults: {frames: 40, views: 3}
     sequences:
       jj: {motion: jumping_jack, seed: 21}
 stages:
@@ -25,6 +26,8 @@ stages:
   reflectors2d: {task: true_reflectors, inputs: [frames]}
   markers3d: {task: fuse_views, inputs: {reflectors: reflectors2d, masks: masks, frames: frames}}
   smoothed: {task: kalman, inputs: {markers: markers3d}}
+  skeleton: {task: calibrate_skeleton, inputs: {markers: smoothed}}
+  poses: {task: solve_poses, inputs: {skeleton: skeleton, markers: smoothed}}
 """
 
 
@@ -34,6 +37,8 @@ def test_markers_from_true_2d_are_accurate_and_export(tmp_path, monkeypatch):
     assert figures["marker_fused_err_median_mm"] < 15.0, figures
     assert figures["marker_err_median_mm"] < 15.0 and figures["marker_completeness"] > 0.95, figures
     assert figures["marker_jitter_ms2"] < figures["marker_fused_jitter_ms2"]  # the filter calms the tracks
+    # poses on the calibrated template (measured: MAE 2.8 cm, PCK@5cm 91 %, PCK@20cm 100 % at 60 frames)
+    assert figures["pck3d_20cm"] > 0.98 and figures["mae3d_cm"] < 4.0 and figures["pck3d_5cm"] > 0.7, figures
 
     mocapflow("export", "--format", "c3d", "--out", "out", cwd=tmp_path)
     xyz, labels, rate, _ = read_c3d(tmp_path / "out" / "jj.c3d")
@@ -44,3 +49,10 @@ def test_markers_from_true_2d_are_accurate_and_export(tmp_path, monkeypatch):
     assert labels[:2] == ["F_SPINEMID", "F_R_CHEST"] and rate == 30.0
     np.testing.assert_allclose(xyz, smoothed["position"].values * 1000.0, atol=1e-2)
     assert smoothed.attrs["up_axis"] == "Z" and smoothed.attrs["length_unit"] == "m"
+
+    mocapflow("export", "--format", "bvh", "--out", "out", cwd=tmp_path)
+    joints, names, fps = read_bvh_joints(tmp_path / "out" / "jj.bvh")
+    item = build_plan(catalog).items["poses/jj"]
+    poses = Store(catalog.root).open("poses", item.key, get_schema("poses"))
+    assert names == list(poses["joint"].values) and abs(fps - 30.0) < 1e-3
+    np.testing.assert_allclose(joints, poses["position"].values, atol=1e-3)  # BVH round trip within 1 mm

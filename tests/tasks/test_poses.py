@@ -1,0 +1,100 @@
+"""Pose solver: known joint angles come back from noise-free reflectors of a known pose, it stays
+stable with 30 % of the reflectors missing, and bone lengths never change."""
+
+from dataclasses import asdict
+
+import numpy as np
+import xarray as xr
+
+from mocapflow.tasks import poses
+from mocapflow.tasks.poses import N_DOF, forward_kinematics, reflector_positions
+from mocapflow.tasks.studio import body, motion, reflectors
+
+
+def _rig(seed=3):
+    """A random subject, its reflector placement, and the true skeleton in the solver's terms."""
+    rng = np.random.default_rng(seed)
+    subject = body.random_subject(rng)
+    prims = body.surface(subject)
+    placements = reflectors.place(prims, rng)
+    bones = np.array([prims[p.prim].joint for p in placements])
+    return subject, body.rest_offsets(subject), bones, np.stack([p.centre for p in placements])
+
+
+def _params_sequence(n=40, seed=0):
+    """A smooth random walk of all 40 parameters, within natural joint ranges."""
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0, 1, n)[:, None]
+    amp = np.r_[0.0, 0.0, 0.0, np.full(N_DOF - 3, 0.5)] * rng.uniform(0.3, 1.0, N_DOF)
+    params = amp * np.sin(2 * np.pi * (t * rng.uniform(0.3, 1.0, N_DOF) + rng.uniform(0, 1, N_DOF)))
+    params[:, :3] = [0.1, 0.2, 1.0] + 0.2 * t * [1.0, 0.5, 0.0]  # the root walks
+    return params
+
+
+def _solve(xyz, conf, offsets, bones, refl):
+    config = asdict(poses.PoseConfig())
+    return poses.solve_sequence(xyz, conf, offsets, bones, refl, **config)
+
+
+def test_known_joint_angles_come_back_from_noise_free_reflectors():
+    _, offsets, bones, refl = _rig()
+    truth = _params_sequence()
+    rot, pos = forward_kinematics(truth, offsets)
+    xyz = reflector_positions(rot, pos, bones, refl)  # (frame, 26, 3)
+    params, rms, used = _solve(xyz, np.ones(xyz.shape[:2]), offsets, bones, refl)
+    _, solved = forward_kinematics(params, offsets)
+    assert (used == 26).all() and np.nanmax(rms) < 2e-3  # the weak pulls to rest and the last frame bias it by ~1 mm
+    ends = [body.JOINT_INDEX[n] for n in ("LeftHand", "RightHand", "LeftFoot", "RightFoot")]
+    inner = np.setdiff1d(np.arange(len(body.JOINT_NAMES)), ends)
+    err = np.linalg.norm(solved - pos, axis=-1)
+    assert err[:, inner].max() < 0.01 and np.median(err[:, inner]) < 0.002  # every joint within 1 cm, most within 2 mm
+    assert err[:, ends].max() < 0.04  # hand and foot tips: one patch each leaves their twist to the rest pull
+    # the rotations themselves where patches pin them (a strap sits on the limb axis: limb twist is free)
+    rot_solved, _ = forward_kinematics(params, offsets)
+    for j in (body.JOINT_INDEX[n] for n in ("Hips", "SpineBase", "Neck", "Head")):
+        angle = np.arccos(np.clip((np.trace(np.swapaxes(rot_solved[:, j], 1, 2) @ rot[:, j], axis1=1, axis2=2) - 1) / 2,
+                                  -1, 1))
+        assert np.degrees(angle).max() < 2.0, body.JOINT_NAMES[j]
+
+
+def test_stable_with_30_percent_of_reflectors_missing():
+    subject, offsets, bones, refl = _rig(seed=5)
+    m = motion.exercise("kick_box_kicking", subject, n_frames=60)
+    rot, pos = body.forward_kinematics(m.local_rot, m.root_pos, offsets)
+    xyz = reflector_positions(rot, pos, bones, refl)
+    rng = np.random.default_rng(1)
+    missing = rng.random(xyz.shape[:2]) < 0.3
+    xyz[missing] = np.nan
+    params, _, used = _solve(xyz, np.where(missing, 0.0, 1.0), offsets, bones, refl)
+    _, solved = forward_kinematics(params, offsets)
+    err = np.linalg.norm(solved - pos, axis=-1)
+    assert np.isfinite(params).all() and used.min() >= 10
+    assert np.median(err) < 0.01 and np.percentile(err, 95) < 0.06, (np.median(err), np.percentile(err, 95))
+    step = np.linalg.norm(np.diff(solved, axis=0), axis=-1)
+    true_step = np.linalg.norm(np.diff(pos, axis=0), axis=-1)
+    # Known limit: in a few frames a limb that lost its straps settles in a wrong local minimum for a frame
+    # or two (a foot 30 cm off); 99 % of the joint steps stay within 3 cm of the true ones.
+    assert np.percentile(step - true_step, 99) < 0.03
+
+
+def test_wrapper_keeps_bone_lengths_and_writes_unit_quaternions():
+    subject, offsets, bones, refl = _rig(seed=7)
+    m = motion.exercise("classic_squat", subject, n_frames=20)
+    rot, pos = body.forward_kinematics(m.local_rot, m.root_pos, offsets)
+    xyz = reflector_positions(rot, pos, bones, refl)
+    xyz[5:7] = np.nan  # two frames with nothing seen: unsolved, reported NaN
+    names = [p for p in reflectors.REFLECTOR_NAMES]
+    markers = xr.Dataset({"position": (("frame", "reflector", "xyz"), xyz.astype(np.float32)),
+                          "confidence": (("frame", "reflector"), np.ones(xyz.shape[:2], np.float32))},
+                         coords={"frame": np.arange(20), "reflector": names, "xyz": ["x", "y", "z"]}, attrs={"fps": 30.0})
+    skeleton = xr.Dataset({"offset": (("joint", "xyz"), offsets), "bone": (("reflector",), bones),
+                           "reflector_offset": (("reflector", "xyz"), refl)},
+                          coords={"joint": list(body.JOINT_NAMES), "reflector": names, "xyz": ["x", "y", "z"]})
+    out = poses.solve_poses(skeleton, markers, **asdict(poses.PoseConfig()))
+    p = out["position"].values
+    assert np.isnan(p[5:7]).all() and np.isfinite(p[[0, 4, 7, 19]]).all()
+    solved = np.isfinite(p[:, 0, 0])
+    lengths = np.linalg.norm(p[solved][:, 1:] - p[solved][:, body.PARENTS[1:]], axis=-1)
+    np.testing.assert_allclose(lengths, np.broadcast_to(np.linalg.norm(offsets[1:], axis=1), lengths.shape), atol=1e-5)
+    np.testing.assert_allclose(np.linalg.norm(out["rotation"].values[solved], axis=-1), 1.0, atol=1e-5)
+    assert np.abs(p[solved] - pos[solved]).max() < 0.01
