@@ -41,6 +41,6 @@ def test_trc_round_trip(tmp_path):
 
 
 def test_unknown_extension_is_refused(tmp_path):
-    with pytest.raises(InputError, match="must end in .c3d or .trc"):
+    with pytest.raises(InputError, match="must end in .c3d, .trc or .bvh"):
         write_trc(_markers(), tmp_path / "take.csv")
     assert not list(tmp_path.iterdir())
