@@ -12,7 +12,7 @@ from conftest import assert_same_artifacts, env_with_plugins, last_json, mocapfl
 
 
 def test_two_runs_on_one_root_refuse_each_others_partitions_naming_the_holder(toy_project, tmp_path_factory):
-    project = toy_project(sleep=0.3, frames=24, sequences=("seqA",))
+    project = toy_project(sleep=0.8, frames=24, sequences=("seqA",))  # a wide window for the second run to start in
     first = subprocess.Popen([sys.executable, "-m", "mocapflow.pipeline.cli", "run", "--json", "--keep-going"],
                              cwd=project, env=env_with_plugins(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 60
