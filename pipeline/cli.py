@@ -208,6 +208,7 @@ def train(catalog_path, overrides, sequences, stage, out, workers, as_json):
     """Train the two-stream FCN (seeded) and write its weights; every step is a cached stage."""
     import hashlib
 
+    from mocapflow.pipeline.scheduler import compute_missing
     from mocapflow.pipeline.training import export_weights, training_item
 
     started = time.perf_counter()
@@ -215,8 +216,8 @@ def train(catalog_path, overrides, sequences, stage, out, workers, as_json):
     store = Store(catalog.root)
     plan = build_plan(catalog, sequences)
     item = training_item(plan, catalog, stage)
-    _compute_missing(select(plan, catalog, store, only=None, until=item.partition.stage), store, workers,
-                     "training failed")
+    compute_missing(select(plan, catalog, store, only=None, until=item.partition.stage), store, workers=workers,
+                    what="training failed")
     data = export_weights(store, item, Path(out))
     sha = hashlib.sha256(data).hexdigest()
     click.echo(f"wrote {out} ({len(data) / 1e6:.2f} MB, sha256 {sha[:16]}) from {item.partition.id} "
@@ -238,33 +239,10 @@ def train(catalog_path, overrides, sequences, stage, out, workers, as_json):
 @click.option("--workers", default=2, show_default=True, help="local worker threads for missing partitions")
 def export(catalog_path, overrides, sequences, fmt, stage, out_dir, workers):
     """Write markers as C3D or TRC, or poses as BVH, one file per sequence (computes missing partitions first)."""
+    from mocapflow.pipeline.export import export_files
+
     for path in export_files(load_catalog(catalog_path, overrides), sequences, fmt, stage, Path(out_dir), workers):
         click.echo(f"wrote {path}")
-
-
-def export_files(catalog, sequences, fmt: str, stage: str | None, out_dir: Path, workers: int) -> list[Path]:
-    from mocapflow.pipeline import registry
-    from mocapflow.pipeline.evaluate import stage_writing
-    from mocapflow.pipeline.export import SCHEMAS, WRITERS
-    from mocapflow.schemas import get_schema
-
-    stage = stage or next((s for s in map(lambda k: stage_writing(catalog, k), SCHEMAS[fmt]) if s), None)
-    if stage not in catalog.stages:
-        raise MocapflowError(f"no stage {stage!r} to export as {fmt} (it needs one writing {' or '.join(SCHEMAS[fmt])}); "
-                             f"the catalog's stages: {list(catalog.stages)}")
-    output = registry.get(catalog.stages[stage].task).output
-    if output not in SCHEMAS[fmt]:
-        raise MocapflowError(f"stage {stage!r} writes {output}; {fmt} exports {' or '.join(SCHEMAS[fmt])} — "
-                             "pick another --stage")
-    store = Store(catalog.root)
-    plan = build_plan(catalog, sequences)
-    _compute_missing(select(plan, catalog, store, only=None, until=stage), store, workers, "cannot export")
-    written = []
-    for item in plan.for_stages([stage]):
-        path = out_dir / f"{item.partition.sequence}.{fmt}"
-        WRITERS[fmt](store.open(stage, item.key, get_schema(output)).load(), path)
-        written.append(path)
-    return written
 
 
 @main.command()
@@ -277,49 +255,15 @@ def export_files(catalog, sequences, fmt: str, stage: str | None, out_dir: Path,
 @click.option("--json", "as_json", is_flag=True, help="print the figures as one JSON object, the last line of stdout")
 def demo(out_dir, motions, frames, workers, as_json):
     """Run the whole system on a small studio dataset: accuracy table, BVH + C3D, and an HTML report."""
-    from mocapflow.pipeline.demo import DEFAULT_MOTIONS, DemoOptions, prepare
-    from mocapflow.pipeline.evaluate import evaluate as run_evaluation
-    from mocapflow.pipeline.evaluate import headline, table
-    from mocapflow.pipeline.report import figures, write_html
-    from mocapflow.schemas import get_schema
+    from mocapflow.pipeline.demo import DEFAULT_MOTIONS, DemoOptions, run_demo
 
-    started = time.perf_counter()
-    out = Path(out_dir)
-    catalog = prepare(out, DemoOptions(motions=tuple(motions) or DEFAULT_MOTIONS, frames=frames))
-    store = Store(catalog.root)
-    plan = build_plan(catalog, None)
-    todo = [i for i in plan.items.values() if not store.is_complete(i.partition.stage, i.key)]
-    _compute_missing(plan.items.values(), store, workers, "the demo failed")
-    result = run_evaluation(catalog, plan, store)
-    text = table(result)
+    text, summary, written = run_demo(Path(out_dir), DemoOptions(motions=tuple(motions) or DEFAULT_MOTIONS,
+                                                                  frames=frames), workers=workers)
     click.echo(text)
-    files = export_files(catalog, None, "bvh", None, out / "export", workers)
-    files += export_files(catalog, None, "c3d", None, out / "export", workers)
-    seq = plan.sequences[0].id
-    opened = {stage: store.open(stage, plan.items[f"{stage}/{seq}"].key if f"{stage}/{seq}" in plan.items else
-                                plan.items[f"{stage}/{seq}/{plan.sequences[0].views[0]}"].key, get_schema(schema))
-              for stage, schema in (("frames", "raw_sequence"), ("poses", "poses"))}
-    reflectors = xr_concat_views(store, plan, seq)
-    images = figures(out / "report", opened["frames"], reflectors, opened["poses"].load(), result)
-    figures_json = headline(result)
-    summary = {**figures_json, "partitions computed": len(todo), "seconds": round(time.perf_counter() - started, 1)}
-    write_html(out / "report" / "report.html", title="mocapflow demo", summary=summary, table=text, images=images,
-               files=files)
-    for f in files + images + [out / "report" / "report.html"]:
-        click.echo(f"wrote {f}")
+    for path in written:
+        click.echo(f"wrote {path}")
     if as_json:
         click.echo(json.dumps(summary))
-
-
-def xr_concat_views(store: Store, plan: Plan, seq: str):
-    """The 2D reflectors of every view of ``seq`` as one dataset (view, frame, reflector)."""
-    import xarray as xr
-
-    from mocapflow.schemas import get_schema
-
-    views = [s for s in plan.sequences if s.id == seq][0].views
-    return xr.concat([store.open("reflectors2d", plan.items[f"reflectors2d/{seq}/{v}"].key,
-                                 get_schema("reflectors2d")).sel(view=v).load() for v in views], dim="view")
 
 
 @main.command()
@@ -332,11 +276,12 @@ def evaluate(catalog_path, overrides, sequences, workers, as_json):
     """Accuracy of the catalog's stages on its evaluation split (computes missing partitions first)."""
     from mocapflow.pipeline.evaluate import evaluate as run_evaluation
     from mocapflow.pipeline.evaluate import evaluation_plan, headline, table
+    from mocapflow.pipeline.scheduler import compute_missing
 
     catalog = load_catalog(catalog_path, overrides)
     store = Store(catalog.root)
     plan = evaluation_plan(catalog, sequences)
-    _compute_missing(plan.items.values(), store, workers, "cannot evaluate")
+    compute_missing(plan.items.values(), store, workers=workers, what="cannot evaluate")
     result = run_evaluation(catalog, plan, store)
     click.echo(table(result))
     if as_json:
@@ -379,16 +324,6 @@ def synth(out_dir, motions, views, frames, fps, seed, subject_height, noise, lay
         write_sequence(rig, str(target))
         click.echo(f"wrote {target} ({rig.n_frames} frames x {len(rig.views)} views, "
                    f"{time.perf_counter() - started:.1f} s)")
-
-
-def _compute_missing(items, store: Store, workers: int, what: str) -> None:
-    """Run the items not yet complete; raise naming the first failures (``what``: the command's purpose)."""
-    from mocapflow.pipeline.scheduler import run_items
-
-    todo = [i for i in items if not store.is_complete(i.partition.stage, i.key)]
-    failed = [r for r in run_items(todo, workers=workers, progress=sys.stderr.isatty()) if not r.ok]
-    if failed:
-        raise MocapflowError(f"{what}: " + "; ".join(f"{r.partition}: {r.error}" for r in failed[:5]))
 
 
 def _matrix(plan: Plan, stages: list[str], cells: dict[str, str]) -> str:

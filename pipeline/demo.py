@@ -8,12 +8,22 @@ catalog is rewritten only when the options change, so a second run is served fro
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import xarray as xr
+
 from mocapflow.pipeline.catalog import load_catalog
 from mocapflow.pipeline.errors import InputError
+from mocapflow.pipeline.evaluate import evaluate, headline, table
+from mocapflow.pipeline.export import export_files
+from mocapflow.pipeline.plan import build_plan
+from mocapflow.pipeline.report import figures, write_html
 from mocapflow.pipeline.scaffold import DEFAULT_STAGES
+from mocapflow.pipeline.scheduler import compute_missing
+from mocapflow.pipeline.storage import Store
+from mocapflow.schemas import get_schema
 
 DEFAULT_MOTIONS = ("jumping_jack", "classic_squat", "elbow_flexion")
 
@@ -54,3 +64,27 @@ def prepare(out: Path, options: DemoOptions):
     if not path.exists() or path.read_text() != text:
         path.write_text(text)
     return load_catalog(str(path), ())
+
+
+def run_demo(out: Path, options: DemoOptions, *, workers: int) -> tuple[str, dict, list[Path]]:
+    """Run, evaluate, export and report the demo; return the accuracy table, the summary figures and
+    the files written."""
+    started = time.perf_counter()
+    catalog = prepare(out, options)
+    store = Store(catalog.root)
+    plan = build_plan(catalog, None)
+    computed = compute_missing(plan.items.values(), store, workers=workers, what="the demo failed")
+    result = evaluate(catalog, plan, store)
+    text = table(result)
+    files = [path for fmt in ("bvh", "c3d") for path in export_files(catalog, None, fmt, None, out / "export", workers)]
+    seq = plan.sequences[0]
+    raw = store.open("frames", plan.items[f"frames/{seq.id}"].key, get_schema("raw_sequence"))
+    poses = store.open("poses", plan.items[f"poses/{seq.id}"].key, get_schema("poses")).load()
+    reflectors = xr.concat([store.open("reflectors2d", plan.items[f"reflectors2d/{seq.id}/{v}"].key,
+                                       get_schema("reflectors2d")).sel(view=v).load() for v in seq.views], dim="view")
+    images = figures(out / "report", raw, reflectors, poses, result)
+    summary = {**headline(result), "partitions computed": len(computed),
+               "seconds": round(time.perf_counter() - started, 1)}
+    page = out / "report" / "report.html"
+    write_html(page, title="mocapflow demo", summary=summary, table=text, images=images, files=files)
+    return text, summary, files + images + [page]

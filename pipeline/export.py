@@ -19,7 +19,13 @@ import xarray as xr
 
 from scipy.spatial.transform import Rotation
 
-from mocapflow.pipeline.errors import InputError, StorageError
+from mocapflow.pipeline import registry
+from mocapflow.pipeline.errors import InputError, PlanError, StorageError
+from mocapflow.pipeline.evaluate import stage_writing
+from mocapflow.pipeline.plan import build_plan, select
+from mocapflow.pipeline.storage import Store
+from mocapflow.schemas import get_schema
+from mocapflow.tasks.studio.body import JOINT_NAMES, PARENTS
 from mocapflow.tasks.studio.bvh import parse_bvh
 
 UNIT_SCALE = 1000.0  # metres -> millimetres
@@ -109,9 +115,10 @@ def bvh_text(poses: xr.Dataset) -> str:
     parents = _parents(poses)
     quat, root = _filled(poses)
     children = {j: [c for c in range(len(names)) if parents[c] == j] for j in range(len(names))}
-    lines = ["HIERARCHY"]
+    lines, order = ["HIERARCHY"], []  # order: joints as the hierarchy lists them, the MOTION column order
 
     def emit(j: int, depth: int) -> None:
+        order.append(j)
         pad = "  " * depth
         kind = "ROOT" if parents[j] < 0 else "JOINT"
         chans = "6 Xposition Yposition Zposition Zrotation Xrotation Yrotation" if parents[j] < 0 else \
@@ -127,7 +134,6 @@ def bvh_text(poses: xr.Dataset) -> str:
     emit(int(np.flatnonzero(parents < 0)[0]), 0)
     local = Z_UP_TO_Y_UP @ Rotation.from_quat(quat.reshape(-1, 4)).as_matrix() @ Z_UP_TO_Y_UP.T
     euler = Rotation.from_matrix(local).as_euler("ZXY", degrees=True).reshape(quat.shape[:2] + (3,))  # R = Rz Rx Ry
-    order = _depth_first(parents, children)
     motion = np.concatenate([root @ Z_UP_TO_Y_UP.T * BVH_SCALE, euler[:, order].reshape(len(euler), -1)], axis=1)
     fps = float(poses.attrs["fps"])
     lines += ["MOTION", f"Frames: {len(motion)}", f"Frame Time: {1.0 / fps:.8f}"]
@@ -136,21 +142,10 @@ def bvh_text(poses: xr.Dataset) -> str:
 
 
 def _parents(poses: xr.Dataset) -> np.ndarray:
-    from mocapflow.tasks.studio.body import JOINT_NAMES, PARENTS
-
     names = [str(n) for n in poses["joint"].values]
     if names != list(JOINT_NAMES):
         raise InputError(f"poses joints {names} are not the template's {list(JOINT_NAMES)}; BVH export needs the template")
     return PARENTS
-
-
-def _depth_first(parents: np.ndarray, children: dict) -> list[int]:
-    out, stack = [], [int(np.flatnonzero(parents < 0)[0])]
-    while stack:
-        j = stack.pop()
-        out.append(j)
-        stack.extend(reversed(children[j]))
-    return out
 
 
 def _xyz(v: np.ndarray) -> str:
@@ -184,3 +179,27 @@ def _write(path: Path, write) -> None:
 
 WRITERS = {"c3d": write_c3d, "trc": write_trc, "bvh": write_bvh}
 SCHEMAS = {"c3d": ("smoothed_markers", "markers3d"), "trc": ("smoothed_markers", "markers3d"), "bvh": ("poses",)}
+
+
+def export_files(catalog, sequences: str | None, fmt: str, stage: str | None, out_dir: Path,
+                 workers: int) -> list[Path]:
+    """Write ``<out_dir>/<sequence>.<fmt>`` for every sequence of ``stage`` (computing missing partitions first)."""
+    from mocapflow.pipeline.scheduler import compute_missing
+
+    stage = stage or next((s for schema in SCHEMAS[fmt] if (s := stage_writing(catalog, schema))), None)
+    if stage not in catalog.stages:
+        raise PlanError(f"no stage {stage!r} to export as {fmt} (it needs one writing {' or '.join(SCHEMAS[fmt])}); "
+                        f"the catalog's stages: {list(catalog.stages)}")
+    output = registry.get(catalog.stages[stage].task).output
+    if output not in SCHEMAS[fmt]:
+        raise PlanError(f"stage {stage!r} writes {output}; {fmt} exports {' or '.join(SCHEMAS[fmt])} — "
+                        "pick another --stage")
+    store = Store(catalog.root)
+    plan = build_plan(catalog, sequences)
+    compute_missing(select(plan, catalog, store, only=None, until=stage), store, workers=workers, what="cannot export")
+    written = []
+    for item in plan.for_stages([stage]):
+        path = out_dir / f"{item.partition.sequence}.{fmt}"
+        WRITERS[fmt](store.open(stage, item.key, get_schema(output)).load(), path)
+        written.append(path)
+    return written

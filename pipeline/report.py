@@ -8,6 +8,7 @@ over 0-20 cm and the per-joint mean error (Table 8 joints).
 from __future__ import annotations
 
 import html
+import os
 from pathlib import Path
 
 import cv2
@@ -144,9 +145,9 @@ def figures(folder: Path, raw: xr.Dataset, reflectors: xr.Dataset, poses: xr.Dat
 
 def write_html(path: Path, *, title: str, summary: dict, table: str, images: list[Path], files: list[Path]) -> None:
     rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(_fmt(v))}</td></tr>" for k, v in summary.items())
-    imgs = "".join(f'<figure><img src="{html.escape(i.relative_to(path.parent).as_posix())}">'
+    imgs = "".join(f'<figure><img src="{html.escape(_link(i, path.parent))}">'
                    f"<figcaption>{html.escape(i.stem.replace('_', ' '))}</figcaption></figure>" for i in images)
-    links = "".join(f'<li><a href="{html.escape(os_rel(f, path.parent))}">{html.escape(f.name)}</a></li>' for f in files)
+    links = "".join(f'<li><a href="{html.escape(_link(f, path.parent))}">{html.escape(f.name)}</a></li>' for f in files)
     path.write_text(
         f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
         "<style>body{font-family:sans-serif;margin:2em}img{max-width:100%}td{padding:2px 12px}"
@@ -155,10 +156,9 @@ def write_html(path: Path, *, title: str, summary: dict, table: str, images: lis
         f"<h2>Files</h2><ul>{links}</ul></body></html>\n")
 
 
-def os_rel(target: Path, start: Path) -> str:
-    import os
-
-    return Path(os.path.relpath(target, start)).as_posix()
+def _link(target: Path, page_folder: Path) -> str:
+    """``target`` relative to the page's folder, as a URL path."""
+    return Path(os.path.relpath(target, page_folder)).as_posix()
 
 
 def _fmt(v) -> str:

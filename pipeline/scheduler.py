@@ -83,3 +83,13 @@ def _result(fut, pid: str) -> Result:
         return fut.result()
     except Exception as exc:  # a lost worker (KilledWorker), cancellation or unpickling failure
         return Result(pid, "failed", error=f"{type(exc).__name__}: {exc}")
+
+
+def compute_missing(items, store, *, workers: int, what: str) -> list[WorkItem]:
+    """Run the ``items`` not yet complete in ``store`` and return them; raise PlanError naming the first
+    failures (``what``: the purpose, e.g. "cannot export")."""
+    todo = [i for i in items if not store.is_complete(i.partition.stage, i.key)]
+    failed = [r for r in run_items(todo, workers=workers, progress=sys.stderr.isatty()) if not r.ok]
+    if failed:
+        raise PlanError(f"{what}: " + "; ".join(f"{r.partition}: {r.error}" for r in failed[:5]))
+    return todo

@@ -31,19 +31,18 @@ DOF_AXES = tuple(_AXES[n.removeprefix("Left").removeprefix("Right")] for n in JO
 N_DOF = 3 + sum(len(a) for a in DOF_AXES)  # root translation + rotations
 assert N_DOF == 40
 
-# (40,) -> (joint * 3,) selection: rotation-vector component k of joint j is parameter SELECT[3j + k] (or none)
+# (40,) -> (joint * 3,) selection: rotation-vector component k of joint j is parameter SELECT[3j + k] (or none).
+# DISTAL marks the wrists' and ankles' parameters: a strap sits on the limb axis, so the twist of a straight
+# arm or leg and the swing of the hand or foot can trade off; these get the stronger pull to rest.
 _SELECT = np.full(3 * len(JOINT_NAMES), -1)
+DISTAL = np.zeros(N_DOF, bool)
 _k = 3
 for _j, _axes in enumerate(DOF_AXES):
     for _a in _axes:
         _SELECT[3 * _j + "xyz".index(_a)] = _k
+        DISTAL[_k] = JOINT_NAMES[_j].endswith(("Wrist", "Ankle"))
         _k += 1
 _USED = _SELECT >= 0
-# parameters of the wrists and ankles: a strap sits on the limb axis, so the twist of a straight arm or leg
-# and the swing of the hand or foot can trade off; these get the stronger pull to rest
-DISTAL = np.zeros(N_DOF, bool)
-DISTAL[[_SELECT[3 * _j + k] for _j, _n in enumerate(JOINT_NAMES) if _n.endswith(("Wrist", "Ankle"))
-        for k in range(3) if _SELECT[3 * _j + k] >= 0]] = True
 
 
 @dataclass(frozen=True)
@@ -106,8 +105,8 @@ def initial_params(observed: np.ndarray, offsets: np.ndarray, bones: np.ndarray,
                    reflector_offsets: np.ndarray) -> np.ndarray:
     """A rest pose placed and turned by the rigid fit of the seen trunk reflectors (or just placed).  (reflector, 3) -> (40,)"""
     params = np.zeros(N_DOF)
-    _, pos = forward_kinematics(params[None], offsets)
-    rest = reflector_positions(np.tile(np.eye(3), (1, len(JOINT_NAMES), 1, 1)), pos, bones, reflector_offsets)[0]
+    rot, pos = forward_kinematics(params[None], offsets)  # the rest pose
+    rest = reflector_positions(rot, pos, bones, reflector_offsets)[0]
     trunk = np.isin(bones, (0, 1)) & np.isfinite(observed).all(1)  # Hips and SpineBase reflectors
     seen = np.isfinite(observed).all(1)
     if trunk.sum() >= 3:

@@ -88,10 +88,9 @@ def coarse_scale(position: np.ndarray, names: list[str], tmpl: Template) -> np.n
     """Subject size over template size, per joint: the median ratio of observed to template distances
     between the two straps of each forearm and shin.  position (frame, reflector, 3) -> (joint,)"""
     index = {n: i for i, n in enumerate(names)}
-    _, joints = forward_kinematics(np.zeros((1, 40)), tmpl.offsets)
-    rest = tmpl.reflector_offsets + joints[0, tmpl.bones]  # rest pose (the pairs share a bone: any pose will do)
-    ratios = [np.linalg.norm(position[:, index[a]] - position[:, index[b]], axis=1) / np.linalg.norm(rest[index[a]]
-              - rest[index[b]]) for a, b in _SCALE_PAIRS if a in index and b in index]
+    refl = tmpl.reflector_offsets  # both straps of a pair ride on one bone: their offsets share a frame
+    ratios = [np.linalg.norm(position[:, index[a]] - position[:, index[b]], axis=1)
+              / np.linalg.norm(refl[index[a]] - refl[index[b]]) for a, b in _SCALE_PAIRS if a in index and b in index]
     ratios = np.concatenate(ratios) if ratios else np.array([])
     ratios = ratios[np.isfinite(ratios)]
     return np.full(len(JOINT_NAMES), float(np.median(ratios)) if ratios.size else 1.0)  # nothing seen: the template
@@ -141,8 +140,10 @@ def reflector_offsets(position: np.ndarray, rot: np.ndarray, pos: np.ndarray, bo
                       fallback: np.ndarray) -> np.ndarray:
     """Median position of each reflector in its bone frame.  (frame, reflector, 3), (frame, joint, 3, 3) -> (reflector, 3)"""
     local = np.einsum("frji,frj->fri", rot[:, bones], position - pos[:, bones])  # R^T (x - p)
-    out = np.nanmedian(np.where(np.isfinite(local), local, np.nan), axis=0) if np.isfinite(local).any() else fallback
-    return np.where(np.isfinite(out), out, fallback)
+    seen = np.isfinite(local[..., 0]).any(axis=0)  # (reflector,)
+    out = fallback.copy()
+    out[seen] = np.nanmedian(local[:, seen], axis=0)
+    return out
 
 
 def calibrate(position: np.ndarray, confidence: np.ndarray, names: list[str], *, batch_frames: int, frames: int,

@@ -83,7 +83,7 @@ def test_wrapper_keeps_bone_lengths_and_writes_unit_quaternions():
     rot, pos = body.forward_kinematics(m.local_rot, m.root_pos, offsets)
     xyz = reflector_positions(rot, pos, bones, refl)
     xyz[5:7] = np.nan  # two frames with nothing seen: unsolved, reported NaN
-    names = [p for p in reflectors.REFLECTOR_NAMES]
+    names = list(reflectors.REFLECTOR_NAMES)
     markers = xr.Dataset({"position": (("frame", "reflector", "xyz"), xyz.astype(np.float32)),
                           "confidence": (("frame", "reflector"), np.ones(xyz.shape[:2], np.float32))},
                          coords={"frame": np.arange(20), "reflector": names, "xyz": ["x", "y", "z"]}, attrs={"fps": 30.0})
