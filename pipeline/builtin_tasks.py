@@ -50,7 +50,7 @@ register(TaskSpec(
     halo=(1, 0), description="FCN training samples: both streams at the sample scale, subject box, 2D ground truth",
 ))
 register(TaskSpec(
-    name="train_fcn", fn=training.train_fcn, version="2",
+    name="train_fcn", fn=training.train_fcn, version="3",
     params=training.TrainConfig, output="fcn_weights", partition="dataset",
     inputs={"samples": "fcn_samples"}, description="train the two-stream multi-stage FCN (seeded; GPU if present)",
 ))
@@ -63,7 +63,7 @@ register(TaskSpec(
     description="two-stream FCN inference: confidence maps S and optical flow fields L",
 ))
 register(TaskSpec(
-    name="greedy_reflectors", fn=reflectors2d.greedy_reflectors, version="1", params=reflectors2d.GreedyConfig,
+    name="greedy_reflectors", fn=reflectors2d.greedy_reflectors, version="3", params=reflectors2d.GreedyConfig,
     output="reflectors2d", partition="view", inputs={"heatmaps": "heatmaps", "masks": "reflector_masks"},
     reads={"masks": ("blob_id", "blob_area")}, halo=(1, 0),
     description="NMS peaks, OFF line integral (Eq. 7-9), region filtering: labelled 2D reflectors",
@@ -92,7 +92,7 @@ register(TaskSpec(
     description="coarse scaling, per-level particle joint estimation (Eq. 11), reflector offsets per bone",
 ))
 register(TaskSpec(
-    name="solve_poses", fn=poses.solve_poses, version="1", params=poses.PoseConfig, output="poses",
+    name="solve_poses", fn=poses.solve_poses, version="2", params=poses.PoseConfig, output="poses",
     partition="sequence", inputs={"skeleton": "skeleton", "markers": "smoothed_markers"}, whole_sequence=True,
     description="40-DoF least squares per frame against the calibrated reflector offsets, warm-started",
 ))

@@ -10,7 +10,9 @@ Each frame is a nonlinear least-squares problem (scipy ``least_squares``, Levenb
 residuals are the confidence-weighted reflector errors of the reflectors seen in that frame, plus
 a small pull towards the previous frame's parameters, so a joint whose reflectors are all missing
 keeps its last rotation instead of drifting. Frames are warm-started from the previous solution.
-The Jacobian is a batched forward difference: one vectorized forward kinematics for all 41 states.
+The Jacobian is analytic: a rotation-vector step dθ of joint j turns everything below j about the
+joint by ω = W_j J_r(θ_j) dθ (W_j the joint's world rotation, J_r the right Jacobian of SO(3)), so a
+reflector at p moves by ω × (p − o_j).
 """
 
 from __future__ import annotations
@@ -43,6 +45,9 @@ for _j, _axes in enumerate(DOF_AXES):
         DISTAL[_k] = JOINT_NAMES[_j].endswith(("Wrist", "Ankle"))
         _k += 1
 _USED = _SELECT >= 0
+_ROT_SLOT = np.flatnonzero(_SELECT >= 3)  # rotation parameters 3..39 as (joint * 3 + axis) slots, in parameter order
+assert (_SELECT[_ROT_SLOT] == np.arange(3, N_DOF)).all()
+_ROT_JOINT, _ROT_AXIS = _ROT_SLOT // 3, _ROT_SLOT % 3
 
 
 @dataclass(frozen=True)
@@ -51,40 +56,88 @@ class PoseConfig:
     temporal_weight: float = 0.01  # metres of reflector error equivalent to one radian of change from the last frame
     rest_weight: float = 0.002  # the same, per radian from the rest pose: settles what no reflector sees
     distal_rest_weight: float = 0.02  # the same for wrists and ankles (see DISTAL)
-    max_iterations: int = 50  # Levenberg-Marquardt function evaluations per frame (x 41 states)
+    max_iterations: int = 50  # Levenberg-Marquardt function evaluations per frame
     min_reflectors: int = 4  # fewer seen reflectors: the frame is not solved (NaN)
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """Cross-product matrices [v]x.  (..., 3) -> (..., 3, 3)"""
+    k = np.zeros(v.shape[:-1] + (3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    return k - np.swapaxes(k, -1, -2)
 
 
 def rodrigues(rotvec: np.ndarray) -> np.ndarray:
     """Rotation matrices of rotation vectors.  (..., 3) -> (..., 3, 3)"""
     theta = np.linalg.norm(rotvec, axis=-1)[..., None, None]  # (..., 1, 1)
-    safe = np.where(theta > 1e-12, theta, 1.0)
-    k = rotvec / safe[..., 0]
-    K = np.zeros(rotvec.shape[:-1] + (3, 3))
-    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -k[..., 2], k[..., 1], -k[..., 0]
-    K = K - np.swapaxes(K, -1, -2)
-    sin, cos = np.sin(theta), np.cos(theta)
-    return np.eye(3) + sin * K + (1 - cos) * (K @ K)  # Rodrigues' formula
+    k = rotvec / np.where(theta > 1e-12, theta, 1.0)[..., 0]  # unit axis (zero for no rotation)
+    kkt = k[..., :, None] * k[..., None, :]
+    return np.cos(theta) * np.eye(3) + np.sin(theta) * _skew(k) + (1 - np.cos(theta)) * kkt  # Rodrigues' formula
+
+
+def right_jacobian(rotvec: np.ndarray) -> np.ndarray:
+    """J_r(θ) with exp([θ + dθ]x) ≈ exp([θ]x) exp([J_r dθ]x).  (..., 3) -> (..., 3, 3)
+
+    J_r = I - (1 - cos φ) / φ² [θ]x + (φ - sin φ) / φ³ [θ]x², φ = |θ|  (J_r -> I - [θ]x / 2 as φ -> 0)
+    """
+    phi = np.linalg.norm(rotvec, axis=-1)[..., None, None]
+    small = phi < 1e-6
+    p = np.where(small, 1.0, phi)
+    a = np.where(small, 0.5, (1 - np.cos(p)) / p**2)
+    b = np.where(small, 1.0 / 6.0, (p - np.sin(p)) / p**3)
+    k = _skew(rotvec)
+    return np.eye(3) - a * k + b * (k @ k)
+
+
+def joint_rotvecs(params: np.ndarray) -> np.ndarray:
+    """Each joint's local rotation vector (zero on the axes it may not use).  (batch, 40) -> (batch, joint, 3)"""
+    rotvec = np.zeros(params.shape[:-1] + (3 * len(JOINT_NAMES),))
+    rotvec[..., _USED] = params[..., _SELECT[_USED]]
+    return rotvec.reshape(params.shape[:-1] + (len(JOINT_NAMES), 3))
 
 
 def local_rotations(params: np.ndarray) -> np.ndarray:
     """Local joint rotations of parameter vectors.  (batch, 40) -> (batch, joint, 3, 3)"""
-    rotvec = np.zeros(params.shape[:-1] + (3 * len(JOINT_NAMES),))
-    rotvec[..., _USED] = params[..., _SELECT[_USED]]
-    return rodrigues(rotvec.reshape(params.shape[:-1] + (len(JOINT_NAMES), 3)))
+    return rodrigues(joint_rotvecs(params))
+
+
+def _tree_depths(parents: np.ndarray) -> np.ndarray:
+    depth = np.zeros(len(parents), int)
+    for j, parent in enumerate(parents):  # parents come before their children
+        depth[j] = depth[parent] + 1 if parent >= 0 else 0
+    return depth
+
+
+# joints grouped by depth in the tree (root excluded), with their parents: forward kinematics runs one
+# vectorized step per depth instead of one per joint
+_DEPTH = _tree_depths(PARENTS)
+_BY_DEPTH = tuple((np.flatnonzero(_DEPTH == d), PARENTS[_DEPTH == d]) for d in range(1, _DEPTH.max() + 1))
+assert (PARENTS < 0).sum() == 1 and PARENTS[0] < 0
 
 
 def forward_kinematics(params: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """World rotations and positions of every joint.  (batch, 40), (joint, 3) -> (batch, joint, 3, 3), (batch, joint, 3)"""
     local = local_rotations(params)
     rot, pos = np.empty_like(local), np.empty(local.shape[:-1])
-    for j, parent in enumerate(PARENTS):
-        if parent < 0:
-            rot[:, j], pos[:, j] = local[:, j], params[:, :3]
-        else:
-            rot[:, j] = rot[:, parent] @ local[:, j]
-            pos[:, j] = pos[:, parent] + rot[:, parent] @ offsets[j]
+    rot[:, 0], pos[:, 0] = local[:, 0], params[:, :3]
+    for joints, parents in _BY_DEPTH:
+        rot[:, joints] = rot[:, parents] @ local[:, joints]
+        pos[:, joints] = pos[:, parents] + (rot[:, parents] @ offsets[joints][..., None])[..., 0]
     return rot, pos
+
+
+def _moves_table(parents: np.ndarray) -> np.ndarray:
+    """(joint, joint) bool: row j marks j and every joint below it (what a rotation of j carries)."""
+    table = np.eye(len(parents), dtype=bool)
+    for j in range(len(parents)):
+        a = parents[j]
+        while a >= 0:
+            table[a, j] = True
+            a = parents[a]
+    return table
+
+
+_MOVES = _moves_table(PARENTS)
 
 
 def reflector_positions(rot: np.ndarray, pos: np.ndarray, bones: np.ndarray, reflector_offsets: np.ndarray) -> np.ndarray:
@@ -128,6 +181,23 @@ def _residuals_batch(states, observed, weights, previous, offsets, bones, reflec
     return np.concatenate([fit, temporal, rest], axis=1)
 
 
+def _fit_jacobian(x: np.ndarray, weights: np.ndarray, offsets: np.ndarray, bones: np.ndarray,
+                  reflector_offsets: np.ndarray) -> np.ndarray:
+    """d(weighted reflector residuals)/d(params), analytic.  (40,) -> (seen * 3, 40)"""
+    rot, pos = forward_kinematics(x[None], offsets)
+    rot, pos = rot[0], pos[0]  # (joint, 3, 3), (joint, 3)
+    pred = reflector_positions(rot[None], pos[None], bones, reflector_offsets)[0]  # (seen, 3)
+    turn = rot[_ROT_JOINT] @ right_jacobian(joint_rotvecs(x)[_ROT_JOINT])  # (37, 3, 3): W_j J_r(θ_j)
+    omega = turn[np.arange(len(_ROT_JOINT)), :, _ROT_AXIS]  # (37, 3): world axis of each rotation parameter
+    arms = pred[None] - pos[_ROT_JOINT][:, None]  # (37, seen, 3): p - o_j
+    moved = _MOVES[_ROT_JOINT][:, bones]  # (37, seen): the reflector's bone lies below joint j
+    columns = np.cross(omega[:, None], arms) * moved[..., None]  # (37, seen, 3): ω x (p - o_j)
+    jac = np.empty((len(bones), 3, N_DOF))
+    jac[:, :, :3] = np.eye(3)  # root translation
+    jac[:, :, 3:] = columns.transpose(1, 2, 0)
+    return (jac * weights[:, None, None]).reshape(-1, N_DOF)
+
+
 def solve_frame(observed: np.ndarray, weights: np.ndarray, start: np.ndarray, offsets: np.ndarray,
                 bones: np.ndarray, reflector_offsets: np.ndarray, *, temporal_weight: float, rest_weights: np.ndarray,
                 max_iterations: int) -> tuple[np.ndarray, float]:
@@ -136,17 +206,16 @@ def solve_frame(observed: np.ndarray, weights: np.ndarray, start: np.ndarray, of
     observed (seen, 3), weights (seen,), bones (seen,), reflector_offsets (seen, 3), start (40,), rest_weights (40,).
     """
     args = (observed, weights, start, offsets, bones, reflector_offsets, temporal_weight, rest_weights)
-    step = 1e-6
+    regular = np.vstack([np.hstack([np.zeros((N_DOF - 3, 3)), temporal_weight * np.eye(N_DOF - 3)]),
+                         np.hstack([np.zeros((N_DOF - 6, 6)), np.diag(rest_weights[6:])])])  # d(temporal, rest)/dx
 
     def fun(x):
         return _residuals_batch(x[None], *args)[0]
 
     def jac(x):
-        states = np.vstack([x, x + step * np.eye(N_DOF)])  # (41, 40): forward differences in one batch
-        r = _residuals_batch(states, *args)
-        return ((r[1:] - r[0]) / step).T
+        return np.vstack([_fit_jacobian(x, weights, offsets, bones, reflector_offsets), regular])
 
-    fit = least_squares(fun, start, jac=jac, method="lm", max_nfev=max_iterations, xtol=1e-8, ftol=1e-10)
+    fit = least_squares(fun, start, jac=jac, method="lm", max_nfev=max_iterations, xtol=1e-6, ftol=1e-6)
     rot, pos = forward_kinematics(fit.x[None], offsets)
     err = reflector_positions(rot, pos, bones, reflector_offsets)[0] - observed
     return fit.x, float(np.sqrt(np.mean(np.sum(err**2, axis=1))))

@@ -5,9 +5,10 @@ candidate at frame f is scored against the candidates of the same reflector at f
 integral of the optical flow field L along the segment between them (Eq. 7-8, sampled uniformly);
 the fused confidence is E = E^S + (1 - E^S)·E^L (Eq. 9) and the best candidate is the estimate.
 Filtering: the estimate must lie in a reflector (black) region of at least b_min pixels; its final
-position is that region's centre at full resolution (sub-pixel; a region shared by touching
-reflectors is cut to the pixels near the estimate); of estimates closer than 3 px the more confident
-stays; one estimate per reflector and image; an estimate below c_min is dropped.
+position is that region's centre at full resolution (sub-pixel; a long region is cut to the pixels
+near the estimate, and with ``split_px`` > 0 a region shared by estimates that far apart is split
+among them by k-means); of estimates closer than 3 px the more confident stays; one estimate per
+reflector and image; an estimate below c_min is dropped.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ class GreedyConfig:
     min_distance_px: float = 3.0  # of two estimates closer than this, the more confident stays
     snap_px: float = 6.0  # how far from an estimate its reflector region may start, pixels
     region_radius_px: float = 10.0  # pixels of a region counted towards its centre
+    split_px: float = 0.0  # > 0: estimates this far apart on one region split it (k-means); 0: off (see docs)
     c_min: float = 0.1  # smallest accepted fused confidence E
 
 
@@ -85,10 +87,10 @@ def fuse(e_s: float, e_l: float) -> float:
 
 
 def reflector_region(xy: np.ndarray, blob_id: np.ndarray, blob_area: np.ndarray, *, snap_px: float,
-                     radius_px: float) -> tuple[np.ndarray, int] | None:
-    """Centre (x, y) and area of the reflector region at (or within ``snap_px`` of) image point ``xy``; None if none.
-    A region wider than ``radius_px`` (touching reflectors, a strap seen along) gives the mean of its pixels
-    within ``radius_px`` of the point."""
+                     radius_px: float) -> tuple[np.ndarray, int, int] | None:
+    """Centre (x, y), area and label of the reflector region at (or within ``snap_px`` of) image point ``xy``;
+    None if none. A region wider than ``radius_px`` (touching reflectors, a strap seen along) gives the mean
+    of its pixels within ``radius_px`` of the point."""
     h, w = blob_id.shape
     r = int(np.ceil(radius_px))
     x0, y0 = max(int(xy[0]) - r, 0), max(int(xy[1]) - r, 0)
@@ -106,8 +108,29 @@ def reflector_region(xy: np.ndarray, blob_id: np.ndarray, blob_area: np.ndarray,
     centre = region.mean(axis=0)
     area = int(blob_area[label - 1])
     if len(region) == area and np.linalg.norm(region - centre, axis=1).max() <= radius_px:
-        return centre, area  # a reflector-sized region: its centre
-    return px[(window[ys, xs] == label) & (d <= radius_px)].mean(axis=0), area  # a shared or long one: the near part
+        return centre, area, int(label)  # a reflector-sized region: its centre
+    return px[(window[ys, xs] == label) & (d <= radius_px)].mean(axis=0), area, int(label)  # shared or long: the near part
+
+
+def distinct(xy: np.ndarray, confidence: np.ndarray, split_px: float) -> np.ndarray:
+    """Indices of estimates at least ``split_px`` from every more confident kept one.  (n, 2), (n,) -> (k,)"""
+    kept: list[int] = []
+    for i in np.argsort(-confidence, kind="stable"):
+        if all(np.linalg.norm(xy[i] - xy[k]) >= split_px for k in kept):
+            kept.append(int(i))
+    return np.asarray(kept, int)
+
+
+def split_region(seeds: np.ndarray, blob_id: np.ndarray, label: int, iterations: int = 5) -> np.ndarray:
+    """Centres of the parts of one region shared by several estimates: k-means of its pixels (Lloyd),
+    seeded at the estimates, so touching reflectors get their own centres.  (n, 2) -> (n, 2)"""
+    ys, xs = np.nonzero(blob_id == label)
+    px = np.stack([xs, ys], axis=1).astype(np.float64)  # (pixels, 2)
+    centres = np.asarray(seeds, np.float64).copy()
+    for _ in range(iterations):
+        part = np.argmin(((px[:, None] - centres[None]) ** 2).sum(-1), axis=1)
+        centres = np.stack([px[part == k].mean(0) if (part == k).any() else centres[k] for k in range(len(centres))])
+    return centres
 
 
 def suppress_close(xy: np.ndarray, confidence: np.ndarray, min_distance: float) -> np.ndarray:
@@ -158,14 +181,22 @@ def estimate_frame(confidence, off, affine, prev, *, stride: int, line_samples: 
 
 
 def filter_frame(xy, confidence, blob_id, blob_area, *, b_min: int, min_distance_px: float, snap_px: float,
-                 region_radius_px: float, c_min: float):
+                 region_radius_px: float, split_px: float, c_min: float):
     """§5.1.3 filtering of one image's estimates.  -> region centres (R, 2) NaN if rejected, E (R,), sizes (R,)"""
     out = np.full_like(xy, np.nan)
     size = np.zeros(len(xy), np.int32)
+    label = np.zeros(len(xy), np.int64)
     for r in np.nonzero(np.isfinite(xy[:, 0]) & (confidence >= c_min))[0]:
         region = reflector_region(xy[r], blob_id, blob_area, snap_px=snap_px, radius_px=region_radius_px)
         if region is not None and region[1] >= b_min:
-            out[r], size[r] = region
+            out[r], size[r], label[r] = region
+    for shared in np.unique(label[label > 0]) if split_px > 0 else ():  # one region, distinct estimates: a part each
+        on = np.flatnonzero(label == shared)
+        seeds = distinct(xy[on], confidence[on], split_px)
+        if len(seeds) > 1:
+            centres = split_region(xy[on[seeds]], blob_id, shared)
+            nearest = np.argmin(((xy[on][:, None] - xy[on[seeds]][None]) ** 2).sum(-1), axis=1)
+            out[on] = centres[nearest]  # an estimate close to a stronger one shares its centre (then suppressed)
     keep = suppress_close(out, confidence, min_distance_px)
     out[~keep] = np.nan
     size[~keep] = 0
@@ -174,7 +205,7 @@ def filter_frame(xy, confidence, blob_id, blob_area, *, b_min: int, min_distance
 
 def greedy_reflectors(heatmaps: xr.Dataset, masks: xr.Dataset, *, peak_threshold: float, max_candidates: int,
                       line_samples: int, b_min: int, min_distance_px: float, snap_px: float, region_radius_px: float,
-                      c_min: float) -> xr.Dataset:
+                      split_px: float, c_min: float) -> xr.Dataset:
     """Labelled 2D reflectors of every view and frame (``heatmaps`` starts one frame early, for f-1)."""
     stride = int(heatmaps.attrs["stride"])
     shape = (heatmaps.sizes["view"], heatmaps.sizes["frame"], heatmaps.sizes["reflector"])
@@ -195,7 +226,7 @@ def greedy_reflectors(heatmaps: xr.Dataset, masks: xr.Dataset, *, peak_threshold
             j = int(np.nonzero(m["frame"].values == frame)[0][0])
             out["xy"][v, i], out["confidence"][v, i], out["size"][v, i] = filter_frame(
                 xy, e, m["blob_id"].values[j], m["blob_area"].values[j], b_min=b_min, min_distance_px=min_distance_px,
-                snap_px=snap_px, region_radius_px=region_radius_px, c_min=c_min)
+                snap_px=snap_px, region_radius_px=region_radius_px, split_px=split_px, c_min=c_min)
     dims = ("view", "frame", "reflector")
     f32 = lambda a: (dims, a.astype(np.float32))  # noqa: E731
     return xr.Dataset(

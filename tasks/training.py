@@ -4,7 +4,8 @@ Two tasks: ``fcn_samples`` turns one view of a studio sequence into training sam
 streams at the sample scale, the subject box, ground-truth 2D at f and f-1); ``train_fcn`` draws
 augmented crops from every sample of a dataset — scale [0.6, 1.1], rotation ±40°, flips that swap
 left and right reflector labels, shifted crops around the subject (§5.1.1) — builds the targets of
-Eq. 4-6 and minimizes the loss of Eq. 2-3 with Adam, seeded, on a GPU when there is one.
+Eq. 4-6 and minimizes the loss of Eq. 2-3 with Adam, seeded, on a GPU when there is one (the forward
+pass in bfloat16 where the hardware has it; the loss and the weights stay float32).
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ class CropConfig:
 @dataclass(frozen=True)
 class TrainConfig:
     # architecture (tasks/fcn.py FcnArchitecture)
-    input_size: int = 160
+    input_size: int = 128
     stream_width: int = 32
     fused_width: int = 64
     stage_width: int = 64
@@ -64,9 +65,10 @@ class TrainConfig:
     margin: float = 1.3
     min_side: float = 50.0
     # optimization
-    iterations: int = 2500
+    iterations: int = 6000
     batch: int = 16
-    learning_rate: float = 2e-3
+    learning_rate: float = 5e-3
+    bfloat16: bool = True  # forward pass in bfloat16 where the processor supports it (~1.7x faster on a CPU)
     frame_step: int = 2  # every n-th frame of each view is a sample
     seed: int = 0
 
@@ -163,6 +165,7 @@ def train_fcn(samples: xr.Dataset, **params) -> xr.Dataset:
     rng = np.random.default_rng(config.seed)
     device = "cuda" if torch.cuda.is_available() else "cpu"
     model = fcn.TwoStreamFCN(arch).to(device).train()
+    mixed = config.bfloat16 and _bfloat16_ok(torch, device)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     schedule = torch.optim.lr_scheduler.OneCycleLR(optimizer, max_lr=config.learning_rate,
                                                    total_steps=config.iterations, pct_start=0.1)
@@ -171,7 +174,9 @@ def train_fcn(samples: xr.Dataset, **params) -> xr.Dataset:
         batch = [augmented({k: v[i] for k, v in pool.items()}, rng, size=arch.input_size, stride=arch.stride,
                            crop=crop, config=config) for i in rng.integers(0, len(pool["box"]), config.batch)]
         depth, flow, s_target, l_target = (np.stack(column) for column in zip(*batch))
-        outputs = model(fcn.to_input(depth).to(device), fcn.to_input(flow).to(device) if arch.flow_stream else None)
+        with torch.autocast(device, dtype=torch.bfloat16, enabled=mixed):
+            outputs = model(fcn.to_input(depth).to(device), fcn.to_input(flow).to(device) if arch.flow_stream else None)
+        outputs = [(s.float(), None if f is None else f.float()) for s, f in outputs]  # the loss in float32
         l_target = torch.from_numpy(l_target.reshape(len(batch), -1, *l_target.shape[-2:])).to(device)
         s_target = torch.from_numpy(s_target).to(device)
         weight = 1.0 + config.foreground_weight * s_target[:, :fcn.N_REFLECTORS].amax(dim=1, keepdim=True)
@@ -185,7 +190,17 @@ def train_fcn(samples: xr.Dataset, **params) -> xr.Dataset:
             log.info("iteration %d/%d: loss %.3f (%.0f s)", iteration, config.iterations,
                      np.mean(losses[-100:]), time.perf_counter() - started)
     return weights_dataset(model.cpu(), crop, config, losses, n_samples=len(pool["box"]),
-                           seconds=time.perf_counter() - started, device=device)
+                           seconds=time.perf_counter() - started, device=device + (" bfloat16" if mixed else ""))
+
+
+def _bfloat16_ok(torch, device: str) -> bool:
+    """Whether bfloat16 autocast is native here (a CUDA GPU that has it, or a CPU with AVX-512 BF16 / AMX)."""
+    if device == "cuda":
+        return torch.cuda.is_bf16_supported()
+    try:
+        return bool(torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    except (AttributeError, RuntimeError):  # a build without the query: stay in float32
+        return False
 
 
 def _sample_pool(samples: xr.Dataset, config: TrainConfig) -> dict:

@@ -8,16 +8,17 @@ import cv2
 from conftest import last_json, mocapflow
 from mocapflow.pipeline.export import read_bvh_joints, read_c3d
 
-# Floor of the shipped FCN weights on this smoke run (measured 13.5 % PCK@20cm, MAE 49 cm): the 2D
-# estimates are the weak link (see docs/results.md); this floor catches a broken chain, not accuracy.
-FLOOR = {"pck3d_20cm": 0.05, "mae3d_cm": 80.0}
+# Floor of the shipped FCN weights on this smoke run (measured PCK@20cm 100 %, PCK@5cm 87.1 %, MAE 2.72 cm;
+# procedural motion, so not an accuracy figure of the system, see docs/results.md), with room for BLAS differences.
+FLOOR = {"pck3d_20cm": 0.95, "pck3d_5cm": 0.75, "mae3d_cm": 4.0}
 
 
 def test_demo_runs_everything_and_is_served_from_cache_the_second_time(tmp_path):
     args = ("demo", "--out", "demo", "--frames", "40", "--motion", "jumping_jack", "--json")
     first = last_json(mocapflow(*args, cwd=tmp_path, timeout=900))
     assert first["partitions computed"] == 17 and first["poses_solved"] == 1.0
-    assert first["pck3d_20cm"] >= FLOOR["pck3d_20cm"] and first["mae3d_cm"] <= FLOOR["mae3d_cm"], first
+    assert first["pck3d_20cm"] >= FLOOR["pck3d_20cm"] and first["pck3d_5cm"] >= FLOOR["pck3d_5cm"], first
+    assert first["mae3d_cm"] <= FLOOR["mae3d_cm"], first
     out = tmp_path / "demo"
     joints, names, _ = read_bvh_joints(out / "export" / "jumping_jack_s1.bvh")
     assert joints.shape == (40, 20, 3) and names[0] == "Hips"

@@ -84,3 +84,42 @@ def test_a_view_with_nan_calibration_is_a_clear_error():
                         coords={"view": ["cam"], "frame": [0]}, attrs={"fps": 30.0})
     with pytest.raises(ValueError, match="'cam' has a non-finite calibration"):
         m3d.markers3d(reflectors, masks, frames, **vars(m3d.Markers3DConfig()))
+
+
+def _view_frame(cam, world):
+    """Depth (a plane at the point's depth) and a 3 x 3 reflector region at the point's pixel."""
+    uv, z = project(cam, world[None])
+    u, v = np.round(uv[0]).astype(int)
+    depth = np.full((cam.height, cam.width), int(round(z[0] * 1000)), np.uint16)
+    blob_id = np.zeros_like(depth)
+    blob_id[v - 1:v + 2, u - 1:u + 2] = 1
+    depth[blob_id > 0] = 0
+    return depth, blob_id, (float(u), float(v))
+
+
+def test_missing_frames_of_a_view_are_skipped_not_fused():
+    """View b loses frame 1 entirely and the depth of frame 0: both frames come from view a alone, exactly."""
+    world = np.array([0.1, 0.05, 1.2])
+    cams = [_camera([2.5, -1.0, 1.2]), _camera([-2.0, -2.0, 1.4])]
+    depth, blob, xy = map(list, zip(*[_view_frame(c, world) for c in cams]))
+    depth_b0 = np.zeros_like(depth[1])  # frame 0 of view b: no depth arrived
+    stack = lambda a0, a1: np.stack([a0, a1])  # noqa: E731  (frame,)
+    depths = np.stack([stack(depth[0], depth[0]), stack(depth_b0, np.zeros_like(depth[1]))])
+    blobs = np.stack([stack(blob[0], blob[0]), stack(blob[1], np.zeros_like(blob[1]))])
+    x = np.array([[[xy[0][0]], [xy[0][0]]], [[xy[1][0]], [np.nan]]], np.float32)  # (view, frame, reflector)
+    y = np.array([[[xy[0][1]], [xy[0][1]]], [[xy[1][1]], [np.nan]]], np.float32)
+    coords = {"view": ["a", "b"], "frame": [0, 1]}
+    reflectors = xr.Dataset({"x": (("view", "frame", "reflector"), x), "y": (("view", "frame", "reflector"), y),
+                             "confidence": (("view", "frame", "reflector"), np.where(np.isfinite(x), 0.9, 0.0))},
+                            coords={**coords, "reflector": ["F_SPINEMID"]})
+    masks = xr.Dataset({"blob_id": (("view", "frame", "y", "x"), blobs)}, coords=coords)
+    frames = xr.Dataset({"depth": (("view", "frame", "y", "x"), depths),
+                         **{k: (("view",), [float(c.K[i]) for c in cams])
+                            for k, i in (("fx", (0, 0)), ("fy", (1, 1)), ("cx", (0, 2)), ("cy", (1, 2)))},
+                         "dist": (("view", "dist_coef"), np.stack([np.asarray(c.dist, float) for c in cams])),
+                         "cam_to_world": (("view", "row", "col"), np.stack([c.cam_to_world for c in cams]))},
+                        coords=coords, attrs={"fps": 30.0})
+    out = m3d.markers3d(reflectors, masks, frames, **vars(m3d.Markers3DConfig()))
+    np.testing.assert_allclose(out["position"].values[:, 0], [world, world], atol=0.01)
+    np.testing.assert_array_equal(out["views"].values[:, 0], [1, 1])
+    assert np.isnan(out["residual"].sel(view="b").values).all()  # view b contributed nothing

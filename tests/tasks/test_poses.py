@@ -98,3 +98,29 @@ def test_wrapper_keeps_bone_lengths_and_writes_unit_quaternions():
     np.testing.assert_allclose(lengths, np.broadcast_to(np.linalg.norm(offsets[1:], axis=1), lengths.shape), atol=1e-5)
     np.testing.assert_allclose(np.linalg.norm(out["rotation"].values[solved], axis=-1), 1.0, atol=1e-5)
     assert np.abs(p[solved] - pos[solved]).max() < 0.01
+
+
+def test_analytic_jacobian_matches_finite_differences():
+    _, offsets, bones, refl = _rig(seed=5)
+    rng = np.random.default_rng(2)
+    x = np.r_[0.1, -0.2, 1.0, rng.uniform(-0.8, 0.8, N_DOF - 3)]
+    weights = rng.uniform(0.3, 1.0, len(bones))
+
+    def fit(p):
+        rot, pos = forward_kinematics(p[None], offsets)
+        return (reflector_positions(rot, pos, bones, refl)[0] * weights[:, None]).ravel()
+
+    numeric = np.stack([(fit(x + h) - fit(x - h)) / 2e-6 for h in 1e-6 * np.eye(N_DOF)], axis=1)
+    analytic = poses._fit_jacobian(x, weights, offsets, bones, refl)
+    assert np.abs(analytic - numeric).max() < 1e-6 * max(1.0, np.abs(numeric).max())
+    assert np.abs(numeric).max() > 0.1  # a non-trivial pose: columns of rotation parameters are not all zero
+
+
+def test_rodrigues_and_right_jacobian_small_and_large_angles():
+    for v in (np.zeros(3), np.array([1e-9, 0, 0]), np.array([0.3, -1.2, 2.0])):
+        r = poses.rodrigues(v)
+        assert np.allclose(r @ r.T, np.eye(3)) and np.isclose(np.linalg.det(r), 1.0)
+        d = 1e-6 * np.array([0.3, 0.5, -0.2])
+        step = r.T @ poses.rodrigues(v + d)  # exp([J_r d]x) to first order: I + [J_r d]x
+        w = poses.right_jacobian(v) @ d
+        assert np.allclose(step - np.eye(3), poses._skew(w), atol=1e-11)

@@ -45,7 +45,7 @@ def _blobs(shape=(60, 80)):
     return blob_id, np.array([4, 9, 30])
 
 
-RULES = dict(b_min=5, min_distance_px=3.0, snap_px=6.0, region_radius_px=4.0, c_min=0.2)
+RULES = dict(b_min=5, min_distance_px=3.0, snap_px=6.0, region_radius_px=4.0, split_px=0.0, c_min=0.2)
 
 
 def test_filtering_rules():
@@ -67,6 +67,24 @@ def test_filtering_rules():
     assert size[3] == size[4] == 30
     assert np.isnan(out[5]).all()  # closer than 3 px to a more confident estimate
     assert np.isnan(out[6]).all() and kept_conf[6] == 0  # below c_min
+
+
+def test_split_gives_touching_reflectors_their_own_centres():
+    blob_id = np.zeros((40, 60), np.uint16)
+    blob_id[20:24, 20:24] = 1  # two 16 px patches that touch: one 32 px region
+    blob_id[20:24, 24:28] = 1
+    area = np.array([32])
+    rules = dict(RULES, region_radius_px=10.0)  # the whole region is reflector-sized: one centre for all
+    xy = np.array([[20.5, 21.0], [27.0, 22.5], [21.0, 22.0]])  # two distinct peaks, and a third near the first
+    conf = np.array([0.9, 0.8, 0.5])
+    merged, _, _ = r2d.filter_frame(xy, conf, blob_id, area, **rules)
+    np.testing.assert_allclose(merged[0], [23.5, 21.5])  # off: the region's centre, the others suppressed
+    assert np.isnan(merged[1:]).all()
+    split, kept, size = r2d.filter_frame(xy, conf, blob_id, area, **dict(rules, split_px=4.0))
+    np.testing.assert_allclose(split[0], [21.5, 21.5])  # each patch's own centre
+    np.testing.assert_allclose(split[1], [25.5, 21.5])
+    assert np.isnan(split[2]).all() and kept[2] == 0  # within split_px of a stronger estimate: that one's reflector
+    assert size[0] == size[1] == 32
 
 
 def _heatmaps(points_per_frame, off=None, grid=20, stride=4):

@@ -1,0 +1,95 @@
+"""Whole-pipeline throughput: frames per second of `mocapflow run` from the sensors' frames to poses
+(masks, `dis` flow, heatmaps, reflectors2d, markers3d, smoothed, skeleton, poses) for 3 views at
+512x424 on the machine's cores, as a user runs it (fresh processes, engine and storage included).
+
+The recording itself (the studio render, standing in for the sensors) is made once and not timed;
+each repeat deletes every other stage's artifacts and reruns. Held-out motion (CMU walk), held-out
+subject seed and a random camera layout:
+
+    python benchmarks/pipeline.py [--frames 90] [--repeats 3] [--workers 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections import defaultdict
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared" / "data"
+CLIP = SHARED / "motions" / "cmu_12_01_walk.bvh"
+
+CATALOG = """\
+data_roots: [., {shared}]
+storage: {{root: storage/, region_frames: 16}}
+datasets:
+  heldout:
+    kind: studio
+    defaults: {{frames: {frames}, fps: 30.0, views: 3, noise: 1.0, random_layout: true}}
+    sequences:
+      cmu_walk: {{motion: {clip}, seed: 9105}}
+stages:
+  frames: {{task: ingest, dataset: heldout}}
+  masks: {{task: reflector_mask, inputs: [frames]}}
+  flow: {{task: dis, inputs: [frames]}}
+  heatmaps: {{task: fcn_heatmaps, inputs: {{masks: masks, flow: flow}}}}
+  reflectors2d: {{task: greedy_reflectors, inputs: {{heatmaps: heatmaps, masks: masks}}}}
+  markers3d: {{task: fuse_views, inputs: {{reflectors: reflectors2d, masks: masks, frames: frames}}}}
+  smoothed: {{task: kalman, inputs: {{markers: markers3d}}}}
+  skeleton: {{task: calibrate_skeleton, inputs: {{markers: smoothed}}}}
+  poses: {{task: solve_poses, inputs: {{skeleton: skeleton, markers: smoothed}}}}
+"""
+
+
+def mocapflow(folder: Path, *args: str) -> None:
+    subprocess.run([sys.executable, "-m", "mocapflow.pipeline.cli", *args, "--no-progress"], cwd=folder, check=True,
+                   stdout=subprocess.DEVNULL)
+
+
+def stage_seconds(storage: Path) -> dict[str, float]:
+    """Compute seconds per stage, summed over partitions, from the artifacts' lineage records."""
+    seconds: dict[str, float] = defaultdict(float)
+    for lineage in storage.glob("*/*/lineage.json"):
+        stage = lineage.parent.parent.name
+        seconds[stage] += json.loads(lineage.read_text()).get("compute_seconds", 0.0)
+    return dict(seconds)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=90)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--workers", type=int, default=2)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        (folder / "catalog.yaml").write_text(CATALOG.format(shared=SHARED, clip=CLIP, frames=args.frames))
+        mocapflow(folder, "run", "--until", "frames")
+        walls, per_stage = [], defaultdict(list)
+        for _ in range(args.repeats):
+            for stage_dir in (folder / "storage").iterdir():
+                if stage_dir.name != "frames":
+                    shutil.rmtree(stage_dir)
+            started = time.perf_counter()
+            mocapflow(folder, "run", "--workers", str(args.workers))
+            walls.append(time.perf_counter() - started)
+            for stage, s in stage_seconds(folder / "storage").items():
+                if stage != "frames":
+                    per_stage[stage].append(s)
+    wall = statistics.median(walls)
+    print(json.dumps({
+        "frames": args.frames, "views": 3, "workers": args.workers, "wall_s_median": round(wall, 2),
+        "frames_per_s": round(args.frames / wall, 2),
+        "compute_ms_per_frame": {k: round(1000 * statistics.median(v) / args.frames, 1) for k, v in per_stage.items()},
+    }, indent=1))
+
+
+if __name__ == "__main__":
+    main()
