@@ -58,11 +58,15 @@ TRAIN_STAGES = """  samples: {task: fcn_samples, inputs: {masks: masks, flow: fl
   weights:                      # the trained network; `mocapflow train` writes it to models/
     task: train_fcn
     inputs: {samples: samples}
-    params: {iterations: 2500, batch: 16, seed: 0}
+    params: {iterations: 6000, batch: 16, seed: 0}
 """
 
 VALIDATION_STAGES = """  heatmaps: {task: fcn_heatmaps, inputs: {masks: masks, flow: flow}}
   reflectors2d: {task: greedy_reflectors, inputs: {heatmaps: heatmaps, masks: masks}, params: {c_min: 0.0}}
+  markers3d: {task: fuse_views, inputs: {reflectors: reflectors2d, masks: masks, frames: frames}}
+  smoothed: {task: kalman, inputs: {markers: markers3d}}
+  skeleton: {task: calibrate_skeleton, inputs: {markers: smoothed}}
+  poses: {task: solve_poses, inputs: {skeleton: skeleton, markers: smoothed}}
 
 evaluation:
   sequences: "*"
