@@ -8,7 +8,7 @@ Stage 1 sees F; stage t > 1 sees (F, S_{t-1}, L_{t-1}) (Eq. 1). Every stage is s
 L2 loss on both branches (Eq. 2-3). Dilated 3x3 convolutions stand in for the paper's 7x7 ones: the
 same receptive field at a fraction of the cost on a CPU. Every stage's output heads start at zero
 (background map at one), so the first iterations learn features instead of undoing random maps: in
-the same 8 CPU-minutes of training, randomly initialized heads put 18 % of the validation peaks
+a development comparison with the same 8 CPU-minutes of training, randomly initialized heads put 18 % of the validation peaks
 within 1.5 cells of the truth, zeroed ones 94 %.
 
 Ablations of §5.1 from the same class: ``flow_stream=False`` is [14] (depth only, no OFF branch when
