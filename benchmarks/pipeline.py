@@ -22,6 +22,8 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
+from mocapflow.pipeline.storage import Store
+
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
 CLIP = SHARED / "motions" / "cmu_12_01_walk.bvh"
@@ -55,11 +57,9 @@ def mocapflow(folder: Path, *args: str) -> None:
 
 def stage_seconds(storage: Path) -> dict[str, float]:
     """Compute seconds per stage, summed over partitions, from the artifacts' lineage records."""
-    seconds: dict[str, float] = defaultdict(float)
-    for lineage in storage.glob("*/*/lineage.json"):
-        stage = lineage.parent.parent.name
-        seconds[stage] += json.loads(lineage.read_text()).get("compute_seconds", 0.0)
-    return dict(seconds)
+    store = Store(str(storage))
+    return {stage: sum(v.lineage.get("compute_seconds", 0.0) for v in store.versions(stage))
+            for stage in store.stages_on_disk()}
 
 
 def main() -> None:

@@ -101,16 +101,21 @@ def local_rotations(params: np.ndarray) -> np.ndarray:
     return rodrigues(joint_rotvecs(params))
 
 
-def _tree_depths(parents: np.ndarray) -> np.ndarray:
-    depth = np.zeros(len(parents), int)
-    for j, parent in enumerate(parents):  # parents come before their children
-        depth[j] = depth[parent] + 1 if parent >= 0 else 0
-    return depth
+def _moves_table(parents: np.ndarray) -> np.ndarray:
+    """(joint, joint) bool: row j marks j and every joint below it (what a rotation of j carries)."""
+    table = np.eye(len(parents), dtype=bool)
+    for j in range(len(parents)):
+        a = parents[j]
+        while a >= 0:
+            table[a, j] = True
+            a = parents[a]
+    return table
 
 
+_MOVES = _moves_table(PARENTS)
 # joints grouped by depth in the tree (root excluded), with their parents: forward kinematics runs one
 # vectorized step per depth instead of one per joint
-_DEPTH = _tree_depths(PARENTS)
+_DEPTH = _MOVES.sum(axis=0) - 1  # ancestors of each joint
 _BY_DEPTH = tuple((np.flatnonzero(_DEPTH == d), PARENTS[_DEPTH == d]) for d in range(1, _DEPTH.max() + 1))
 assert (PARENTS < 0).sum() == 1 and PARENTS[0] < 0
 
@@ -124,20 +129,6 @@ def forward_kinematics(params: np.ndarray, offsets: np.ndarray) -> tuple[np.ndar
         rot[:, joints] = rot[:, parents] @ local[:, joints]
         pos[:, joints] = pos[:, parents] + (rot[:, parents] @ offsets[joints][..., None])[..., 0]
     return rot, pos
-
-
-def _moves_table(parents: np.ndarray) -> np.ndarray:
-    """(joint, joint) bool: row j marks j and every joint below it (what a rotation of j carries)."""
-    table = np.eye(len(parents), dtype=bool)
-    for j in range(len(parents)):
-        a = parents[j]
-        while a >= 0:
-            table[a, j] = True
-            a = parents[a]
-    return table
-
-
-_MOVES = _moves_table(PARENTS)
 
 
 def reflector_positions(rot: np.ndarray, pos: np.ndarray, bones: np.ndarray, reflector_offsets: np.ndarray) -> np.ndarray:
@@ -171,14 +162,14 @@ def initial_params(observed: np.ndarray, offsets: np.ndarray, bones: np.ndarray,
     return params
 
 
-def _residuals_batch(states, observed, weights, previous, offsets, bones, reflector_offsets, temporal_weight,
-                     rest_weights):
-    rot, pos = forward_kinematics(states, offsets)
-    pred = reflector_positions(rot, pos, bones, reflector_offsets)  # (batch, seen, 3)
-    fit = ((pred - observed) * weights[:, None]).reshape(len(states), -1)
-    temporal = temporal_weight * (states[:, 3:] - previous[3:])  # rotations only; the root may travel
-    rest = rest_weights[6:] * states[:, 6:]  # joint rotations (not the root's) towards the rest pose
-    return np.concatenate([fit, temporal, rest], axis=1)
+def _residuals(x, observed, weights, previous, offsets, bones, reflector_offsets, temporal_weight, rest_weights):
+    """Weighted reflector errors, then the pulls to the previous frame and to rest.  (40,) -> (seen * 3 + 37 + 34,)"""
+    rot, pos = forward_kinematics(x[None], offsets)
+    pred = reflector_positions(rot, pos, bones, reflector_offsets)[0]  # (seen, 3)
+    fit = ((pred - observed) * weights[:, None]).ravel()
+    temporal = temporal_weight * (x[3:] - previous[3:])  # rotations only; the root may travel
+    rest = rest_weights[6:] * x[6:]  # joint rotations (not the root's) towards the rest pose
+    return np.concatenate([fit, temporal, rest])
 
 
 def _fit_jacobian(x: np.ndarray, weights: np.ndarray, offsets: np.ndarray, bones: np.ndarray,
@@ -210,7 +201,7 @@ def solve_frame(observed: np.ndarray, weights: np.ndarray, start: np.ndarray, of
                          np.hstack([np.zeros((N_DOF - 6, 6)), np.diag(rest_weights[6:])])])  # d(temporal, rest)/dx
 
     def fun(x):
-        return _residuals_batch(x[None], *args)[0]
+        return _residuals(x, *args)
 
     def jac(x):
         return np.vstack([_fit_jacobian(x, weights, offsets, bones, reflector_offsets), regular])

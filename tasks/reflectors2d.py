@@ -112,15 +112,6 @@ def reflector_region(xy: np.ndarray, blob_id: np.ndarray, blob_area: np.ndarray,
     return px[(window[ys, xs] == label) & (d <= radius_px)].mean(axis=0), area, int(label)  # shared or long: the near part
 
 
-def distinct(xy: np.ndarray, confidence: np.ndarray, split_px: float) -> np.ndarray:
-    """Indices of estimates at least ``split_px`` from every more confident kept one.  (n, 2), (n,) -> (k,)"""
-    kept: list[int] = []
-    for i in np.argsort(-confidence, kind="stable"):
-        if all(np.linalg.norm(xy[i] - xy[k]) >= split_px for k in kept):
-            kept.append(int(i))
-    return np.asarray(kept, int)
-
-
 def split_region(seeds: np.ndarray, blob_id: np.ndarray, label: int, iterations: int = 5) -> np.ndarray:
     """Centres of the parts of one region shared by several estimates: k-means of its pixels (Lloyd),
     seeded at the estimates, so touching reflectors get their own centres.  (n, 2) -> (n, 2)"""
@@ -192,7 +183,7 @@ def filter_frame(xy, confidence, blob_id, blob_area, *, b_min: int, min_distance
             out[r], size[r], label[r] = region
     for shared in np.unique(label[label > 0]) if split_px > 0 else ():  # one region, distinct estimates: a part each
         on = np.flatnonzero(label == shared)
-        seeds = distinct(xy[on], confidence[on], split_px)
+        seeds = np.flatnonzero(suppress_close(xy[on], confidence[on], split_px))  # the distinct ones
         if len(seeds) > 1:
             centres = split_region(xy[on[seeds]], blob_id, shared)
             nearest = np.argmin(((xy[on][:, None] - xy[on[seeds]][None]) ** 2).sum(-1), axis=1)

@@ -165,7 +165,7 @@ def train_fcn(samples: xr.Dataset, **params) -> xr.Dataset:
     rng = np.random.default_rng(config.seed)
     device = "cuda" if torch.cuda.is_available() else "cpu"
     model = fcn.TwoStreamFCN(arch).to(device).train()
-    mixed = config.bfloat16 and _bfloat16_ok(torch, device)
+    mixed = config.bfloat16 and _bfloat16_ok(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     schedule = torch.optim.lr_scheduler.OneCycleLR(optimizer, max_lr=config.learning_rate,
                                                    total_steps=config.iterations, pct_start=0.1)
@@ -193,8 +193,10 @@ def train_fcn(samples: xr.Dataset, **params) -> xr.Dataset:
                            seconds=time.perf_counter() - started, device=device + (" bfloat16" if mixed else ""))
 
 
-def _bfloat16_ok(torch, device: str) -> bool:
+def _bfloat16_ok(device: str) -> bool:
     """Whether bfloat16 autocast is native here (a CUDA GPU that has it, or a CPU with AVX-512 BF16 / AMX)."""
+    import torch
+
     if device == "cuda":
         return torch.cuda.is_bf16_supported()
     try:
