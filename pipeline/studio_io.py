@@ -106,9 +106,16 @@ def view_names(spec: SequenceSpec) -> tuple[str, ...]:
     return tuple(f"kinect{i}" for i in range(count))
 
 
+# Spec fields added after a studio version enter the fingerprint only when set, so caches of sequences
+# that leave them at their default stay valid.
+LATER_FIELDS = ("variation",)
+
+
 def fingerprint(spec: SequenceSpec, bvh_text: str | None) -> str:
     bvh_hash = hashlib.sha256(bvh_text.encode()).hexdigest() if bvh_text else None
-    return digest({"spec": dataclasses.asdict(spec), "bvh": bvh_hash, "studio": STUDIO_VERSION})
+    fields = {k: v for k, v in dataclasses.asdict(spec).items()
+              if k not in LATER_FIELDS or v != SPEC_FIELDS[k].default}
+    return digest({"spec": fields, "bvh": bvh_hash, "studio": STUDIO_VERSION})
 
 
 def discover(catalog, dataset) -> list:

@@ -162,9 +162,12 @@ def initial_params(observed: np.ndarray, offsets: np.ndarray, bones: np.ndarray,
     return params
 
 
-def _residuals(x, observed, weights, previous, offsets, bones, reflector_offsets, temporal_weight, rest_weights):
-    """Weighted reflector errors, then the pulls to the previous frame and to rest.  (40,) -> (seen * 3 + 37 + 34,)"""
-    rot, pos = forward_kinematics(x[None], offsets)
+def _residuals(x, posed, observed, weights, previous, bones, reflector_offsets, temporal_weight, rest_weights):
+    """Weighted reflector errors, then the pulls to the previous frame and to rest.  (40,) -> (seen * 3 + 37 + 34,)
+
+    ``posed`` is ``forward_kinematics(x[None], offsets)``.
+    """
+    rot, pos = posed
     pred = reflector_positions(rot, pos, bones, reflector_offsets)[0]  # (seen, 3)
     fit = ((pred - observed) * weights[:, None]).ravel()
     temporal = temporal_weight * (x[3:] - previous[3:])  # rotations only; the root may travel
@@ -172,11 +175,10 @@ def _residuals(x, observed, weights, previous, offsets, bones, reflector_offsets
     return np.concatenate([fit, temporal, rest])
 
 
-def _fit_jacobian(x: np.ndarray, weights: np.ndarray, offsets: np.ndarray, bones: np.ndarray,
+def _fit_jacobian(x: np.ndarray, posed: tuple[np.ndarray, np.ndarray], weights: np.ndarray, bones: np.ndarray,
                   reflector_offsets: np.ndarray) -> np.ndarray:
-    """d(weighted reflector residuals)/d(params), analytic.  (40,) -> (seen * 3, 40)"""
-    rot, pos = forward_kinematics(x[None], offsets)
-    rot, pos = rot[0], pos[0]  # (joint, 3, 3), (joint, 3)
+    """d(weighted reflector residuals)/d(params), analytic.  (40,) -> (seen * 3, 40); ``posed`` as in _residuals"""
+    rot, pos = posed[0][0], posed[1][0]  # (joint, 3, 3), (joint, 3)
     pred = reflector_positions(rot[None], pos[None], bones, reflector_offsets)[0]  # (seen, 3)
     turn = rot[_ROT_JOINT] @ right_jacobian(joint_rotvecs(x)[_ROT_JOINT])  # (37, 3, 3): W_j J_r(θ_j)
     omega = turn[np.arange(len(_ROT_JOINT)), :, _ROT_AXIS]  # (37, 3): world axis of each rotation parameter
@@ -196,15 +198,21 @@ def solve_frame(observed: np.ndarray, weights: np.ndarray, start: np.ndarray, of
 
     observed (seen, 3), weights (seen,), bones (seen,), reflector_offsets (seen, 3), start (40,), rest_weights (40,).
     """
-    args = (observed, weights, start, offsets, bones, reflector_offsets, temporal_weight, rest_weights)
+    args = (observed, weights, start, bones, reflector_offsets, temporal_weight, rest_weights)
     regular = np.vstack([np.hstack([np.zeros((N_DOF - 3, 3)), temporal_weight * np.eye(N_DOF - 3)]),
                          np.hstack([np.zeros((N_DOF - 6, 6)), np.diag(rest_weights[6:])])])  # d(temporal, rest)/dx
+    last: list = [None, None]  # x and its forward kinematics: the Jacobian is asked for where the residuals were
+
+    def posed(x):
+        if last[0] is None or not np.array_equal(last[0], x):
+            last[:] = x.copy(), forward_kinematics(x[None], offsets)
+        return last[1]
 
     def fun(x):
-        return _residuals(x, *args)
+        return _residuals(x, posed(x), *args)
 
     def jac(x):
-        return np.vstack([_fit_jacobian(x, weights, offsets, bones, reflector_offsets), regular])
+        return np.vstack([_fit_jacobian(x, posed(x), weights, bones, reflector_offsets), regular])
 
     fit = least_squares(fun, start, jac=jac, method="lm", max_nfev=max_iterations, xtol=1e-6, ftol=1e-6)
     rot, pos = forward_kinematics(fit.x[None], offsets)

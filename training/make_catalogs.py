@@ -3,7 +3,9 @@
 Only the studio's procedural exercises are used; the real CMU clips are reserved for the held-out
 benchmark (benchmarks/catalog.yaml). The split is by subject and by motion: validation subjects (seeds
 500+) and its two exercises never appear in training. Every sequence gets its own random camera
-layout, heading, speed and amplitude. Regenerate with ``python training/make_catalogs.py``.
+layout, heading, speed and amplitude. Half of the training sequences also get a random ``variation``
+(posture, heading and drift overlaid on the exercise, tasks/studio/motion.py) so that the network does
+not learn the textbook exercises by heart. Regenerate with ``python training/make_catalogs.py``.
 """
 
 from __future__ import annotations
@@ -19,14 +21,16 @@ TRAIN_EXERCISES = tuple(e for e in EXERCISES if e not in VALIDATION_EXERCISES)
 HERE = Path(__file__).parent
 
 
-def sequences(exercises, count: int, first_seed: int, rng: np.random.Generator) -> list[str]:
+def sequences(exercises, count: int, first_seed: int, rng: np.random.Generator,
+              variation: tuple[float, float] | None = None) -> list[str]:
     lines = []
     for i in range(count):
         motion, seed = exercises[i % len(exercises)], first_seed + i
+        varied = f", variation: {rng.uniform(*variation):.2f}" if variation else ""
         lines.append(f"      {motion[:12]}_{seed}: {{motion: {motion}, seed: {seed}, "
                      f"subject_height: {rng.uniform(1.5, 2.0):.2f}, heading_deg: {rng.uniform(-180, 180):.0f}, "
                      f"speed: {rng.uniform(0.7, 1.4):.2f}, amplitude: {rng.uniform(0.7, 1.15):.2f}, "
-                     f"start_s: {rng.uniform(0.0, 2.0):.2f}}}")
+                     f"start_s: {rng.uniform(0.0, 2.0):.2f}{varied}}}")
     return lines
 
 
@@ -78,6 +82,8 @@ def main() -> None:
     train = HEADER.format(title="Training set of the two-stream FCN", name="train", frames=32,
                           usage="mocapflow train   (writes models/deepmocap_fcn.pt)")
     train += "\n".join(sequences(TRAIN_EXERCISES, 64, 100, rng)) + "\n"
+    varied = np.random.default_rng(2026)  # its own stream: the sequences above and validation stay as they were
+    train += "\n".join(sequences(TRAIN_EXERCISES, 64, 164, varied, variation=(0.5, 1.0))) + "\n"
     train += STAGES.format(name="train") + TRAIN_STAGES
     (HERE / "catalog.yaml").write_text(train)
     validation = HEADER.format(title="Validation set of the two-stream FCN (c_min sweep, Fig. 12)", name="validation",

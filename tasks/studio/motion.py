@@ -4,6 +4,10 @@ Each exercise is a set of joint-angle curves over a phase ``phi`` (one repetitio
 speed (repetitions per second), amplitude (a factor on the nominal angles) and repetitions as
 parameters. Angles use the template's rest axes (x right, y forward, z up); the feet are planted
 on the floor on every frame (jumps lift them on top of that).
+
+``variation`` (0 = the textbook exercise) overlays smooth random joint-angle curves, a wandering
+heading and a drifting root on the exercise, so that no two performances share the same posture:
+the domain randomization that lets a network trained on these exercises meet real, untidy motion.
 """
 
 from __future__ import annotations
@@ -210,6 +214,59 @@ def _kick_box(p, phi, a):
     p.spine(flex=-np.radians(8) * np.abs(np.sin(phi)) * a)
 
 
+# (joint helper, keyword or axis, amplitude in degrees at variation 1, one-sided): the overlay of ``vary``.
+# One-sided curves only bend a hinge further (elbows, knees), never past straight.
+VARIATION = (
+    ("spine", "flex", 15.0, False), ("spine", "side_bend", 10.0, False), ("spine", "twist", 20.0, False),
+    ("Neck", "x", 10.0, False), ("Head", "x", 15.0, False), ("Head", "z", 25.0, False),
+    ("LeftShoulder", "x", 30.0, False), ("LeftShoulder", "y", 20.0, False), ("LeftShoulder", "z", 20.0, False),
+    ("RightShoulder", "x", 30.0, False), ("RightShoulder", "y", 20.0, False), ("RightShoulder", "z", 20.0, False),
+    ("LeftElbow", "elbow", 45.0, True), ("RightElbow", "elbow", 45.0, True),
+    ("LeftWrist", "x", 20.0, False), ("RightWrist", "x", 20.0, False),
+    ("LeftHip", "x", 20.0, False), ("LeftHip", "y", 8.0, False), ("LeftHip", "z", 15.0, False),
+    ("RightHip", "x", 20.0, False), ("RightHip", "y", 8.0, False), ("RightHip", "z", 15.0, False),
+    ("LeftKnee", "knee", 35.0, True), ("RightKnee", "knee", 35.0, True),
+    ("LeftAnkle", "x", 15.0, False), ("RightAnkle", "x", 15.0, False),
+)
+HEADING_SWING_DEG = 60.0  # peak heading change over a sequence at variation 1
+ROOT_SPEED_M_S = 0.8  # top speed of the root's steady drift at variation 1 (a slow walk)
+ROOT_DRIFT_M = 1.0  # the drift's total reach over a sequence, so the subject stays in the cameras' view
+
+
+def smooth_curve(rng: np.random.Generator, t: np.ndarray, *, f_lo: float = 0.1, f_hi: float = 0.7) -> np.ndarray:
+    """A random smooth curve in [-1, 1] over times ``t`` (s): two sinusoids of random frequency and phase."""
+    freq = rng.uniform(f_lo, f_hi, 2)  # Hz
+    phase = rng.uniform(0, 2 * np.pi, 2)
+    weight = rng.dirichlet((1.0, 1.0))
+    return (weight[:, None] * np.sin(2 * np.pi * freq[:, None] * t + phase[:, None])).sum(axis=0)  # (frame,)
+
+
+def vary(pose: _Pose, t: np.ndarray, amount: float, rng: np.random.Generator) -> None:
+    """Overlay ``VARIATION``'s smooth random joint curves on ``pose`` (in place), scaled by ``amount``."""
+    for joint, how, deg, one_sided in VARIATION:
+        curve = smooth_curve(rng, t)
+        if one_sided:
+            curve = (curve + 1) / 2
+        angle = amount * np.radians(deg) * curve
+        if joint == "spine":
+            pose.spine(**{how: angle})
+        elif how == "elbow":
+            pose.elbow(joint.removesuffix("Elbow"), angle)
+        elif how == "knee":
+            pose.knee(joint.removesuffix("Knee"), angle)
+        else:
+            pose.turn(joint, how, angle)
+
+
+def wander(t: np.ndarray, amount: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Heading offsets (rad, per frame) and horizontal root drift (m, (frame, 2)) for ``amount`` of variation."""
+    heading = amount * np.radians(HEADING_SWING_DEG) * smooth_curve(rng, t, f_lo=0.05, f_hi=0.3)
+    direction = rng.uniform(0, 2 * np.pi)
+    speed = min(amount * rng.uniform(0, ROOT_SPEED_M_S), ROOT_DRIFT_M / max(t[-1], 1e-6))
+    drift = speed * t[:, None] * [np.cos(direction), np.sin(direction)]  # (frame, 2)
+    return heading - heading[0], drift
+
+
 EXERCISES: dict[str, tuple[Callable, float]] = {  # name: (curves, nominal repetitions per second)
     "walking_on_the_spot": (_walk, 0.9),
     "single_arm_raise": (_single_arm_raise, 0.4),
@@ -231,8 +288,11 @@ EXERCISES: dict[str, tuple[Callable, float]] = {  # name: (curves, nominal repet
 
 def exercise(name: str, subject: Subject, *, n_frames: int, fps: float = 30.0, speed: float = 1.0,
              amplitude: float = 1.0, repetitions: float | None = None, phase: float = 0.0,
-             heading_deg: float = 0.0) -> Motion:
-    """``name`` performed by ``subject`` for ``n_frames`` frames; feet planted on the floor (z = 0)."""
+             heading_deg: float = 0.0, variation: float = 0.0, seed: int = 0) -> Motion:
+    """``name`` performed by ``subject`` for ``n_frames`` frames; feet planted on the floor (z = 0).
+
+    ``variation`` > 0 overlays ``vary`` and ``wander`` (drawn from ``seed``) on the exercise.
+    """
     if name not in EXERCISES:
         raise ValueError(f"unknown exercise {name!r}; one of {sorted(EXERCISES)} or a .bvh file")
     curves, rate = EXERCISES[name]
@@ -240,9 +300,15 @@ def exercise(name: str, subject: Subject, *, n_frames: int, fps: float = 30.0, s
     rate = repetitions / max(t[-1], 1e-6) if repetitions else rate * speed
     pose = _Pose(n_frames)
     curves(pose, 2 * np.pi * rate * t + phase, amplitude)
-    heading = Rotation.from_euler("z", np.radians(heading_deg)).as_matrix()
+    turn = np.zeros(n_frames)
+    if variation > 0:
+        rng = np.random.default_rng([seed, 7])
+        vary(pose, t, variation, rng)
+        turn, drift = wander(t, variation, rng)
+        pose.root[:, :2] += drift
+    heading = Rotation.from_euler("z", (np.radians(heading_deg) + turn)[:, None]).as_matrix()  # (frame, 3, 3)
     pose.rot[:, JOINT_INDEX["Hips"]] = heading @ pose.rot[:, JOINT_INDEX["Hips"]]
-    root = pose.root @ heading.T + rest_offsets(subject)[JOINT_INDEX["Hips"]]
+    root = np.einsum("fij,fj->fi", heading, pose.root) + rest_offsets(subject)[JOINT_INDEX["Hips"]]
     root = plant_feet(pose.rot, root, subject) + np.outer(pose.air, [0, 0, 1])
     return Motion(pose.rot, root, fps, name)
 

@@ -38,6 +38,7 @@ class SequenceSpec:
     start_s: float = 0.0
     jitter: float = 1.0
     heading_deg: float = 0.0
+    variation: float = 0.0  # random posture, heading and drift on an exercise (motion.vary, motion.wander)
     random_layout: bool = False
     layout: Mapping[str, Any] | None = None
     label: str = ""  # the motion's name in the ground truth (defaults to ``motion``)
@@ -47,6 +48,8 @@ class SequenceSpec:
             raise ValueError(f"frames must be positive, got {self.frames}")
         if self.fps <= 0 or self.views <= 0 or self.noise < 0:
             raise ValueError(f"fps ({self.fps}) and views ({self.views}) must be positive, noise ({self.noise}) >= 0")
+        if self.variation < 0:
+            raise ValueError(f"variation must be >= 0 (0 = the textbook exercise), got {self.variation}")
 
 
 @dataclass(frozen=True)
@@ -86,7 +89,7 @@ def build_rig(spec: SequenceSpec, bvh_text: str | None = None) -> Rig:
     else:
         mot = motion.exercise(spec.motion, subject, n_frames=(spec.frames or 90) + 1, fps=spec.fps,
                               speed=spec.speed, amplitude=spec.amplitude, repetitions=spec.repetitions,
-                              heading_deg=spec.heading_deg)
+                              heading_deg=spec.heading_deg, variation=spec.variation, seed=spec.seed)
     rot, pos = body.forward_kinematics(mot.local_rot, mot.root_pos, body.rest_offsets(subject))
     return Rig(spec, subject, prims, placements, tuple(render.prepare_view(c) for c in cams), mot, rot, pos)
 

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 
 import numpy as np
 import xarray as xr
 
 from conftest import SHARED, last_json, mocapflow, read_artifacts
-from mocapflow.tasks.studio.synth import SequenceSpec, build_rig, synthesize
+from mocapflow.pipeline.hashing import digest
+from mocapflow.pipeline.studio_io import fingerprint
+from mocapflow.tasks.studio.synth import STUDIO_VERSION, SequenceSpec, build_rig, synthesize
 
 CATALOG = """\
 data_roots: [., {shared}]
@@ -90,3 +93,10 @@ def test_synth_refuses_to_overwrite_and_reports_bad_inputs(tmp_path):
     assert proc.returncode == 2 and "does not see the capture centre" in proc.stderr
     proc = mocapflow("synth", "--out", tmp_path / "z", "--motion", "side_jumps", "--frames", "0", cwd=tmp_path, check=False)
     assert proc.returncode == 2 and "frames must be positive" in proc.stderr
+
+
+def test_variation_enters_the_fingerprint_only_when_set():
+    plain = SequenceSpec("classic_squat", seed=3)
+    before_the_field = {k: v for k, v in dataclasses.asdict(plain).items() if k != "variation"}
+    assert fingerprint(plain, None) == digest({"spec": before_the_field, "bvh": None, "studio": STUDIO_VERSION})
+    assert fingerprint(SequenceSpec("classic_squat", seed=3, variation=0.5), None) != fingerprint(plain, None)

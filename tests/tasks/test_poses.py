@@ -111,7 +111,7 @@ def test_analytic_jacobian_matches_finite_differences():
         return (reflector_positions(rot, pos, bones, refl)[0] * weights[:, None]).ravel()
 
     numeric = np.stack([(fit(x + h) - fit(x - h)) / 2e-6 for h in 1e-6 * np.eye(N_DOF)], axis=1)
-    analytic = poses._fit_jacobian(x, weights, offsets, bones, refl)
+    analytic = poses._fit_jacobian(x, forward_kinematics(x[None], offsets), weights, bones, refl)
     assert np.abs(analytic - numeric).max() < 1e-6 * max(1.0, np.abs(numeric).max())
     assert np.abs(numeric).max() > 0.1  # a non-trivial pose: columns of rotation parameters are not all zero
 

@@ -90,3 +90,34 @@ def test_exercise_parameters_and_errors():
         motion.exercise("moonwalk", subject, n_frames=10)
     with pytest.raises(ValueError, match="outside the studio's 1.50-2.00 m"):
         body.Subject(2.3)
+
+
+def test_variation_overlays_seeded_posture_heading_and_drift():
+    subject = body.Subject(1.75)
+    plain = motion.exercise("classic_squat", subject, n_frames=61)
+    np.testing.assert_array_equal(motion.exercise("classic_squat", subject, n_frames=61, variation=0.0,
+                                                  seed=3).local_rot, plain.local_rot)
+    varied = motion.exercise("classic_squat", subject, n_frames=61, variation=1.0, seed=3)
+    again = motion.exercise("classic_squat", subject, n_frames=61, variation=1.0, seed=3)
+    other = motion.exercise("classic_squat", subject, n_frames=61, variation=1.0, seed=4)
+    np.testing.assert_array_equal(varied.local_rot, again.local_rot)
+    p0, p1, p2 = joints(plain, subject), joints(varied, subject), joints(other, subject)
+    assert np.median(np.linalg.norm(p1 - p0, axis=-1)) > 0.05  # a different posture, not a copy
+    assert np.median(np.linalg.norm(p2 - p1, axis=-1)) > 0.05  # and another one for another seed
+    drift = np.linalg.norm(varied.root_pos[:, :2] - varied.root_pos[0, :2], axis=-1)
+    assert drift.max() <= motion.ROOT_DRIFT_M + 0.3  # drift (plus the squat's own hip travel) stays in view
+    assert abs(motion.lowest_foot_point(varied.local_rot, varied.root_pos, subject).min()) < 1e-9  # planted
+    bones = np.linalg.norm(p1[:, 1:] - p1[:, body.PARENTS[1:]], axis=-1)
+    np.testing.assert_allclose(bones, np.broadcast_to(bones[0], bones.shape), atol=1e-9)
+
+
+def test_varied_knees_bend_only_forward():
+    from scipy.spatial.transform import Rotation
+
+    subject = body.Subject(1.75)
+    for seed in range(5):
+        m = motion.exercise("walking_on_the_spot", subject, n_frames=40, variation=1.0, seed=seed)
+        for knee in ("LeftKnee", "RightKnee"):
+            flexion = Rotation.from_matrix(m.local_rot[:, body.JOINT_INDEX[knee]]).as_rotvec()
+            assert np.abs(flexion[:, 1:]).max() < 1e-9  # a hinge about x
+            assert flexion[:, 0].max() <= 1e-9  # knee(angle) turns by -angle: never hyperextended
