@@ -50,6 +50,9 @@ class SequenceSpec:
             raise ValueError(f"fps ({self.fps}) and views ({self.views}) must be positive, noise ({self.noise}) >= 0")
         if self.variation < 0:
             raise ValueError(f"variation must be >= 0 (0 = the textbook exercise), got {self.variation}")
+        if self.variation and self.motion == "bvh":
+            raise ValueError(f"variation ({self.variation}) applies to the procedural exercises; a BVH clip is "
+                             "played as recorded, so leave variation out")
 
 
 @dataclass(frozen=True)

@@ -58,7 +58,9 @@ def test_studio_catalog_errors(tmp_path):
     text = CATALOG.format(shared=SHARED)
     for old, new, message in [("classic_squat", "clasic_squat", "did you mean 'classic_squat'"),
                               ("seed: 3", "sed: 3", "unknown studio field 'sed' (did you mean 'seed'?)"),
-                              ("frames: 10", "frames: 0", "frames must be positive, got 0")]:
+                              ("frames: 10", "frames: 0", "frames must be positive, got 0"),
+                              ("seed: 4", "seed: 4, variation: 0.5", "a BVH clip is played as recorded"),
+                              ("seed: 3", "seed: 3, variation: -1", "variation must be >= 0")]:
         (tmp_path / "catalog.yaml").write_text(text.replace(old, new))
         proc = mocapflow("run", cwd=tmp_path, check=False)
         assert proc.returncode == 2 and message in proc.stderr, proc.stderr
