@@ -3,8 +3,8 @@
 512x424 on the machine's cores, as a user runs it (fresh processes, engine and storage included).
 
 The recording itself (the studio render, standing in for the sensors) is made once and not timed;
-each repeat deletes every other stage's artifacts and reruns. Held-out motion (CMU walk), held-out
-subject seed and a random camera layout:
+each repeat deletes every other stage's artifacts and reruns. The stages are the held-out catalog's
+(benchmarks/catalog.yaml); held-out motion (CMU walk), held-out subject seed and a random camera layout:
 
     python benchmarks/pipeline.py [--frames 90] [--repeats 3] [--workers 2]
 """
@@ -22,32 +22,22 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
+import yaml
+
 from mocapflow.pipeline.storage import Store
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
 CLIP = SHARED / "motions" / "cmu_12_01_walk.bvh"
 
-CATALOG = """\
-data_roots: [., {shared}]
-storage: {{root: storage/, region_frames: 16}}
-datasets:
-  heldout:
-    kind: studio
-    defaults: {{frames: {frames}, fps: 30.0, views: 3, noise: 1.0, random_layout: true}}
-    sequences:
-      cmu_walk: {{motion: {clip}, seed: 9105}}
-stages:
-  frames: {{task: ingest, dataset: heldout}}
-  masks: {{task: reflector_mask, inputs: [frames]}}
-  flow: {{task: dis, inputs: [frames]}}
-  heatmaps: {{task: fcn_heatmaps, inputs: {{masks: masks, flow: flow}}}}
-  reflectors2d: {{task: greedy_reflectors, inputs: {{heatmaps: heatmaps, masks: masks}}}}
-  markers3d: {{task: fuse_views, inputs: {{reflectors: reflectors2d, masks: masks, frames: frames}}}}
-  smoothed: {{task: kalman, inputs: {{markers: markers3d}}}}
-  skeleton: {{task: calibrate_skeleton, inputs: {{markers: smoothed}}}}
-  poses: {{task: solve_poses, inputs: {{skeleton: skeleton, markers: smoothed}}}}
-"""
+
+def catalog_text(frames: int) -> str:
+    """The held-out catalog's stage chain (benchmarks/catalog.yaml) on one sequence of ``frames`` frames."""
+    held_out = yaml.safe_load((ROOT / "benchmarks" / "catalog.yaml").read_text())
+    dataset = {"kind": "studio", "defaults": {**held_out["datasets"]["heldout"]["defaults"], "frames": frames},
+               "sequences": {"cmu_walk": {"motion": str(CLIP), "seed": 9105}}}
+    return yaml.safe_dump({"data_roots": [".", str(SHARED)], "storage": {"root": "storage/", "region_frames": 16},
+                           "datasets": {"heldout": dataset}, "stages": held_out["stages"]}, sort_keys=False)
 
 
 def mocapflow(folder: Path, *args: str) -> None:
@@ -70,7 +60,7 @@ def main() -> None:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
-        (folder / "catalog.yaml").write_text(CATALOG.format(shared=SHARED, clip=CLIP, frames=args.frames))
+        (folder / "catalog.yaml").write_text(catalog_text(args.frames))
         mocapflow(folder, "run", "--until", "frames")
         walls, per_stage = [], defaultdict(list)
         for _ in range(args.repeats):

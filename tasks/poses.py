@@ -178,8 +178,8 @@ def _residuals(x, posed, observed, weights, previous, bones, reflector_offsets, 
 def _fit_jacobian(x: np.ndarray, posed: tuple[np.ndarray, np.ndarray], weights: np.ndarray, bones: np.ndarray,
                   reflector_offsets: np.ndarray) -> np.ndarray:
     """d(weighted reflector residuals)/d(params), analytic.  (40,) -> (seen * 3, 40); ``posed`` as in _residuals"""
+    pred = reflector_positions(*posed, bones, reflector_offsets)[0]  # (seen, 3)
     rot, pos = posed[0][0], posed[1][0]  # (joint, 3, 3), (joint, 3)
-    pred = reflector_positions(rot[None], pos[None], bones, reflector_offsets)[0]  # (seen, 3)
     turn = rot[_ROT_JOINT] @ right_jacobian(joint_rotvecs(x)[_ROT_JOINT])  # (37, 3, 3): W_j J_r(θ_j)
     omega = turn[np.arange(len(_ROT_JOINT)), :, _ROT_AXIS]  # (37, 3): world axis of each rotation parameter
     arms = pred[None] - pos[_ROT_JOINT][:, None]  # (37, seen, 3): p - o_j
@@ -215,8 +215,7 @@ def solve_frame(observed: np.ndarray, weights: np.ndarray, start: np.ndarray, of
         return np.vstack([_fit_jacobian(x, posed(x), weights, bones, reflector_offsets), regular])
 
     fit = least_squares(fun, start, jac=jac, method="lm", max_nfev=max_iterations, xtol=1e-6, ftol=1e-6)
-    rot, pos = forward_kinematics(fit.x[None], offsets)
-    err = reflector_positions(rot, pos, bones, reflector_offsets)[0] - observed
+    err = reflector_positions(*posed(fit.x), bones, reflector_offsets)[0] - observed
     return fit.x, float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
 
 
