@@ -77,12 +77,12 @@ register(TaskSpec(
            + ("cam_to_world",)},
     description="region-contour depth, back-projection, patch mean / strap normal-line fusion (Eq. 10, A1)",
 ))
-for name, fn, params, what in (
-        ("kalman", smoothing.kalman, smoothing.KalmanConfig,
-         "filterpy Kalman filter: gating, gap prediction, optional RTS smoothing"),
-        ("butterworth", smoothing.butterworth, smoothing.ButterworthConfig, "zero-phase Butterworth low-pass"),
-        ("none", smoothing.no_smoothing, smoothing.NoSmoothing, "the fused markers unchanged")):
-    register(TaskSpec(name=name, fn=fn, version="1", params=params, output="smoothed_markers", partition="sequence",
+for name, fn, params, version, what in (
+        ("kalman", smoothing.kalman, smoothing.KalmanConfig, "2",
+         "filterpy Kalman filter: confirmed track starts, gating, gap prediction, optional RTS smoothing"),
+        ("butterworth", smoothing.butterworth, smoothing.ButterworthConfig, "1", "zero-phase Butterworth low-pass"),
+        ("none", smoothing.no_smoothing, smoothing.NoSmoothing, "1", "the fused markers unchanged")):
+    register(TaskSpec(name=name, fn=fn, version=version, params=params, output="smoothed_markers", partition="sequence",
                       inputs={"markers": "markers3d"}, whole_sequence=True, description=what))
 
 # Motion capture (DeepMoCap §3.5): template calibration per sequence, then the poses.

@@ -3,8 +3,10 @@ tracks"). Three swappable implementations of the `smoothed` stage:
 
 - ``kalman``: per reflector, a filterpy Kalman filter with a constant-velocity (order 1) or
   constant-acceleration (order 2) model; measurement noise grows as the fused confidence falls;
-  Mahalanobis gating rejects outliers; gaps are predicted through up to ``max_gap`` frames, after
-  which the reflector is reported missing; optional Rauch-Tung-Striebel smoothing for offline runs.
+  a track starts only on a measurement that the next ones confirm (reachable at a top speed);
+  Mahalanobis gating rejects outliers; gaps of up to ``max_gap`` frames inside a track are bridged, a
+  track ends at its last accepted measurement (past it a reflector is reported missing rather than
+  extrapolated); optional Rauch-Tung-Striebel smoothing for offline runs.
 - ``butterworth``: zero-phase low-pass (scipy ``filtfilt``) over each run of observed frames.
 - ``none``: the fused markers as they are.
 """
@@ -25,9 +27,11 @@ class KalmanConfig:
     order: int = 1  # 1: constant velocity, 2: constant acceleration
     process_noise: float = 400.0  # variance of the white-noise highest derivative, (m/s^(order+1))^2
     measurement_noise_m: float = 0.01  # measurement std at confidence 1; divided by the confidence
-    max_gap: int = 10  # frames predicted through before a reflector is reported missing
+    max_gap: int = 10  # longest gap (frames) bridged inside a track
     gate: float = 16.27  # squared Mahalanobis distance beyond which a measurement is an outlier (chi2, 3 dof, 0.999)
     rts: bool = True  # Rauch-Tung-Striebel smoothing over each track (offline)
+    max_speed_m_s: float = 10.0  # top reflector speed (a hand in a fast throw); farther jumps do not confirm a track
+    confirm: int = 2  # following measurements that confirm a track's start (0: start on any measurement)
 
 
 @dataclass(frozen=True)
@@ -53,50 +57,96 @@ def _filter(order: int, dt: float, process_noise: float) -> KalmanFilter:
     return kf
 
 
+def follows(z: np.ndarray, i: int, j: int, *, dt: float, max_speed_m_s: float, slack_m: float) -> bool:
+    """Whether measurement j (> i) is reachable from measurement i at no more than the top speed.  (frame, 3)"""
+    return bool(np.linalg.norm(z[j] - z[i]) <= max_speed_m_s * (j - i) * dt + slack_m)
+
+
+def confirmed(z: np.ndarray, i: int, *, count: int, within: int, **reach) -> bool:
+    """Track initiation: measurement i starts a track only when each of the next ``count`` measurements
+    (none more than ``within`` frames after the one before) follows from the one before.  (frame, 3)"""
+    seen = np.flatnonzero(np.isfinite(z[i + 1:]).all(axis=1)) + i + 1
+    chain = [i, *seen[:count]]
+    if len(chain) <= count:
+        return False
+    return all(b - a <= within and follows(z, a, b, **reach) for a, b in zip(chain, chain[1:]))
+
+
+def _start(z0: np.ndarray, *, order: int, dt: float, process_noise: float, measurement_noise_m: float) -> KalmanFilter:
+    kf = _filter(order, dt, process_noise)
+    kf.x = np.zeros(kf.dim_x)
+    kf.x[::order + 1] = z0
+    kf.P = np.kron(np.eye(3), np.diag([measurement_noise_m**2] + [1.0] * order))
+    return kf
+
+
+def _gated_update(kf: KalmanFilter, z: np.ndarray, confidence: float, *, measurement_noise_m: float,
+                  gate: float) -> bool:
+    """Update with z unless its squared Mahalanobis distance exceeds the gate; whether it was used."""
+    R = np.eye(3) * (measurement_noise_m / max(confidence, 0.05)) ** 2
+    residual = z - kf.H @ kf.x
+    S = kf.H @ kf.P @ kf.H.T + R
+    if residual @ np.linalg.solve(S, residual) > gate:
+        return False
+    kf.update(z, R=R)
+    return True
+
+
+def _follow(z: np.ndarray, confidence: np.ndarray, first: int, *, max_gap: int, gate: float, order: int,
+            dt: float, process_noise: float, measurement_noise_m: float) -> tuple[list, int]:
+    """One track from a confirmed measurement until more than ``max_gap`` frames pass without one it accepts.
+
+    Returns its (frame, x, P, accepted) entries up to its last accepted measurement, and the frame where
+    the search for the next track resumes.
+    """
+    seen = np.isfinite(z).all(axis=1)
+    kf = _start(z[first], order=order, dt=dt, process_noise=process_noise, measurement_noise_m=measurement_noise_m)
+    segment, gap = [(first, kf.x.copy(), kf.P.copy(), True)], 0
+    for i in range(first + 1, len(z)):
+        kf.predict()
+        accepted = bool(seen[i]) and _gated_update(kf, z[i], float(confidence[i]),
+                                                  measurement_noise_m=measurement_noise_m, gate=gate)
+        gap = 0 if accepted else gap + 1
+        if gap > max_gap:
+            return _up_to_last_measurement(segment), i
+        segment.append((i, kf.x.copy(), kf.P.copy(), accepted))
+    return _up_to_last_measurement(segment), len(z)
+
+
+def _up_to_last_measurement(segment: list) -> list:
+    """A track ends at its last accepted measurement: past it, a prediction only drifts."""
+    last = max(k for k, (*_, accepted) in enumerate(segment) if accepted)
+    return segment[:last + 1]
+
+
 def kalman_track(z: np.ndarray, confidence: np.ndarray, *, dt: float, order: int, process_noise: float,
-                 measurement_noise_m: float, max_gap: int, gate: float, rts: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Filtered positions of one reflector and which frames are predictions.  (frame, 3), (frame,) -> same, bool"""
+                 measurement_noise_m: float, max_gap: int, gate: float, rts: bool, max_speed_m_s: float,
+                 confirm: int) -> tuple[np.ndarray, np.ndarray]:
+    """Filtered positions of one reflector and which frames are predictions.  (frame, 3), (frame,) -> same, bool
+
+    Tracks start on confirmed measurements (see ``confirmed``): started on a lone outlier, the gate would
+    reject the true measurements that follow. Gaps inside a track are bridged; RTS smoothing makes the
+    bridge an interpolation between the measurements on either side.
+    """
     n = len(z)
     out, predicted = np.full((n, 3), np.nan), np.zeros(n, bool)
-    kf, gap, segment = None, 0, []
-    segments = []
-    for i in range(n):
-        seen = np.isfinite(z[i]).all()
-        if kf is None:
-            if not seen:
-                continue
-            kf = _filter(order, dt, process_noise)
-            kf.x = np.zeros(kf.dim_x)
-            kf.x[::order + 1] = z[i]
-            kf.P = np.kron(np.eye(3), np.diag([measurement_noise_m**2] + [1.0] * order))
-            segment, gap = [], 0
-        else:
-            kf.predict()
-            accepted = False
-            if seen:
-                R = np.eye(3) * (measurement_noise_m / max(float(confidence[i]), 0.05)) ** 2
-                residual = z[i] - kf.H @ kf.x
-                S = kf.H @ kf.P @ kf.H.T + R
-                if residual @ np.linalg.solve(S, residual) <= gate:  # Mahalanobis gating
-                    kf.update(z[i], R=R)
-                    accepted = True
-            gap = 0 if accepted else gap + 1
-            if gap > max_gap:  # lost: report missing from here, restart on the next measurement
-                segments.append(segment)
-                kf = None
-                continue
-            predicted[i] = not accepted
-        segment.append((i, kf.x.copy(), kf.P.copy()))
-    if kf is not None:
-        segments.append(segment)
-    for seg in segments:
-        frames = [i for i, _, _ in seg]
-        xs, ps = np.array([x for _, x, _ in seg]), np.array([p for _, _, p in seg])
-        if rts and len(seg) > 1:
+    seen = np.isfinite(z).all(axis=1)
+    reach = {"dt": dt, "max_speed_m_s": max_speed_m_s, "slack_m": 3 * measurement_noise_m}
+    model = {"order": order, "dt": dt, "process_noise": process_noise}
+    i = 0
+    while i < n:
+        if not (seen[i] and confirmed(z, i, count=confirm, within=max_gap, **reach)):
+            i += 1
+            continue
+        segment, i = _follow(z, confidence, i, max_gap=max_gap, gate=gate,
+                             measurement_noise_m=measurement_noise_m, **model)
+        frames = [k for k, *_ in segment]
+        xs, ps = np.array([x for _, x, _, _ in segment]), np.array([p for _, _, p, _ in segment])
+        if rts and len(segment) > 1:
             template = _filter(order, dt, process_noise)
-            xs, *_ = rts_smoother(xs, ps, Fs=[template.F] * len(seg), Qs=[template.Q] * len(seg))
+            xs, *_ = rts_smoother(xs, ps, Fs=[template.F] * len(segment), Qs=[template.Q] * len(segment))
         out[frames] = xs[:, ::order + 1]
-    predicted[np.isnan(out[:, 0])] = False
+        predicted[frames] = [not accepted for *_, accepted in segment]
     return out, predicted
 
 

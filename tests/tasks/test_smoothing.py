@@ -1,4 +1,5 @@
-"""Temporal filtering: the Kalman stage fills a short gap, rejects an outlier, gives up after max_gap;
+"""Temporal filtering: the Kalman stage fills a short gap, rejects an outlier, gives up after max_gap,
+does not extrapolate a track's end, starts tracks only on confirmed measurements;
 Butterworth keeps a slow motion and removes noise."""
 
 from dataclasses import asdict
@@ -33,8 +34,46 @@ def test_kalman_reports_missing_past_max_gap_and_restarts():
     z[30:60] = np.nan
     config = {**asdict(smoothing.KalmanConfig()), "max_gap": 10}
     out, predicted = smoothing.kalman_track(z, np.ones(len(z)), dt=1 / 30, **config)
-    assert np.isfinite(out[30:40]).all() and np.isnan(out[40:60]).all()  # 10 frames predicted, then missing
-    assert np.isfinite(out[60:]).all() and not predicted[40:].any()
+    # the track ends at its last measurement: nothing is extrapolated into the gap it cannot bridge
+    assert np.isfinite(out[:30]).all() and np.isnan(out[30:60]).all()
+    assert np.linalg.norm(out[60:] - z[60:], axis=1).max() < 0.01 and not predicted.any()
+
+
+def test_kalman_bridges_a_gap_inside_a_track_but_does_not_extrapolate_its_end():
+    truth = _track()
+    z = truth.copy()
+    z[20:26] = np.nan  # inside the track: bridged
+    z[80:] = np.nan  # after its last measurement: missing, not predicted
+    out, predicted = smoothing.kalman_track(z, np.ones(len(z)), dt=1 / 30, **asdict(smoothing.KalmanConfig()))
+    np.testing.assert_array_equal(np.nonzero(predicted)[0], np.arange(20, 26))
+    assert np.linalg.norm(out[20:26] - truth[20:26], axis=1).max() < 0.02
+    assert np.isnan(out[80:]).all()
+
+
+def test_kalman_does_not_start_a_track_on_a_lone_outlier():
+    """Started on a wrong first measurement, the gate would reject the true ones after it (a lock-in)."""
+    truth = _track()
+    z = truth.copy()
+    z[0] += [1.5, 0.0, 0.0]  # the first measurement is 1.5 m off: no next one can follow it at 10 m/s
+    config = asdict(smoothing.KalmanConfig())
+    out, predicted = smoothing.kalman_track(z, np.ones(len(z)), dt=1 / 30, **config)
+    assert np.isnan(out[0]).all()
+    assert np.linalg.norm(out[1:] - truth[1:], axis=1).max() < 0.01 and not predicted.any()
+    # without confirmation the track locks onto the outlier and loses the true measurements for max_gap frames
+    locked, _ = smoothing.kalman_track(z, np.ones(len(z)), dt=1 / 30, **{**config, "confirm": 0})
+    assert np.linalg.norm(locked[1:5] - truth[1:5], axis=1).min() > 0.5
+
+
+def test_confirmation_needs_each_next_measurement_within_reach():
+    z = np.zeros((6, 3))
+    z[:, 0] = [0.0, 0.1, 0.2, 1.0, np.nan, 1.1]
+    z[4] = np.nan
+    reach = {"dt": 1 / 30, "max_speed_m_s": 10.0, "slack_m": 0.03}  # 0.36 m per frame at most
+    assert smoothing.confirmed(z, 0, count=2, within=10, **reach)
+    assert not smoothing.confirmed(z, 1, count=2, within=10, **reach)  # 0.2 -> 1.0 is 0.8 m in one frame
+    assert smoothing.confirmed(z, 3, count=1, within=10, **reach)  # 1.0 -> 1.1 over two frames (one missing)
+    assert not smoothing.confirmed(z, 3, count=1, within=1, **reach)  # ... but not within one frame
+    assert not smoothing.confirmed(z, 5, count=1, within=10, **reach)  # nothing after the last measurement
 
 
 def test_butterworth_smooths_noise_and_keeps_gaps():
