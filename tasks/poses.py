@@ -60,6 +60,13 @@ class PoseConfig:
     min_reflectors: int = 4  # fewer seen reflectors: the frame is not solved (NaN)
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a x b over the last axis, broadcast (np.cross's axis handling costs more than the product here)."""
+    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+
+
 def _skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrices [v]x.  (..., 3) -> (..., 3, 3)"""
     k = np.zeros(v.shape[:-1] + (3, 3))
@@ -162,17 +169,27 @@ def initial_params(observed: np.ndarray, offsets: np.ndarray, bones: np.ndarray,
     return params
 
 
-def _residuals(x, posed, observed, weights, previous, bones, reflector_offsets, temporal_weight, rest_weights):
-    """Weighted reflector errors, then the pulls to the previous frame and to rest.  (40,) -> (seen * 3 + 37 + 34,)
+def pull(previous: np.ndarray, temporal_weight: float, rest_weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pulls to the previous frame (rotations; the root may travel) and to rest (joint rotations, not
+    the root's) as one residual row per pulled parameter: w_t²(x − p)² + w_r²x² = w²(x − m)² + const,
+    with w² = w_t² + w_r² and m = w_t² p / w².  (40,) -> weights (k,), targets (k,), which parameters (40,) bool"""
+    wt2 = np.where(np.arange(N_DOF) >= 3, temporal_weight**2, 0.0)
+    wr2 = np.where(np.arange(N_DOF) >= 6, rest_weights**2, 0.0)
+    rows = wt2 + wr2 > 0
+    w2 = (wt2 + wr2)[rows]
+    return np.sqrt(w2), wt2[rows] * previous[rows] / w2, rows
 
-    ``posed`` is ``forward_kinematics(x[None], offsets)``.
+
+def _residuals(x, posed, observed, weights, bones, reflector_offsets, prior):
+    """Weighted reflector errors, then the pulls of ``pull``.  (40,) -> (seen * 3 + k,)
+
+    ``posed`` is ``forward_kinematics(x[None], offsets)``; ``prior`` is ``pull(...)``.
     """
     rot, pos = posed
     pred = reflector_positions(rot, pos, bones, reflector_offsets)[0]  # (seen, 3)
     fit = ((pred - observed) * weights[:, None]).ravel()
-    temporal = temporal_weight * (x[3:] - previous[3:])  # rotations only; the root may travel
-    rest = rest_weights[6:] * x[6:]  # joint rotations (not the root's) towards the rest pose
-    return np.concatenate([fit, temporal, rest])
+    w, target, rows = prior
+    return np.concatenate([fit, w * (x[rows] - target)])
 
 
 def _fit_jacobian(x: np.ndarray, posed: tuple[np.ndarray, np.ndarray], weights: np.ndarray, bones: np.ndarray,
@@ -184,7 +201,7 @@ def _fit_jacobian(x: np.ndarray, posed: tuple[np.ndarray, np.ndarray], weights: 
     omega = turn[np.arange(len(_ROT_JOINT)), :, _ROT_AXIS]  # (37, 3): world axis of each rotation parameter
     arms = pred[None] - pos[_ROT_JOINT][:, None]  # (37, seen, 3): p - o_j
     moved = _MOVES[_ROT_JOINT][:, bones]  # (37, seen): the reflector's bone lies below joint j
-    columns = np.cross(omega[:, None], arms) * moved[..., None]  # (37, seen, 3): ω x (p - o_j)
+    columns = _cross(omega[:, None], arms) * moved[..., None]  # (37, seen, 3): ω x (p - o_j)
     jac = np.empty((len(bones), 3, N_DOF))
     jac[:, :, :3] = np.eye(3)  # root translation
     jac[:, :, 3:] = columns.transpose(1, 2, 0)
@@ -198,9 +215,11 @@ def solve_frame(observed: np.ndarray, weights: np.ndarray, start: np.ndarray, of
 
     observed (seen, 3), weights (seen,), bones (seen,), reflector_offsets (seen, 3), start (40,), rest_weights (40,).
     """
-    args = (observed, weights, start, bones, reflector_offsets, temporal_weight, rest_weights)
-    regular = np.vstack([np.hstack([np.zeros((N_DOF - 3, 3)), temporal_weight * np.eye(N_DOF - 3)]),
-                         np.hstack([np.zeros((N_DOF - 6, 6)), np.diag(rest_weights[6:])])])  # d(temporal, rest)/dx
+    prior = pull(start, temporal_weight, rest_weights)
+    args = (observed, weights, bones, reflector_offsets, prior)
+    pulled = np.flatnonzero(prior[2])
+    regular = np.zeros((len(pulled), N_DOF))
+    regular[np.arange(len(pulled)), pulled] = prior[0]  # d(pulls)/dx
     last: list = [None, None]  # x and its forward kinematics: the Jacobian is asked for where the residuals were
 
     def posed(x):

@@ -124,3 +124,19 @@ def test_rodrigues_and_right_jacobian_small_and_large_angles():
         step = r.T @ poses.rodrigues(v + d)  # exp([J_r d]x) to first order: I + [J_r d]x
         w = poses.right_jacobian(v) @ d
         assert np.allclose(step - np.eye(3), poses._skew(w), atol=1e-11)
+
+
+def test_one_pull_row_per_parameter_is_the_two_pulls_up_to_a_constant():
+    """w²(x − m)² differs from w_t²(x − p)² + w_r²x² by the same constant for every x (so the same minimum)."""
+    rng = np.random.default_rng(5)
+    previous, rest_weights, temporal = rng.normal(0, 0.5, N_DOF), rng.uniform(0.001, 0.05, N_DOF), 0.01
+    w, target, rows = poses.pull(previous, temporal, rest_weights)
+    assert not rows[:3].any() and rows[3:].all()  # the root translation is free
+    index = np.arange(N_DOF)
+
+    def both(x):
+        return (np.sum(np.where(index >= 3, temporal**2 * (x - previous) ** 2, 0.0))
+                + np.sum(np.where(index >= 6, rest_weights**2 * x**2, 0.0)))
+
+    gaps = [both(x) - np.sum((w * (x[rows] - target)) ** 2) for x in rng.normal(0, 1.0, (4, N_DOF))]
+    np.testing.assert_allclose(gaps, gaps[0], rtol=0, atol=1e-12)
