@@ -79,7 +79,7 @@ register(TaskSpec(
 ))
 for name, fn, params, version, what in (
         ("kalman", smoothing.kalman, smoothing.KalmanConfig, "2",
-         "filterpy Kalman filter: confirmed track starts, gating, gap prediction, optional RTS smoothing"),
+         "filterpy Kalman filter: confirmed track starts, gating, gaps bridged, optional RTS smoothing"),
         ("butterworth", smoothing.butterworth, smoothing.ButterworthConfig, "1", "zero-phase Butterworth low-pass"),
         ("none", smoothing.no_smoothing, smoothing.NoSmoothing, "1", "the fused markers unchanged")):
     register(TaskSpec(name=name, fn=fn, version=version, params=params, output="smoothed_markers", partition="sequence",

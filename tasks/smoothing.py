@@ -65,7 +65,8 @@ def follows(z: np.ndarray, i: int, j: int, *, dt: float, max_speed_m_s: float, s
 def confirmed(z: np.ndarray, i: int, *, count: int, within: int, **reach) -> bool:
     """Track initiation: measurement i starts a track only when each of the next ``count`` measurements
     (none more than ``within`` frames after the one before) follows from the one before.  (frame, 3)"""
-    seen = np.flatnonzero(np.isfinite(z[i + 1:]).all(axis=1)) + i + 1
+    ahead = z[i + 1:i + 1 + count * within]  # a chain of count links, each within ``within`` frames, ends here
+    seen = np.flatnonzero(np.isfinite(ahead).all(axis=1)) + i + 1
     chain = [i, *seen[:count]]
     if len(chain) <= count:
         return False
