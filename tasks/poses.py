@@ -217,9 +217,9 @@ def solve_frame(observed: np.ndarray, weights: np.ndarray, start: np.ndarray, of
     """
     prior = pull(start, temporal_weight, rest_weights)
     args = (observed, weights, bones, reflector_offsets, prior)
-    pulled = np.flatnonzero(prior[2])
-    regular = np.zeros((len(pulled), N_DOF))
-    regular[np.arange(len(pulled)), pulled] = prior[0]  # d(pulls)/dx
+    pull_weights, _, pulled = prior
+    regular = np.zeros((len(pull_weights), N_DOF))
+    regular[np.arange(len(pull_weights)), np.flatnonzero(pulled)] = pull_weights  # d(pulls)/dx
     last: list = [None, None]  # x and its forward kinematics: the Jacobian is asked for where the residuals were
 
     def posed(x):
