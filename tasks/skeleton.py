@@ -68,6 +68,7 @@ class SkeletonConfig:
     rounds: int = 2  # particle rounds per joint, each around the previous best
     min_confidence: float = 0.6  # C threshold of the data used to calibrate
     prior_weight: float = 0.05  # m^2 of Eq. (11) cost per m^2 of distance from the template
+    outlier_m: float = 0.03  # largest distance change one frame may add to the Eq. (11) spread (robust cost)
     iterations: int = 2  # alternations of joint (step 2) and reflector-offset (step 3) estimation
     seed: int = 0
 
@@ -106,21 +107,25 @@ def calibration_frames(position: np.ndarray, confidence: np.ndarray, *, frames: 
     return np.sort(candidates[take])
 
 
-def rigidity_cost(particles_world: np.ndarray, targets: np.ndarray) -> np.ndarray:
-    """Eq. (11): summed variance over frames of each particle's distance to each target.
+def rigidity_cost(particles_world: np.ndarray, targets: np.ndarray, *, outlier_m: float) -> np.ndarray:
+    """Eq. (11), made robust: summed spread over frames of each particle's distance to each target.
 
-    particles_world (frame, particle, 3), targets (frame, target, 3) NaN where unseen -> (particle,)
+    The spread is taken about the median distance, and one frame adds at most ``outlier_m``²: a few frames
+    of wrong optical data (a mislabelled or drifted reflector) cannot outweigh the rest, as they do the
+    plain variance. particles_world (frame, particle, 3), targets (frame, target, 3) NaN where unseen -> (particle,)
     """
     d = np.linalg.norm(particles_world[:, :, None] - targets[:, None], axis=-1)  # (frame, particle, target)
     seen = np.isfinite(d)
     n = seen.sum(0)
-    mean = np.where(seen, d, 0.0).sum(0) / np.maximum(n, 1)
-    var = np.where(seen, (d - mean) ** 2, 0.0).sum(0) / np.maximum(n - 1, 1)
-    return np.where(n >= 3, var, 0.0).sum(1)
+    centre = np.zeros(d.shape[1:])
+    some = n > 0
+    centre[some] = np.nanmedian(d[:, some], axis=0)
+    spread = np.where(seen, np.minimum((d - centre) ** 2, outlier_m**2), 0.0).sum(0) / np.maximum(n - 1, 1)
+    return np.where(n >= 3, spread, 0.0).sum(1)
 
 
 def best_particle(parent_rot: np.ndarray, parent_pos: np.ndarray, targets: np.ndarray, current: np.ndarray,
-                  prior: np.ndarray, *, particles: int, spread_m: float, rounds: int, prior_weight: float,
+                  prior: np.ndarray, *, particles: int, spread_m: float, rounds: int, prior_weight: float, outlier_m: float,
                   rng: np.random.Generator) -> np.ndarray:
     """The joint offset (in its parent's frame) that moves most rigidly with ``targets``.
 
@@ -131,7 +136,7 @@ def best_particle(parent_rot: np.ndarray, parent_pos: np.ndarray, targets: np.nd
         cloud = best + rng.normal(0.0, spread_m / 2**k, (particles, 3))
         cloud[0] = best
         world = np.einsum("fij,pj->fpi", parent_rot, cloud) + parent_pos[:, None]  # (frame, particle, 3)
-        cost = rigidity_cost(world, targets) + prior_weight * np.sum((cloud - prior) ** 2, axis=1)
+        cost = rigidity_cost(world, targets, outlier_m=outlier_m) + prior_weight * np.sum((cloud - prior) ** 2, axis=1)
         best = cloud[np.argmin(cost)]
     return best
 
@@ -147,7 +152,7 @@ def reflector_offsets(position: np.ndarray, rot: np.ndarray, pos: np.ndarray, bo
 
 
 def calibrate(position: np.ndarray, confidence: np.ndarray, names: list[str], *, batch_frames: int, frames: int,
-              particles: int, spread_m: float, rounds: int, min_confidence: float, prior_weight: float,
+              particles: int, spread_m: float, rounds: int, min_confidence: float, prior_weight: float, outlier_m: float,
               iterations: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
     """Joint offsets, reflector bones and offsets, and the coarse scale of one sequence's optical data.
 
@@ -177,7 +182,7 @@ def calibrate(position: np.ndarray, confidence: np.ndarray, names: list[str], *,
                 targets = sorted({names.index(n) for n in REFLECTOR_SUBSETS[JOINT_NAMES[j]] if n in names} | set(own))
                 offsets[j] = best_particle(rot[:, PARENTS[j]], pos[:, PARENTS[j]], obs[ok][:, targets], offsets[j],
                                            prior[j], particles=particles, spread_m=spread_m, rounds=rounds,
-                                           prior_weight=prior_weight, rng=rng)
+                                           prior_weight=prior_weight, outlier_m=outlier_m, rng=rng)
         params, _, _ = solve_sequence(obs, conf, offsets, tmpl.bones, refl, **solve)
         ok = np.isfinite(params).all(1)
         rot, pos = forward_kinematics(params[ok], offsets)

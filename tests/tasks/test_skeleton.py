@@ -4,6 +4,7 @@ calibrated skeleton puts the joints where the subject's are, from noisy reflecto
 from dataclasses import asdict
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from mocapflow.tasks import poses, skeleton
 from mocapflow.tasks.poses import forward_kinematics, reflector_positions
@@ -61,3 +62,22 @@ def test_no_data_gives_the_template():
                                                     **asdict(skeleton.SkeletonConfig()))
     assert used == 0 and (scale == 1.0).all()
     np.testing.assert_allclose(offsets, body.rest_offsets(body.Subject(height=1.75)))
+
+
+def test_rigidity_cost_is_not_outweighed_by_a_few_wrong_frames():
+    """Eq. (11) finds the joint as the point of the parent's frame that keeps a constant distance to the
+    child's reflector. Three frames of that reflector 60 cm off must not make a particle 10 cm from the
+    joint look more rigid than the joint (they do under the plain variance)."""
+    rng = np.random.default_rng(0)
+    frames = 40
+    t = np.linspace(0.0, 1.0, frames)
+    child = Rotation.from_rotvec(np.column_stack([0.8 * np.sin(2 * np.pi * t), 0.6 * np.cos(2 * np.pi * t),
+                                                  0.4 * t])).as_matrix()  # the child bone swings about the joint
+    joint, local = np.array([0.3, 0.0, 0.0]), np.array([0.25, 0.03, 0.0])
+    targets = (joint + child @ local)[:, None] + rng.normal(0.0, 0.003, (frames, 1, 3))
+    targets[[5, 17, 30], 0] += [0.6, 0.0, 0.0]  # a mislabelled reflector for three frames
+    world = np.broadcast_to(np.stack([joint, joint + [0.1, 0.0, 0.0]]), (frames, 2, 3))  # parent frame = world
+    robust = skeleton.rigidity_cost(world, targets, outlier_m=0.03)
+    assert robust[0] < robust[1]
+    plain = skeleton.rigidity_cost(world, targets, outlier_m=np.inf)
+    assert plain[0] > plain[1]  # ... the wrong particle wins without the cap
