@@ -72,6 +72,10 @@ class SkeletonConfig:
     iterations: int = 2  # alternations of joint (step 2) and reflector-offset (step 3) estimation
     seed: int = 0
 
+    def __post_init__(self):
+        if not self.outlier_m > 0:
+            raise ValueError(f"outlier_m must be > 0 metres (e.g. 0.03), got {self.outlier_m}")
+
 
 def template(names: list[str]) -> Template:
     """The template body at 1.75 m and the rest position of each named reflector on its bone."""
@@ -120,7 +124,7 @@ def rigidity_cost(particles_world: np.ndarray, targets: np.ndarray, *, outlier_m
     centre = np.zeros(d.shape[1:])
     some = n > 0
     centre[some] = np.nanmedian(d[:, some], axis=0)
-    spread = np.where(seen, np.minimum((d - centre) ** 2, outlier_m**2), 0.0).sum(0) / np.maximum(n - 1, 1)
+    spread = np.where(seen, np.minimum((d - centre) ** 2, outlier_m**2), 0.0).sum(0) / np.maximum(n - 1, 1)  # Eq. (11)
     return np.where(n >= 3, spread, 0.0).sum(1)
 
 

@@ -33,6 +33,12 @@ class KalmanConfig:
     max_speed_m_s: float = 10.0  # top reflector speed (a hand in a fast throw); farther jumps do not confirm a track
     confirm: int = 2  # following measurements that confirm a track's start (0: start on any measurement)
 
+    def __post_init__(self):
+        if not self.max_speed_m_s > 0:
+            raise ValueError(f"max_speed_m_s must be > 0 (e.g. 10.0), got {self.max_speed_m_s}")
+        if self.confirm < 0:
+            raise ValueError(f"confirm must be >= 0 measurements (0 starts a track on any), got {self.confirm}")
+
 
 @dataclass(frozen=True)
 class ButterworthConfig:

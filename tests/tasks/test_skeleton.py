@@ -4,6 +4,7 @@ calibrated skeleton puts the joints where the subject's are, from noisy reflecto
 from dataclasses import asdict
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from mocapflow.tasks import poses, skeleton
@@ -81,3 +82,8 @@ def test_rigidity_cost_is_not_outweighed_by_a_few_wrong_frames():
     assert robust[0] < robust[1]
     plain = skeleton.rigidity_cost(world, targets, outlier_m=np.inf)
     assert plain[0] > plain[1]  # ... the wrong particle wins without the cap
+
+
+def test_skeleton_config_refuses_a_non_positive_outlier_cap():
+    with pytest.raises(ValueError, match="outlier_m"):
+        skeleton.SkeletonConfig(outlier_m=0.0)

@@ -5,6 +5,7 @@ Butterworth keeps a slow motion and removes noise."""
 from dataclasses import asdict
 
 import numpy as np
+import pytest
 
 from mocapflow.tasks import smoothing
 
@@ -84,3 +85,10 @@ def test_butterworth_smooths_noise_and_keeps_gaps():
     assert np.isnan(out[50:52]).all()
     err = np.linalg.norm(out - truth, axis=1)
     assert np.nanmedian(err) < 0.6 * np.nanmedian(np.linalg.norm(z - truth, axis=1))
+
+
+def test_kalman_config_refuses_a_non_positive_top_speed_and_a_negative_confirmation():
+    with pytest.raises(ValueError, match="max_speed_m_s"):
+        smoothing.KalmanConfig(max_speed_m_s=0.0)
+    with pytest.raises(ValueError, match="confirm"):
+        smoothing.KalmanConfig(confirm=-1)
