@@ -7,7 +7,8 @@ the fused confidence is E = E^S + (1 - E^S)·E^L (Eq. 9) and the best candidate 
 Filtering: the estimate must lie in a reflector (black) region of at least b_min pixels; its final
 position is that region's centre at full resolution (sub-pixel; a long region is cut to the pixels
 near the estimate, and with ``split_px`` > 0 a region shared by estimates that far apart is split
-among them by k-means); of estimates closer than 3 px the more confident stays; one estimate per
+among them by k-means, when their reflectors are neighbours on the body (``split_neighbours_m``)); of
+estimates closer than 3 px the more confident stays; one estimate per
 reflector and image; an estimate below c_min is dropped.
 """
 
@@ -20,6 +21,7 @@ import xarray as xr
 from scipy import ndimage
 
 from mocapflow.tasks import targets
+from mocapflow.tasks.skeleton import rest_reflector_positions
 
 
 @dataclass(frozen=True)
@@ -31,7 +33,8 @@ class GreedyConfig:
     min_distance_px: float = 3.0  # of two estimates closer than this, the more confident stays
     snap_px: float = 6.0  # how far from an estimate its reflector region may start, pixels
     region_radius_px: float = 10.0  # pixels of a region counted towards its centre
-    split_px: float = 0.0  # > 0: estimates this far apart on one region split it (k-means); 0: off (see docs)
+    split_px: float = 6.0  # > 0: estimates this far apart on one region split it (k-means); 0: off (see docs)
+    split_neighbours_m: float = 0.10  # > 0: only reflectors this close on the rest-pose body split a region; 0: any
     c_min: float = 0.1  # smallest accepted fused confidence E
 
 
@@ -124,6 +127,16 @@ def split_region(seeds: np.ndarray, blob_id: np.ndarray, label: int, iterations:
     return centres
 
 
+def neighbours(names: list[str], within_m: float) -> np.ndarray | None:
+    """Which reflectors may share a split region: those within ``within_m`` of each other on the rest-pose
+    template (the two forehead patches, the chest patches), so that a wrong label on another reflector's
+    region is suppressed rather than given a part of it. None (any) when ``within_m`` is 0.  -> (R, R) bool"""
+    if within_m <= 0:
+        return None
+    rest = rest_reflector_positions(names)  # (R, 3)
+    return np.linalg.norm(rest[:, None] - rest[None], axis=-1) <= within_m
+
+
 def suppress_close(xy: np.ndarray, confidence: np.ndarray, min_distance: float) -> np.ndarray:
     """Keep mask: of estimates closer than ``min_distance``, the more confident.  (R, 2), (R,) -> (R,)"""
     keep = np.isfinite(xy[:, 0])
@@ -172,7 +185,7 @@ def estimate_frame(confidence, off, affine, prev, *, stride: int, line_samples: 
 
 
 def filter_frame(xy, confidence, blob_id, blob_area, *, b_min: int, min_distance_px: float, snap_px: float,
-                 region_radius_px: float, split_px: float, c_min: float):
+                 region_radius_px: float, split_px: float, c_min: float, may_split: np.ndarray | None = None):
     """§5.1.3 filtering of one image's estimates.  -> region centres (R, 2) NaN if rejected, E (R,), sizes (R,)"""
     out = np.full_like(xy, np.nan)
     size = np.zeros(len(xy), np.int32)
@@ -184,7 +197,7 @@ def filter_frame(xy, confidence, blob_id, blob_area, *, b_min: int, min_distance
     for shared in np.unique(label[label > 0]) if split_px > 0 else ():  # one region, distinct estimates: a part each
         on = np.flatnonzero(label == shared)
         seeds = np.flatnonzero(suppress_close(xy[on], confidence[on], split_px))  # the distinct ones
-        if len(seeds) > 1:
+        if len(seeds) > 1 and (may_split is None or may_split[np.ix_(on[seeds], on[seeds])].all()):
             centres = split_region(xy[on[seeds]], blob_id, shared)
             nearest = np.argmin(((xy[on][:, None] - xy[on[seeds]][None]) ** 2).sum(-1), axis=1)
             out[on] = centres[nearest]  # an estimate close to a stronger one shares its centre (then suppressed)
@@ -196,7 +209,7 @@ def filter_frame(xy, confidence, blob_id, blob_area, *, b_min: int, min_distance
 
 def greedy_reflectors(heatmaps: xr.Dataset, masks: xr.Dataset, *, peak_threshold: float, max_candidates: int,
                       line_samples: int, b_min: int, min_distance_px: float, snap_px: float, region_radius_px: float,
-                      split_px: float, c_min: float) -> xr.Dataset:
+                      split_px: float, c_min: float, split_neighbours_m: float) -> xr.Dataset:
     """Labelled 2D reflectors of every view and frame (``heatmaps`` starts one frame early, for f-1)."""
     stride = int(heatmaps.attrs["stride"])
     shape = (heatmaps.sizes["view"], heatmaps.sizes["frame"], heatmaps.sizes["reflector"])
@@ -204,6 +217,7 @@ def greedy_reflectors(heatmaps: xr.Dataset, masks: xr.Dataset, *, peak_threshold
     out.update({k: np.zeros(shape) for k in ("confidence", "candidate_confidence")})
     out["size"] = np.zeros(shape, np.int32)
     frames = heatmaps["frame"].values
+    may_split = neighbours([str(n) for n in heatmaps["reflector"].values], split_neighbours_m)
     for v, view in enumerate(heatmaps["view"].values):
         h, m = heatmaps.sel(view=view), masks.sel(view=view)
         conf, off, crop = h["confidence"].values.astype(np.float32), h["off"].values.astype(np.float32), h["crop"].values
@@ -217,7 +231,7 @@ def greedy_reflectors(heatmaps: xr.Dataset, masks: xr.Dataset, *, peak_threshold
             j = int(np.nonzero(m["frame"].values == frame)[0][0])
             out["xy"][v, i], out["confidence"][v, i], out["size"][v, i] = filter_frame(
                 xy, e, m["blob_id"].values[j], m["blob_area"].values[j], b_min=b_min, min_distance_px=min_distance_px,
-                snap_px=snap_px, region_radius_px=region_radius_px, split_px=split_px, c_min=c_min)
+                snap_px=snap_px, region_radius_px=region_radius_px, split_px=split_px, c_min=c_min, may_split=may_split)
     dims = ("view", "frame", "reflector")
     f32 = lambda a: (dims, a.astype(np.float32))  # noqa: E731
     return xr.Dataset(

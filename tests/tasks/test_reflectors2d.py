@@ -85,6 +85,17 @@ def test_split_gives_touching_reflectors_their_own_centres():
     np.testing.assert_allclose(split[1], [25.5, 21.5])
     assert np.isnan(split[2]).all() and kept[2] == 0  # within split_px of a stronger estimate: that one's reflector
     assert size[0] == size[1] == 32
+    apart = np.array([[True, False, True], [False, True, True], [True, True, True]])  # 0 and 1 are not neighbours
+    kept_one, _, _ = r2d.filter_frame(xy, conf, blob_id, area, **dict(rules, split_px=4.0), may_split=apart)
+    np.testing.assert_allclose(kept_one, merged)  # not neighbours on the body: no split, the weaker suppressed
+
+
+def test_only_reflectors_side_by_side_on_the_body_are_neighbours():
+    names = ["F_R_HEAD", "F_L_HEAD", "R_HAND", "L_HAND", "R_WRIST"]
+    table = r2d.neighbours(names, 0.10)
+    assert table[0, 1] and table[1, 0]  # the forehead patches, 6 cm apart
+    assert not table[2, 3] and not table[2, 4]  # the two hands; a hand and its wrist strap (11 cm)
+    assert table.diagonal().all() and r2d.neighbours(names, 0.0) is None
 
 
 def _heatmaps(points_per_frame, off=None, grid=20, stride=4):
@@ -126,12 +137,12 @@ def test_off_decides_between_equally_confident_candidates():
     for label, (x, y) in ((1, true_xy), (2, decoy_xy)):
         blob_id[int(y) - 1:int(y) + 2, int(x) - 1:int(x) + 2] = label
     out = r2d.greedy_reflectors(hm, _masks(blob_id, [9, 9], 2), peak_threshold=0.1, max_candidates=3,
-                                line_samples=10, **RULES)
+                                line_samples=10, **RULES, split_neighbours_m=0.0)
     assert float(out["confidence"][0, 1, 0]) > 0.95  # E = 0.6 + 0.4 * ~1
     np.testing.assert_allclose([out["x"][0, 1, 0], out["y"][0, 1, 0]], true_xy, atol=0.6)
     no_off = r2d.greedy_reflectors(_heatmaps([[[((5, 10), 0.6)]], [[((9, 10), 0.6), ((9, 4), 0.6)]]]),
                                    _masks(blob_id, [9, 9], 2), peak_threshold=0.1, max_candidates=3, line_samples=10,
-                                   **RULES)
+                                   **RULES, split_neighbours_m=0.0)
     assert float(no_off["confidence"][0, 1, 0]) == pytest.approx(0.6, abs=0.01)  # E = E^S without motion
     assert out["region_size"].dtype == np.int32 and int(out["region_size"][0, 1, 0]) == 9
 
@@ -143,7 +154,7 @@ def test_one_estimate_per_reflector_and_image():
         x, y = targets.from_cells(np.array(cell, float), 4)
         blob_id[int(y) - 1:int(y) + 2, int(x) - 1:int(x) + 2] = label
     out = r2d.greedy_reflectors(hm, _masks(blob_id, [9, 9, 9], 1), peak_threshold=0.1, max_candidates=3,
-                                line_samples=10, **RULES)
+                                line_samples=10, **RULES, split_neighbours_m=0.0)
     assert out.sizes["reflector"] == 2
     np.testing.assert_allclose([out["x"][0, 0, 0], out["y"][0, 0, 0]], targets.from_cells(np.array([5.0, 5.0]), 4),
                                atol=0.6)
