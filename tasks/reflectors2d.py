@@ -7,9 +7,9 @@ the fused confidence is E = E^S + (1 - E^S)·E^L (Eq. 9) and the best candidate 
 Filtering: the estimate must lie in a reflector (black) region of at least b_min pixels; its final
 position is that region's centre at full resolution (sub-pixel; a long region is cut to the pixels
 near the estimate, and with ``split_px`` > 0 a region shared by estimates that far apart is split
-among them by k-means, when their reflectors are neighbours on the body (``split_neighbours_m``)); of
-estimates closer than 3 px the more confident stays; one estimate per
-reflector and image; an estimate below c_min is dropped.
+among them by k-means, when their reflectors are neighbours on the body (``split_neighbours_m``));
+of estimates closer than 3 px the more confident stays; one estimate per reflector and image; an
+estimate below c_min is dropped.
 """
 
 from __future__ import annotations
@@ -186,7 +186,10 @@ def estimate_frame(confidence, off, affine, prev, *, stride: int, line_samples: 
 
 def filter_frame(xy, confidence, blob_id, blob_area, *, b_min: int, min_distance_px: float, snap_px: float,
                  region_radius_px: float, split_px: float, c_min: float, may_split: np.ndarray | None = None):
-    """§5.1.3 filtering of one image's estimates.  -> region centres (R, 2) NaN if rejected, E (R,), sizes (R,)"""
+    """§5.1.3 filtering of one image's estimates.  -> region centres (R, 2) NaN if rejected, E (R,), sizes (R,)
+
+    ``may_split`` (R, R) bool: which reflectors may split a region they share (see ``neighbours``; None: any).
+    """
     out = np.full_like(xy, np.nan)
     size = np.zeros(len(xy), np.int32)
     label = np.zeros(len(xy), np.int64)
