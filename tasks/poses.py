@@ -152,12 +152,17 @@ def rigid_fit(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.nd
     return r, mu_t - r @ mu_s
 
 
+def rest_pose_reflectors(offsets: np.ndarray, bones: np.ndarray, reflector_offsets: np.ndarray) -> np.ndarray:
+    """World positions of reflectors on a skeleton in its rest pose (all parameters zero).  -> (reflector, 3)"""
+    rot, pos = forward_kinematics(np.zeros((1, N_DOF)), offsets)
+    return reflector_positions(rot, pos, bones, reflector_offsets)[0]
+
+
 def initial_params(observed: np.ndarray, offsets: np.ndarray, bones: np.ndarray,
                    reflector_offsets: np.ndarray) -> np.ndarray:
     """A rest pose placed and turned by the rigid fit of the seen trunk reflectors (or just placed).  (reflector, 3) -> (40,)"""
     params = np.zeros(N_DOF)
-    rot, pos = forward_kinematics(params[None], offsets)  # the rest pose
-    rest = reflector_positions(rot, pos, bones, reflector_offsets)[0]
+    rest = rest_pose_reflectors(offsets, bones, reflector_offsets)
     trunk = np.isin(bones, (0, 1)) & np.isfinite(observed).all(1)  # Hips and SpineBase reflectors
     seen = np.isfinite(observed).all(1)
     if trunk.sum() >= 3:

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import xarray as xr
 
-from mocapflow.tasks.poses import N_DOF, forward_kinematics, reflector_positions, solve_sequence
+from mocapflow.tasks.poses import forward_kinematics, rest_pose_reflectors, solve_sequence
 from mocapflow.tasks.studio.body import JOINT_NAMES, LEVELS, PARENTS, Subject, rest_offsets, surface
 from mocapflow.tasks.studio.reflectors import place
 
@@ -92,8 +92,7 @@ def template(names: list[str]) -> Template:
 def rest_reflector_positions(names: list[str]) -> np.ndarray:
     """World positions of the named reflectors on the template body in its rest pose.  -> (reflector, 3) m"""
     tmpl = template(names)
-    rot, pos = forward_kinematics(np.zeros((1, N_DOF)), tmpl.offsets)
-    return reflector_positions(rot, pos, tmpl.bones, tmpl.reflector_offsets)[0]
+    return rest_pose_reflectors(tmpl.offsets, tmpl.bones, tmpl.reflector_offsets)
 
 
 def coarse_scale(position: np.ndarray, names: list[str], tmpl: Template) -> np.ndarray:

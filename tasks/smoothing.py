@@ -99,14 +99,13 @@ def _gated_update(kf: KalmanFilter, z: np.ndarray, confidence: float, *, measure
     return True
 
 
-def _follow(z: np.ndarray, confidence: np.ndarray, first: int, *, max_gap: int, gate: float, order: int,
-            dt: float, process_noise: float, measurement_noise_m: float) -> tuple[list, int]:
+def _follow(z: np.ndarray, seen: np.ndarray, confidence: np.ndarray, first: int, *, max_gap: int, gate: float,
+            order: int, dt: float, process_noise: float, measurement_noise_m: float) -> tuple[list, int]:
     """One track from a confirmed measurement until more than ``max_gap`` frames pass without one it accepts.
 
     Returns its (frame, x, P, accepted) entries up to its last accepted measurement, and the frame where
-    the search for the next track resumes.
+    the search for the next track resumes. ``seen`` (frame,) marks the frames with a measurement.
     """
-    seen = np.isfinite(z).all(axis=1)
     kf = _start(z[first], order=order, dt=dt, process_noise=process_noise, measurement_noise_m=measurement_noise_m)
     segment, gap = [(first, kf.x.copy(), kf.P.copy(), True)], 0
     for i in range(first + 1, len(z)):
@@ -145,7 +144,7 @@ def kalman_track(z: np.ndarray, confidence: np.ndarray, *, dt: float, order: int
         if not (seen[i] and confirmed(z, i, count=confirm, within=max_gap, **reach)):
             i += 1
             continue
-        segment, i = _follow(z, confidence, i, max_gap=max_gap, gate=gate,
+        segment, i = _follow(z, seen, confidence, i, max_gap=max_gap, gate=gate,
                              measurement_noise_m=measurement_noise_m, **model)
         frames = [k for k, *_ in segment]
         xs, ps = np.array([x for _, x, _, _ in segment]), np.array([p for _, _, p, _ in segment])
