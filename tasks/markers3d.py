@@ -53,11 +53,10 @@ def region_depths(xy: np.ndarray, region_of: np.ndarray, blob_id: np.ndarray, de
     xy (n, 2) px; region_of (n,) blob label of each estimate (0: none); blob_id, depth (y, x).  -> (n,)
     """
     out = np.full(len(xy), np.nan)
+    boxes = ndimage.find_objects(blob_id)  # box of region k at index k - 1
     for label in np.unique(region_of[region_of > 0]):
         members = np.nonzero(region_of == label)[0]
-        region = blob_id == label
-        ring = ndimage.binary_dilation(region, iterations=contour_px) & ~region & (depth > 0)
-        ys, xs = np.nonzero(ring)
+        ys, xs = _contour(blob_id, depth, label, boxes[label - 1], contour_px)
         if len(xs) == 0:
             continue
         z = depth[ys, xs].astype(np.float64)
@@ -68,6 +67,21 @@ def region_depths(xy: np.ndarray, region_of: np.ndarray, blob_id: np.ndarray, de
         for k, m in enumerate(members):
             out[m] = _surface_depth(z[groups == k] if (groups == k).any() else z, max_depth_spread_mm)
     return out
+
+
+def _contour(blob_id: np.ndarray, depth: np.ndarray, label: int, box: tuple[slice, slice] | None,
+             width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns of the valid-depth pixels within ``width`` px around region ``label`` (not on it).
+
+    Works on the region's bounding ``box`` grown by ``width``, not the whole image.  (y, x) x2 -> (m,), (m,)"""
+    if box is None:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    top, left = max(box[0].start - width, 0), max(box[1].start - width, 0)
+    window = (slice(top, box[0].stop + width), slice(left, box[1].stop + width))
+    region = blob_id[window] == label
+    ring = ndimage.binary_dilation(region, iterations=width) & ~region & (depth[window] > 0)
+    ry, rx = np.nonzero(ring)
+    return ry + top, rx + left
 
 
 def _surface_depth(z: np.ndarray, max_spread_mm: float) -> float:
@@ -221,11 +235,11 @@ def markers3d(reflectors: xr.Dataset, masks: xr.Dataset, frames: xr.Dataset, *, 
         if not all(np.isfinite(c).all() for c in calib):
             raise ValueError(f"view {str(view)!r} has a non-finite calibration (intrinsics, distortion or extrinsics); "
                              "fix the recording's calibration or drop the view")
+        x, y, blob_id, depth = est["x"].values, est["y"].values, m["blob_id"].values, cam["depth"].values  # (frame, …)
         for i in range(n_frames):
             points[v, i], rays[v, i] = lift_view(
-                est["x"].values[i], est["y"].values[i], confidence[v, i], m["blob_id"].values[i],
-                cam["depth"].values[i], *calib, contour_px=contour_px, max_depth_spread_mm=max_depth_spread_mm,
-                min_confidence=min_confidence)
+                x[i], y[i], confidence[v, i], blob_id[i], depth[i], *calib, contour_px=contour_px,
+                max_depth_spread_mm=max_depth_spread_mm, min_confidence=min_confidence)
     fused = [fuse_frame(points[:, i], rays[:, i], confidence[:, i], names, patch_tolerance_m=patch_tolerance_m,
                         strap_tolerance_m=strap_tolerance_m) for i in range(n_frames)]
     xyz, conf, used, residual = (np.stack(column) for column in zip(*fused))

@@ -41,18 +41,25 @@ class GreedyConfig:
 def peaks(confidence: np.ndarray, threshold: float, max_n: int) -> tuple[np.ndarray, np.ndarray]:
     """Local maxima of one confidence map, strongest first, refined to sub-cell by a 3x3 centroid.
     (hy, hx) -> cells (n, 2) as (x, y), values (n,)"""
+    return peak_sets(np.asarray(confidence)[None], threshold, max_n)[0]
+
+
+def peak_sets(confidence: np.ndarray, threshold: float, max_n: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``peaks`` of every map of a stack, in one filtering pass.  (R, hy, hx) -> R x (cells (n, 2), values (n,))"""
     c = np.asarray(confidence, np.float32)
-    is_peak = (c == ndimage.maximum_filter(c, size=3, mode="constant")) & (c >= threshold)
-    ys, xs = np.nonzero(is_peak)
-    order = np.argsort(-c[ys, xs])[:max_n]
-    ys, xs = ys[order], xs[order]
-    padded = np.pad(c, 1)
+    is_peak = (c == ndimage.maximum_filter(c, size=(1, 3, 3), mode="constant")) & (c >= threshold)
+    weights = np.clip(np.pad(c, ((0, 0), (1, 1), (1, 1))), 0, None)
+    dy, dx = np.mgrid[-1:2, -1:2]
     out = []
-    for y, x in zip(ys, xs):
-        w = np.clip(padded[y:y + 3, x:x + 3], 0, None)  # the 3x3 neighbourhood
-        dy, dx = np.mgrid[-1:2, -1:2]
-        out.append((x + (w * dx).sum() / w.sum(), y + (w * dy).sum() / w.sum()))
-    return np.asarray(out, np.float64).reshape(-1, 2), c[ys, xs].astype(np.float64)
+    for r in range(len(c)):
+        ys, xs = np.nonzero(is_peak[r])
+        order = np.argsort(-c[r, ys, xs])[:max_n]
+        ys, xs = ys[order], xs[order]
+        w = weights[r, ys[:, None, None] + 1 + dy, xs[:, None, None] + 1 + dx]  # (n, 3, 3) neighbourhoods
+        total = w.sum(axis=(1, 2))
+        cells = np.stack([xs + (w * dx).sum(axis=(1, 2)) / total, ys + (w * dy).sum(axis=(1, 2)) / total], axis=1)
+        out.append((cells.astype(np.float64).reshape(-1, 2), c[r, ys, xs].astype(np.float64)))
+    return out
 
 
 def bilinear(field: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -75,13 +82,19 @@ def line_integral(field: np.ndarray, start: np.ndarray, end: np.ndarray, samples
 
     E^L = integral_0^1 L(p(u)) . (d2 - d1) / ||d2 - d1|| du, p(u) = (1 - u) d1 + u d2   # Eq. (7)-(8), DeepMoCap
     """
-    delta = np.asarray(end, float) - np.asarray(start, float)
-    length = np.linalg.norm(delta)
-    if length < 1e-9:
-        return 0.0
-    u = np.linspace(0.0, 1.0, samples)[:, None]
-    values = bilinear(field, (1 - u) * start + u * end)  # (samples, 2)
-    return float((values @ (delta / length)).mean())
+    return float(line_integrals(field, np.asarray(start, float)[None], np.asarray(end, float)[None], samples)[0, 0])
+
+
+def line_integrals(field: np.ndarray, starts: np.ndarray, ends: np.ndarray, samples: int) -> np.ndarray:
+    """``line_integral`` from every start to every end in one sampling pass; 0 where they coincide.
+    field (hy, hx, 2), starts (m, 2), ends (n, 2) -> (m, n)"""
+    delta = ends[None] - starts[:, None]  # (m, n, 2)
+    length = np.linalg.norm(delta, axis=-1, keepdims=True)
+    u = np.linspace(0.0, 1.0, samples)[:, None]  # (samples, 1)
+    points = (1 - u) * starts[:, None, None] + u * ends[None, :, None]  # (m, n, samples, 2)
+    values = bilinear(field, points.reshape(-1, 2)).reshape(points.shape)
+    direction = np.divide(delta, length, out=np.zeros_like(delta), where=length >= 1e-9)
+    return (values @ direction[..., None])[..., 0].mean(axis=-1)  # Eq. (7)-(8), DeepMoCap
 
 
 def fuse(e_s: float, e_l: float) -> float:
@@ -151,7 +164,7 @@ def suppress_close(xy: np.ndarray, confidence: np.ndarray, min_distance: float) 
 
 def _candidates(confidence: np.ndarray, threshold: float, max_n: int) -> list[tuple[np.ndarray, np.ndarray]]:
     """NMS candidates of every reflector of one frame.  (R, hy, hx) -> R x (cells (n, 2), E^S (n,))"""
-    return [peaks(c, threshold, max_n) for c in confidence]
+    return peak_sets(confidence, threshold, max_n)
 
 
 def _to_image(affine: np.ndarray, cells: np.ndarray, stride: int) -> np.ndarray:
@@ -176,9 +189,9 @@ def estimate_frame(confidence, off, affine, prev, *, stride: int, line_samples: 
         earlier = np.empty((0, 2))
         if prev is not None and len(prev[0][r][0]):  # f-1 candidates, moved into this frame's crop
             earlier = _to_cells(affine, _to_image(prev[1], prev[0][r][0], stride), stride)
-        for p, es in zip(cells, e_s):
-            e_l = max((line_integral(off[r], q, p, line_samples) for q in earlier), default=0.0)
-            e = fuse(float(es), e_l)
+        e_ls = line_integrals(off[r], earlier, cells, line_samples).max(axis=0, initial=0.0) if len(earlier) else 0 * e_s
+        for p, es, e_l in zip(cells, e_s, e_ls):
+            e = fuse(float(es), float(e_l))
             if e > best[r]:
                 best[r], xy[r] = e, _to_image(affine, p[None], stride)[0]
     return xy, best, cands

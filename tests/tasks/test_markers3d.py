@@ -36,6 +36,24 @@ def test_region_depth_is_the_median_of_its_contour_and_shared_regions_split():
     np.testing.assert_allclose(d, [2000.0, 2000.0, 2400.0])
 
 
+def test_a_regions_contour_is_its_ring_in_the_whole_image():
+    from scipy import ndimage
+
+    rng = np.random.default_rng(2)
+    depth = rng.integers(0, 3000, (30, 40)).astype(np.uint16)  # zeros: invalid depth
+    blob_id = np.zeros((30, 40), np.uint16)
+    blob_id[0:3, 0:4] = 1  # at the image corner
+    blob_id[12:15, 18:21] = 2
+    blob_id[13, 21:24] = 2  # not a rectangle
+    blob_id[27:30, 35:40] = 3  # at the opposite corner
+    boxes = ndimage.find_objects(blob_id)
+    for label in (1, 2, 3):
+        region = blob_id == label
+        ring = ndimage.binary_dilation(region, iterations=2) & ~region & (depth > 0)
+        ys, xs = m3d._contour(blob_id, depth, label, boxes[label - 1], 2)
+        np.testing.assert_array_equal(np.stack([ys, xs]), np.nonzero(ring))
+
+
 def test_normal_lines_of_a_cylinder_meet_on_its_axis():
     """Points on a vertical cylinder (radius 4 cm, axis through (0.3, -0.2)) facing two sensors; the
     lines along each sensor's ray through its surface point meet on the axis (Eq. A1)."""

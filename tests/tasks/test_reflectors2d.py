@@ -19,6 +19,18 @@ def test_line_integral_is_one_along_the_field_and_zero_across():
     assert r2d.line_integral(field, np.array([2.0, 2.0]), np.array([2.0, 2.0]), 10) == 0.0
 
 
+def test_line_integrals_of_every_pair_equal_the_single_integrals():
+    rng = np.random.default_rng(0)
+    field = rng.normal(size=(16, 20, 2))
+    starts = np.array([[3.0, 4.0], [10.5, 7.25], [5.0, 5.0]])
+    ends = np.array([[12.0, 9.0], [5.0, 5.0], [-2.0, 30.0]])  # the second coincides with a start; the third leaves
+    table = r2d.line_integrals(field, starts, ends, 10)
+    assert table.shape == (3, 3) and table[2, 1] == 0.0
+    for i, start in enumerate(starts):
+        for j, end in enumerate(ends):
+            assert table[i, j] == pytest.approx(r2d.line_integral(field, start, end, 10), abs=1e-12)
+
+
 def test_fused_confidence_of_eq9():
     assert r2d.fuse(0.5, 1.0) == pytest.approx(1.0)
     assert r2d.fuse(0.5, 0.0) == pytest.approx(0.5)
@@ -35,6 +47,19 @@ def test_peaks_are_local_maxima_refined_to_sub_cell():
     assert cells[0, 1] == pytest.approx(4.0) and 6.0 < cells[0, 0] < 6.5
     np.testing.assert_allclose(cells[1], [2.0, 9.0])
     assert len(r2d.peaks(c, threshold=0.5, max_n=5)[1]) == 1
+
+
+def test_peaks_of_a_stack_are_each_maps_local_maxima():
+    rng = np.random.default_rng(1)
+    stack = rng.uniform(size=(4, 10, 12)).astype(np.float32)
+    stack[2] = 0.0  # a map without peaks
+    for (cells, values), c in zip(r2d.peak_sets(stack, 0.3, 3), stack):
+        padded = np.pad(c, 1)
+        maxima = sorted(((c[y, x], x, y) for y in range(10) for x in range(12)
+                         if c[y, x] >= 0.3 and c[y, x] == padded[y:y + 3, x:x + 3].max()), reverse=True)[:3]
+        np.testing.assert_array_equal(values, [m[0] for m in maxima])
+        assert np.abs(cells - np.reshape([m[1:] for m in maxima], (-1, 2))).max(initial=0) < 1  # refined near its cell
+    assert r2d.peak_sets(stack, 0.3, 3)[2][0].shape == (0, 2)
 
 
 def _blobs(shape=(60, 80)):
