@@ -223,9 +223,9 @@ VARIATION = (
     ("RightShoulder", "x", 30.0, False), ("RightShoulder", "y", 20.0, False), ("RightShoulder", "z", 20.0, False),
     ("LeftElbow", "elbow", 45.0, True), ("RightElbow", "elbow", 45.0, True),
     ("LeftWrist", "x", 20.0, False), ("RightWrist", "x", 20.0, False),
-    ("LeftHip", "x", 20.0, False), ("LeftHip", "y", 8.0, False), ("LeftHip", "z", 15.0, False),
-    ("RightHip", "x", 20.0, False), ("RightHip", "y", 8.0, False), ("RightHip", "z", 15.0, False),
-    ("LeftKnee", "knee", 35.0, True), ("RightKnee", "knee", 35.0, True),
+    ("LeftHip", "x", 35.0, False), ("LeftHip", "y", 25.0, False), ("LeftHip", "z", 30.0, False),
+    ("RightHip", "x", 35.0, False), ("RightHip", "y", 25.0, False), ("RightHip", "z", 30.0, False),
+    ("LeftKnee", "knee", 60.0, True), ("RightKnee", "knee", 60.0, True),
     ("LeftAnkle", "x", 15.0, False), ("RightAnkle", "x", 15.0, False),
 )
 HEADING_SWING_DEG = 60.0  # peak heading change over a sequence at variation 1

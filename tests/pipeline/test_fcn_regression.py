@@ -5,9 +5,9 @@ reflectors2d and `mocapflow evaluate`. A regression test of the documented accur
 from conftest import SHARED, last_json, mocapflow
 
 # Measured with the committed weights (docs/results.md); the tolerance absorbs BLAS differences between machines.
-# A procedural-subject view of one CMU clip; the full held-out split is harder (docs/results.md: 87.3 %).
-DOCUMENTED_MAP2D = 0.982
-DOCUMENTED_MAP2D_UNFILTERED = 0.989
+# A procedural-subject view of one CMU clip; the full held-out split is harder (docs/results.md: 89.6 %).
+DOCUMENTED_MAP2D = 0.977
+DOCUMENTED_MAP2D_UNFILTERED = 0.988
 TOLERANCE = 0.02
 
 CATALOG = f"""\

@@ -102,3 +102,14 @@ def test_variation_enters_the_fingerprint_only_when_set():
     before_the_field = {k: v for k, v in dataclasses.asdict(plain).items() if k != "variation"}
     assert fingerprint(plain, None) == digest({"spec": before_the_field, "bvh": None, "studio": STUDIO_VERSION})
     assert fingerprint(SequenceSpec("classic_squat", seed=3, variation=0.5), None) != fingerprint(plain, None)
+
+
+def test_a_varied_sequence_is_rerendered_when_the_variation_ranges_change(monkeypatch):
+    from mocapflow.tasks.studio import motion
+
+    plain, varied = SequenceSpec("classic_squat", seed=3), SequenceSpec("classic_squat", seed=3, variation=0.5)
+    before = fingerprint(plain, None), fingerprint(varied, None)
+    wider = tuple((joint, how, 2 * deg, one_sided) for joint, how, deg, one_sided in motion.VARIATION)
+    monkeypatch.setattr(motion, "VARIATION", wider)
+    assert fingerprint(plain, None) == before[0]
+    assert fingerprint(varied, None) != before[1]
