@@ -197,7 +197,7 @@ def estimate_frame(confidence, off, affine, prev, *, stride: int, line_samples: 
         earlier = np.empty((0, 2))
         if prev is not None and len(prev[0][r][0]):  # f-1 candidates, moved into this frame's crop
             earlier = _to_cells(affine, _to_image(prev[1], prev[0][r][0], stride), stride)
-        e_ls = line_integrals(off[r], earlier, cells, line_samples).max(axis=0, initial=0.0) if len(earlier) else 0 * e_s
+        e_ls = line_integrals(off[r], earlier, cells, line_samples).max(axis=0, initial=0.0)  # best f-1 link, >= 0
         for p, es, e_l in zip(cells, e_s, e_ls):
             e = fuse(float(es), float(e_l))
             if e > best[r]:
