@@ -8,9 +8,10 @@ import cv2
 from conftest import last_json, mocapflow
 from mocapflow.pipeline.export import read_bvh_joints, read_c3d
 
-# Floor of the shipped FCN weights on this smoke run (measured PCK@20cm 100 %, PCK@5cm 87.1 %, MAE 2.72 cm;
-# procedural motion, so not an accuracy figure of the system, see docs/results.md), with room for BLAS differences.
-FLOOR = {"pck3d_20cm": 0.95, "pck3d_5cm": 0.75, "mae3d_cm": 4.0}
+# Floor of the shipped FCN weights on this smoke run: the pose goals (measured PCK@20cm 100 %, PCK@5cm
+# 90.8 %, MAE 2.47 cm; procedural motion, so not an accuracy figure of the system, see docs/results.md), which
+# leave room for BLAS differences.
+FLOOR = {"pck3d_20cm": 0.98, "pck3d_5cm": 0.80, "mae3d_cm": 3.0}
 
 
 def test_demo_runs_everything_and_is_served_from_cache_the_second_time(tmp_path):
