@@ -31,7 +31,7 @@ from mocapflow.pipeline.hashing import digest
 from mocapflow.pipeline.registry import coerce, did_you_mean
 from mocapflow.tasks.studio import bvh as bvh_mod
 from mocapflow.tasks.studio.cameras import layout as camera_layout
-from mocapflow.tasks.studio import motion
+from mocapflow.tasks.studio import motion as motion_mod
 from mocapflow.tasks.studio.motion import EXERCISES
 from mocapflow.tasks.studio.synth import STUDIO_VERSION, Rig, SequenceSpec, build_rig, synthesize
 
@@ -124,8 +124,8 @@ def fingerprint(spec: SequenceSpec, bvh_text: str | None) -> str:
 
 def variation_ranges() -> dict:
     """The ranges a varied sequence is drawn from: a varied sequence is re-rendered when they change."""
-    return {"joints": [list(row) for row in motion.VARIATION], "heading_deg": motion.HEADING_SWING_DEG,
-            "root_speed_m_s": motion.ROOT_SPEED_M_S, "root_drift_m": motion.ROOT_DRIFT_M}
+    return {"joints": [list(row) for row in motion_mod.VARIATION], "heading_deg": motion_mod.HEADING_SWING_DEG,
+            "root_speed_m_s": motion_mod.ROOT_SPEED_M_S, "root_drift_m": motion_mod.ROOT_DRIFT_M}
 
 
 def discover(catalog, dataset) -> list:

@@ -69,13 +69,11 @@ def region_depths(xy: np.ndarray, region_of: np.ndarray, blob_id: np.ndarray, de
     return out
 
 
-def _contour(blob_id: np.ndarray, depth: np.ndarray, label: int, box: tuple[slice, slice] | None,
+def _contour(blob_id: np.ndarray, depth: np.ndarray, label: int, box: tuple[slice, slice],
              width: int) -> tuple[np.ndarray, np.ndarray]:
     """Rows and columns of the valid-depth pixels within ``width`` px around region ``label`` (not on it).
 
     Works on the region's bounding ``box`` grown by ``width``, not the whole image.  (y, x) x2 -> (m,), (m,)"""
-    if box is None:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
     top, left = max(box[0].start - width, 0), max(box[1].start - width, 0)
     window = (slice(top, box[0].stop + width), slice(left, box[1].stop + width))
     region = blob_id[window] == label
