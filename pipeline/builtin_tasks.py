@@ -78,8 +78,9 @@ register(TaskSpec(
     description="region-contour depth, back-projection, patch mean / strap normal-line fusion (Eq. 10, A1)",
 ))
 for name, fn, params, version, what in (
-        ("kalman", smoothing.kalman, smoothing.KalmanConfig, "2",
-         "filterpy Kalman filter: confirmed track starts, gating, gaps bridged, optional RTS smoothing"),
+        ("kalman", smoothing.kalman, smoothing.KalmanConfig, "3",
+         "limb labels kept continuous (Viterbi), then a filterpy Kalman filter: confirmed track starts, gating, "
+         "gaps bridged, optional RTS smoothing"),
         ("butterworth", smoothing.butterworth, smoothing.ButterworthConfig, "1", "zero-phase Butterworth low-pass"),
         ("none", smoothing.no_smoothing, smoothing.NoSmoothing, "1", "the fused markers unchanged")):
     register(TaskSpec(name=name, fn=fn, version=version, params=params, output="smoothed_markers", partition="sequence",

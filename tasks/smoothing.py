@@ -1,8 +1,10 @@
 """Temporal filtering of the labelled 3D reflectors (DeepMoCap §3.4.2: "a Kalman filter stabilizes the
 tracks"). Three swappable implementations of the `smoothed` stage:
 
-- ``kalman``: per reflector, a filterpy Kalman filter with a constant-velocity (order 1) or
-  constant-acceleration (order 2) model; measurement noise grows as the fused confidence falls;
+- ``kalman``: first the labels of mirrored limb reflectors are kept continuous (labels.py: a
+  reflector that jumps to the other side's track and back takes that side's label); then per
+  reflector, a filterpy Kalman filter with a constant-velocity (order 1) or constant-acceleration
+  (order 2) model; measurement noise grows as the fused confidence falls;
   a track starts only on a measurement that the next ones confirm (reachable at a top speed);
   Mahalanobis gating rejects outliers; gaps of up to ``max_gap`` frames inside a track are bridged, a
   track ends at its last accepted measurement (past it a reflector is reported missing rather than
@@ -21,6 +23,8 @@ from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import KalmanFilter, rts_smoother
 from scipy import signal
 
+from mocapflow.tasks.labels import resolve_swaps as _resolve
+
 
 @dataclass(frozen=True)
 class KalmanConfig:
@@ -32,8 +36,15 @@ class KalmanConfig:
     rts: bool = True  # Rauch-Tung-Striebel smoothing over each track (offline)
     max_speed_m_s: float = 10.0  # top reflector speed (a hand in a fast throw); farther jumps do not confirm a track
     confirm: int = 2  # following measurements that confirm a track's start (0: start on any measurement)
+    resolve_swaps: bool = True  # keep mirrored limb reflectors' labels continuous (labels.py) first
+    swap_penalty_m: float = 0.03  # cost of an exchanged frame per measurement, against the jumps it removes
+    swap_reach: int = 5  # frames a reflector's last position is held over a gap when comparing frames
 
     def __post_init__(self):
+        if not self.swap_penalty_m > 0:
+            raise ValueError(f"swap_penalty_m must be > 0 metres (e.g. 0.03), got {self.swap_penalty_m}")
+        if self.swap_reach < 1:
+            raise ValueError(f"swap_reach must be >= 1 frame (e.g. 5), got {self.swap_reach}")
         if not self.max_speed_m_s > 0:
             raise ValueError(f"max_speed_m_s must be > 0 (e.g. 10.0), got {self.max_speed_m_s}")
         if self.confirm < 0:
@@ -179,12 +190,19 @@ def _result(markers: xr.Dataset, xyz: np.ndarray, predicted: np.ndarray, method:
     )
 
 
-def kalman(markers: xr.Dataset, **config) -> xr.Dataset:
-    """`kalman` smoothing of a sequence's markers (frame, reflector, xyz)."""
+def kalman(markers: xr.Dataset, *, resolve_swaps: bool, swap_penalty_m: float, swap_reach: int, **config) -> xr.Dataset:
+    """`kalman` smoothing of a sequence's markers (frame, reflector, xyz), after the limb labels' continuity."""
     xyz, conf = markers["position"].values.astype(np.float64), markers["confidence"].values
+    exchanges = 0
+    if resolve_swaps:
+        names = [str(n) for n in markers["reflector"].values]
+        xyz, conf, exchanges = _resolve(xyz, conf, names, penalty_m=swap_penalty_m, reach=swap_reach)
     dt = 1.0 / float(markers.attrs["fps"])
     tracks = [kalman_track(xyz[:, r], conf[:, r], dt=dt, **config) for r in range(xyz.shape[1])]
-    return _result(markers, np.stack([t[0] for t in tracks], 1), np.stack([t[1] for t in tracks], 1), "kalman")
+    out = _result(markers.assign(confidence=(markers["confidence"].dims, conf)), np.stack([t[0] for t in tracks], 1),
+                  np.stack([t[1] for t in tracks], 1), "kalman")
+    out.attrs["label_exchanges"] = exchanges
+    return out
 
 
 def butterworth(markers: xr.Dataset, *, cutoff_hz: float, order: int) -> xr.Dataset:

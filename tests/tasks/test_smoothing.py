@@ -10,6 +10,13 @@ import pytest
 from mocapflow.tasks import smoothing
 
 
+def _track_config(**overrides) -> dict:
+    """The per-reflector filter's keyword arguments of the default config (the chain relabelling is the stage's)."""
+    config = {k: v for k, v in asdict(smoothing.KalmanConfig()).items() if k not in ("resolve_swaps", "swap_penalty_m",
+                                                                                      "swap_reach")}
+    return {**config, **overrides}
+
+
 def _track(n=90, fps=30.0):
     t = np.arange(n) / fps
     return np.column_stack([0.5 * np.sin(2 * np.pi * 0.5 * t), 0.2 * t, np.full(n, 1.0)])
@@ -21,7 +28,7 @@ def test_kalman_fills_a_gap_and_rejects_an_outlier():
     z = truth + rng.normal(0, 0.003, truth.shape)
     z[40:45] = np.nan  # a 5-frame gap
     z[60] += [0.5, 0.0, 0.0]  # a 0.5 m outlier
-    config = asdict(smoothing.KalmanConfig())
+    config = _track_config()
     out, predicted = smoothing.kalman_track(z, np.full(len(z), 0.9), dt=1 / 30, **config)
     assert np.isfinite(out).all()
     np.testing.assert_array_equal(np.nonzero(predicted)[0], [40, 41, 42, 43, 44, 60])
@@ -33,7 +40,7 @@ def test_kalman_fills_a_gap_and_rejects_an_outlier():
 def test_kalman_reports_missing_past_max_gap_and_restarts():
     z = _track()
     z[30:60] = np.nan
-    config = {**asdict(smoothing.KalmanConfig()), "max_gap": 10}
+    config = _track_config(max_gap=10)
     out, predicted = smoothing.kalman_track(z, np.ones(len(z)), dt=1 / 30, **config)
     # the track ends at its last measurement: nothing is extrapolated into the gap it cannot bridge
     assert np.isfinite(out[:30]).all() and np.isnan(out[30:60]).all()
@@ -45,7 +52,7 @@ def test_kalman_bridges_a_gap_inside_a_track_but_does_not_extrapolate_its_end():
     z = truth.copy()
     z[20:26] = np.nan  # inside the track: bridged
     z[80:] = np.nan  # after its last measurement: missing, not predicted
-    out, predicted = smoothing.kalman_track(z, np.ones(len(z)), dt=1 / 30, **asdict(smoothing.KalmanConfig()))
+    out, predicted = smoothing.kalman_track(z, np.ones(len(z)), dt=1 / 30, **_track_config())
     np.testing.assert_array_equal(np.nonzero(predicted)[0], np.arange(20, 26))
     assert np.linalg.norm(out[20:26] - truth[20:26], axis=1).max() < 0.02
     assert np.isnan(out[80:]).all()
@@ -56,7 +63,7 @@ def test_kalman_does_not_start_a_track_on_a_lone_outlier():
     truth = _track()
     z = truth.copy()
     z[0] += [1.5, 0.0, 0.0]  # the first measurement is 1.5 m off: no next one can follow it at 10 m/s
-    config = asdict(smoothing.KalmanConfig())
+    config = _track_config()
     out, predicted = smoothing.kalman_track(z, np.ones(len(z)), dt=1 / 30, **config)
     assert np.isnan(out[0]).all()
     assert np.linalg.norm(out[1:] - truth[1:], axis=1).max() < 0.01 and not predicted.any()

@@ -1,0 +1,111 @@
+"""Label continuity of the mirrored limb reflectors, before the temporal filter of the 3D optical data
+(DeepMoCap §3.4.2).
+
+The FCN names a reflector from its look and from the body around it, and the look of a left and a
+right limb is the same: in a side view, or when the legs cross, a limb's reflectors can take the
+other side's labels. When two views agree on the exchange, fusion (markers3d) keeps it, and the 3D
+data then has the left ankle where the right one is and back again a few frames later, which no
+per-reflector filter can undo.
+
+Tracking mocap systems keep labels by continuity; this is that rule for each mirrored pair of limb
+reflectors (L_ANKLE and R_ANKLE, ...), solved over the whole take rather than frame by frame (a
+greedy tracker that takes one wrong decision follows the wrong side for the rest of the take). Pairs
+are resolved one by one: after fusion, a limb's reflectors are seldom exchanged together (each is
+fused from its own views). Each frame of a pair is either as labelled or exchanged. Between
+consecutive frames, the cost of an assignment is how far each measurement lies from the same label's
+position in the frame before (held for at most ``reach`` frames over a gap), each
+distance capped at ``JUMP_CAP_M`` so that one wild point cannot decide; an exchanged frame
+additionally costs ``penalty_m`` per measurement, so the labels as given win unless the data jumps
+across the body and back. The cheapest sequence of states is found by the Viterbi recursion over the
+two states. A take whose labels are exchanged from its first frame to its last stays so: continuity
+cannot tell which side is which, only when they trade places.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# Mirrored limb reflectors by name, without the L_/R_ prefix.
+LIMB_REFLECTORS = ("ELBOW", "WRIST", "HAND", "CALF", "ANKLE", "FOOT")
+JUMP_CAP_M = 0.5  # a larger jump between frames is an outlier: it counts as no more than this
+
+
+def mirrored_pairs(names: list[str]) -> list[tuple[int, int]]:
+    """Indices of the left and right reflector of each mirrored limb pair present in ``names``."""
+    return [(names.index(f"L_{p}"), names.index(f"R_{p}")) for p in LIMB_REFLECTORS
+            if f"L_{p}" in names and f"R_{p}" in names]
+
+
+def held(z: np.ndarray, reach: int) -> np.ndarray:
+    """Each point's last observed position, held for at most ``reach`` frames.  (frame, ..., 3) -> same"""
+    out = z.copy()
+    age = np.where(np.isfinite(z[..., 0]), 0, reach + 1)
+    for f in range(1, len(z)):
+        carry = ~np.isfinite(z[f, ..., 0]) & (age[f - 1] < reach)
+        out[f][carry] = out[f - 1][carry]
+        age[f][carry] = age[f - 1][carry] + 1
+    return out
+
+
+def continuity_costs(z: np.ndarray, reach: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per frame: distance of its measurements to the frame before as labelled and as exchanged, and count.
+
+    z (frame, side=2, part, 3) NaN where missing -> same (frame,), exchanged (frame,), measurements (frame,)
+    A measurement counts where both sides are known in the frame before (held over short gaps).
+    """
+    before = held(z, reach)[:-1]  # (frame - 1, side, part, 3)
+    now = z[1:]
+    known = np.isfinite(before[..., 0]).all(axis=1)  # (frame - 1, part): both sides known before
+    same, exchanged = np.zeros(len(z)), np.zeros(len(z))
+    for side in (0, 1):
+        ok = known & np.isfinite(now[:, side, :, 0])
+        to_same = np.minimum(np.linalg.norm(now[:, side] - before[:, side], axis=-1), JUMP_CAP_M)
+        to_other = np.minimum(np.linalg.norm(now[:, side] - before[:, 1 - side], axis=-1), JUMP_CAP_M)
+        same[1:] += np.where(ok, to_same, 0.0).sum(axis=1)
+        exchanged[1:] += np.where(ok, to_other, 0.0).sum(axis=1)
+    measured = np.isfinite(z[..., 0]).sum(axis=(1, 2))
+    return same, exchanged, measured
+
+
+def viterbi(same: np.ndarray, exchanged: np.ndarray, unary: np.ndarray) -> np.ndarray:
+    """Cheapest state sequence of a two-state chain: staying costs ``same[f]``, switching ``exchanged[f]`` at
+    frame f, state 1 costs ``unary[f]``.  (frame,) x3 -> (frame,) bool"""
+    n = len(unary)
+    cost = np.array([0.0, unary[0]])
+    back = np.zeros((n, 2), np.int8)
+    for f in range(1, n):
+        stay, switch = cost + same[f], cost[::-1] + exchanged[f]  # arriving in state 0 / 1 from either
+        back[f] = np.where(stay <= switch, [0, 1], [1, 0])
+        cost = np.minimum(stay, switch) + [0.0, unary[f]]
+    states = np.zeros(n, bool)
+    states[-1] = bool(np.argmin(cost))
+    for f in range(n - 1, 0, -1):
+        states[f - 1] = back[f, int(states[f])]
+    return states
+
+
+def resolve_pair(z: np.ndarray, *, penalty_m: float, reach: int) -> np.ndarray:
+    """Frames whose labels are exchanged; ``part`` may hold several reflectors exchanged together.
+
+    z (frame, side=2, part, 3) NaN where missing -> (frame,) bool
+    """
+    same, exchanged, measured = continuity_costs(z, reach)
+    return viterbi(same, exchanged, penalty_m * measured)
+
+
+def resolve_swaps(position: np.ndarray, confidence: np.ndarray, names: list[str], *, penalty_m: float,
+                  reach: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """Exchange the labels of mirrored limb reflectors where continuity says so.
+
+    position (frame, reflector, 3) NaN where missing, confidence (frame, reflector)
+    -> position, confidence (same shapes, relabelled), number of (frame, pair) exchanges
+    """
+    position, confidence = position.copy(), confidence.copy()
+    count = 0
+    for left, right in mirrored_pairs(names):
+        sides = position[:, [left, right]][:, :, None]  # (frame, side, part=1, 3)
+        frames = np.flatnonzero(resolve_pair(sides, penalty_m=penalty_m, reach=reach))
+        for values in (position, confidence):
+            values[np.ix_(frames, [left, right])] = values[np.ix_(frames, [right, left])]
+        count += len(frames)
+    return position, confidence, count
