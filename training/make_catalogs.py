@@ -5,7 +5,9 @@ benchmark (benchmarks/catalog.yaml). The split is by subject and by motion: vali
 500+) and its two exercises never appear in training. Every sequence gets its own random camera
 layout, heading, speed and amplitude. Half of the training sequences also get a random ``variation``
 (posture, heading and drift overlaid on the exercise, tasks/studio/motion.py) so that the network does
-not learn the textbook exercises by heart. Regenerate with ``python training/make_catalogs.py``.
+not learn the textbook exercises by heart. The validation split has both kinds too: six textbook
+sequences and six varied ones (crossing, spreading and lifted legs are where labels swap).
+Regenerate with ``python training/make_catalogs.py``.
 """
 
 from __future__ import annotations
@@ -89,6 +91,8 @@ def main() -> None:
     validation = HEADER.format(title="Validation set of the two-stream FCN (c_min sweep, Fig. 12)", name="validation",
                                frames=40, usage="mocapflow evaluate --catalog training/validation.yaml")
     validation += "\n".join(sequences(VALIDATION_EXERCISES, 6, 500, rng)) + "\n"
+    varied_validation = np.random.default_rng(2027)  # its own stream: the six sequences above stay as they were
+    validation += "\n".join(sequences(VALIDATION_EXERCISES, 6, 506, varied_validation, variation=(0.5, 1.0))) + "\n"
     validation += STAGES.format(name="validation") + VALIDATION_STAGES
     (HERE / "validation.yaml").write_text(validation)
 
