@@ -50,20 +50,20 @@ def held(z: np.ndarray, reach: int) -> np.ndarray:
 def continuity_costs(z: np.ndarray, reach: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per frame: distance of its measurements to the frame before as labelled and as exchanged, and count.
 
-    z (frame, side=2, part, 3) NaN where missing -> same (frame,), exchanged (frame,), measurements (frame,)
+    z (frame, side=2, 3) NaN where missing -> same (frame,), exchanged (frame,), measurements (frame,)
     A measurement counts where both sides are known in the frame before (held over short gaps).
     """
-    before = held(z, reach)[:-1]  # (frame - 1, side, part, 3)
+    before = held(z, reach)[:-1]  # (frame - 1, side, 3)
     now = z[1:]
-    known = np.isfinite(before[..., 0]).all(axis=1)  # (frame - 1, part): both sides known before
+    known = np.isfinite(before[..., 0]).all(axis=1)  # (frame - 1,): both sides known before
     same, exchanged = np.zeros(len(z)), np.zeros(len(z))
     for side in (0, 1):
-        ok = known & np.isfinite(now[:, side, :, 0])
+        ok = known & np.isfinite(now[:, side, 0])
         to_same = np.minimum(np.linalg.norm(now[:, side] - before[:, side], axis=-1), JUMP_CAP_M)
         to_other = np.minimum(np.linalg.norm(now[:, side] - before[:, 1 - side], axis=-1), JUMP_CAP_M)
-        same[1:] += np.where(ok, to_same, 0.0).sum(axis=1)
-        exchanged[1:] += np.where(ok, to_other, 0.0).sum(axis=1)
-    measured = np.isfinite(z[..., 0]).sum(axis=(1, 2))
+        same[1:] += np.where(ok, to_same, 0.0)
+        exchanged[1:] += np.where(ok, to_other, 0.0)
+    measured = np.isfinite(z[..., 0]).sum(axis=1)
     return same, exchanged, measured
 
 
@@ -85,10 +85,7 @@ def viterbi(same: np.ndarray, exchanged: np.ndarray, unary: np.ndarray) -> np.nd
 
 
 def resolve_pair(z: np.ndarray, *, penalty_m: float, reach: int) -> np.ndarray:
-    """Frames whose labels are exchanged; ``part`` may hold several reflectors exchanged together.
-
-    z (frame, side=2, part, 3) NaN where missing -> (frame,) bool
-    """
+    """Frames whose two labels are exchanged.  z (frame, side=2, 3) NaN where missing -> (frame,) bool"""
     same, exchanged, measured = continuity_costs(z, reach)
     return viterbi(same, exchanged, penalty_m * measured)
 
@@ -103,7 +100,7 @@ def resolve_swaps(position: np.ndarray, confidence: np.ndarray, names: list[str]
     position, confidence = position.copy(), confidence.copy()
     count = 0
     for left, right in mirrored_pairs(names):
-        sides = position[:, [left, right]][:, :, None]  # (frame, side, part=1, 3)
+        sides = position[:, [left, right]]  # (frame, side, 3)
         frames = np.flatnonzero(resolve_pair(sides, penalty_m=penalty_m, reach=reach))
         for values in (position, confidence):
             values[np.ix_(frames, [left, right])] = values[np.ix_(frames, [right, left])]

@@ -23,7 +23,7 @@ from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import KalmanFilter, rts_smoother
 from scipy import signal
 
-from mocapflow.tasks.labels import resolve_swaps as _resolve
+from mocapflow.tasks import labels
 
 
 @dataclass(frozen=True)
@@ -196,7 +196,7 @@ def kalman(markers: xr.Dataset, *, resolve_swaps: bool, swap_penalty_m: float, s
     exchanges = 0
     if resolve_swaps:
         names = [str(n) for n in markers["reflector"].values]
-        xyz, conf, exchanges = _resolve(xyz, conf, names, penalty_m=swap_penalty_m, reach=swap_reach)
+        xyz, conf, exchanges = labels.resolve_swaps(xyz, conf, names, penalty_m=swap_penalty_m, reach=swap_reach)
     dt = 1.0 / float(markers.attrs["fps"])
     tracks = [kalman_track(xyz[:, r], conf[:, r], dt=dt, **config) for r in range(xyz.shape[1])]
     out = _result(markers.assign(confidence=(markers["confidence"].dims, conf)), np.stack([t[0] for t in tracks], 1),
