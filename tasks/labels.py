@@ -25,15 +25,16 @@ from __future__ import annotations
 
 import numpy as np
 
-# Mirrored limb reflectors by name, without the L_/R_ prefix.
-LIMB_REFLECTORS = ("ELBOW", "WRIST", "HAND", "CALF", "ANKLE", "FOOT")
+from mocapflow.tasks.targets import mirrored
+
+LEFT_LIMB_REFLECTORS = ("L_ELBOW", "L_WRIST", "L_HAND", "L_CALF", "L_ANKLE", "L_FOOT")  # each has a right mirror
 JUMP_CAP_M = 0.5  # a larger jump between frames is an outlier: it counts as no more than this
 
 
 def mirrored_pairs(names: list[str]) -> list[tuple[int, int]]:
     """Indices of the left and right reflector of each mirrored limb pair present in ``names``."""
-    return [(names.index(f"L_{p}"), names.index(f"R_{p}")) for p in LIMB_REFLECTORS
-            if f"L_{p}" in names and f"R_{p}" in names]
+    return [(names.index(left), names.index(mirrored(left))) for left in LEFT_LIMB_REFLECTORS
+            if left in names and mirrored(left) in names]
 
 
 def held(z: np.ndarray, reach: int) -> np.ndarray:

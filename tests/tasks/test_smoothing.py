@@ -2,6 +2,7 @@
 does not extrapolate a track's end, starts tracks only on confirmed measurements;
 Butterworth keeps a slow motion and removes noise."""
 
+import inspect
 from dataclasses import asdict
 
 import numpy as np
@@ -11,10 +12,9 @@ from mocapflow.tasks import smoothing
 
 
 def _track_config(**overrides) -> dict:
-    """The per-reflector filter's keyword arguments of the default config (the chain relabelling is the stage's)."""
-    config = {k: v for k, v in asdict(smoothing.KalmanConfig()).items() if k not in ("resolve_swaps", "swap_penalty_m",
-                                                                                      "swap_reach")}
-    return {**config, **overrides}
+    """The default config's keyword arguments of the per-reflector filter (the label continuity is the stage's)."""
+    accepted = inspect.signature(smoothing.kalman_track).parameters
+    return {**{k: v for k, v in asdict(smoothing.KalmanConfig()).items() if k in accepted}, **overrides}
 
 
 def _track(n=90, fps=30.0):
