@@ -78,7 +78,7 @@ register(TaskSpec(
     description="region-contour depth, back-projection, patch mean / strap normal-line fusion (Eq. 10, A1)",
 ))
 for name, fn, params, version, what in (
-        ("kalman", smoothing.kalman, smoothing.KalmanConfig, "3",
+        ("kalman", smoothing.kalman, smoothing.KalmanConfig, "4",
          "limb labels kept continuous (Viterbi), then a filterpy Kalman filter: confirmed track starts, gating, "
          "gaps bridged, optional RTS smoothing"),
         ("butterworth", smoothing.butterworth, smoothing.ButterworthConfig, "1", "zero-phase Butterworth low-pass"),

@@ -19,6 +19,12 @@ additionally costs ``penalty_m`` per measurement, so the labels as given win unl
 across the body and back. The cheapest sequence of states is found by the Viterbi recursion over the
 two states. A take whose labels are exchanged from its first frame to its last stays so: continuity
 cannot tell which side is which, only when they trade places.
+
+Before that, a pair's other failure is removed: one limb under both labels (one view names it left,
+another right, and the other limb is unlabelled), so fusion puts both labels on it. Where the two
+measurements lie within a few centimetres while the two sides were apart a frame before, the label
+whose track the point does not continue is dropped for that frame (``drop_impostors``, judged from
+the frames before and from the frames after).
 """
 
 from __future__ import annotations
@@ -91,19 +97,59 @@ def resolve_pair(z: np.ndarray, *, penalty_m: float, reach: int) -> np.ndarray:
     return viterbi(same, exchanged, penalty_m * measured)
 
 
-def resolve_swaps(position: np.ndarray, confidence: np.ndarray, names: list[str], *, penalty_m: float,
-                  reach: int) -> tuple[np.ndarray, np.ndarray, int]:
-    """Exchange the labels of mirrored limb reflectors where continuity says so.
+def impostors(z: np.ndarray, *, near_m: float, reach: int) -> np.ndarray:
+    """Which measurement of a pair is the other limb seen twice, judged from the frames before.
+
+    z (frame, side=2, 3) NaN where missing -> (frame, side) bool.
+    A frame whose two measurements lie within ``near_m`` of each other, where the two sides' last kept
+    positions (at most ``reach`` frames old) were more than 2 ``near_m`` apart, has one limb under both
+    labels: the side whose own track the point does not continue (it lies ``near_m`` nearer the other
+    side's last position) is the impostor. Limbs that come together keep both labels: their last
+    positions were already close.
+    """
+    out = np.zeros(z.shape[:2], bool)
+    last = np.full((2, 3), np.nan)
+    age = np.full(2, reach + 1)
+    for f in range(len(z)):
+        both = np.isfinite(z[f, :, 0]).all()
+        known = (age <= reach).all() and np.linalg.norm(last[0] - last[1]) > 2 * near_m
+        if both and known and np.linalg.norm(z[f, 0] - z[f, 1]) < near_m:
+            point = z[f].mean(axis=0)
+            own = np.linalg.norm(point - last, axis=1)  # (side,): from each side's last position
+            for side in (0, 1):
+                out[f, side] = own[side] > own[1 - side] + near_m
+        seen = np.isfinite(z[f, :, 0]) & ~out[f]
+        last[seen], age[seen], age[~seen] = z[f, seen], 0, age[~seen] + 1
+    return out
+
+
+def drop_impostors(z: np.ndarray, *, near_m: float, reach: int) -> np.ndarray:
+    """``impostors`` judged from the frames before and from the frames after (a take can open with one limb
+    under both labels); where the two disagree, both measurements stay.  (frame, side, 3) -> (frame, side) bool"""
+    forward, backward = impostors(z, near_m=near_m, reach=reach), impostors(z[::-1], near_m=near_m, reach=reach)[::-1]
+    conflict = (forward | backward).all(axis=1)
+    return (forward | backward) & ~conflict[:, None]
+
+
+def resolve_swaps(position: np.ndarray, confidence: np.ndarray, names: list[str], *, penalty_m: float, reach: int,
+                  duplicate_m: float, duplicate_reach: int) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """Drop a limb seen under both labels (``drop_impostors``; ``duplicate_m`` 0: off), then exchange the labels
+    of mirrored limb reflectors where continuity says so.
 
     position (frame, reflector, 3) NaN where missing, confidence (frame, reflector)
-    -> position, confidence (same shapes, relabelled), number of (frame, pair) exchanges
+    -> position, confidence (same shapes, relabelled), number of (frame, pair) exchanges, of dropped measurements
     """
     position, confidence = position.copy(), confidence.copy()
-    count = 0
+    count = dropped = 0
     for left, right in mirrored_pairs(names):
+        if duplicate_m > 0:
+            drop = drop_impostors(position[:, [left, right]], near_m=duplicate_m, reach=duplicate_reach)  # (frame, side)
+            for side, r in enumerate((left, right)):
+                position[drop[:, side], r], confidence[drop[:, side], r] = np.nan, 0.0
+            dropped += int(drop.sum())
         sides = position[:, [left, right]]  # (frame, side, 3)
         frames = np.flatnonzero(resolve_pair(sides, penalty_m=penalty_m, reach=reach))
         for values in (position, confidence):
             values[np.ix_(frames, [left, right])] = values[np.ix_(frames, [right, left])]
         count += len(frames)
-    return position, confidence, count
+    return position, confidence, count, dropped

@@ -1,7 +1,8 @@
 """Temporal filtering of the labelled 3D reflectors (DeepMoCap §3.4.2: "a Kalman filter stabilizes the
 tracks"). Three swappable implementations of the `smoothed` stage:
 
-- ``kalman``: first the labels of mirrored limb reflectors are kept continuous (labels.py: a
+- ``kalman``: first the labels of mirrored limb reflectors are kept continuous (labels.py: a label
+  that sits on the other limb's track while that limb's own label is there too is dropped, and a
   reflector that jumps to the other side's track and back takes that side's label); then per
   reflector, a filterpy Kalman filter with a constant-velocity (order 1) or constant-acceleration
   (order 2) model; measurement noise grows as the fused confidence falls;
@@ -39,10 +40,16 @@ class KalmanConfig:
     resolve_swaps: bool = True  # keep mirrored limb reflectors' labels continuous (labels.py) first
     swap_penalty_m: float = 0.03  # cost of an exchanged frame per measurement, against the jumps it removes
     swap_reach: int = 5  # frames a reflector's last position is held over a gap when comparing frames
+    duplicate_m: float = 0.05  # > 0: a limb pair this close that was apart has one limb under both labels (labels.py)
+    duplicate_reach: int = 15  # frames a side's last position is kept when judging which label is the impostor
 
     def __post_init__(self):
         if not self.swap_penalty_m > 0:
             raise ValueError(f"swap_penalty_m must be > 0 metres (e.g. 0.03), got {self.swap_penalty_m}")
+        if self.duplicate_m < 0:
+            raise ValueError(f"duplicate_m must be >= 0 metres (0: off, e.g. 0.05), got {self.duplicate_m}")
+        if self.duplicate_reach < 1:
+            raise ValueError(f"duplicate_reach must be >= 1 frame (e.g. 15), got {self.duplicate_reach}")
         if self.swap_reach < 1:
             raise ValueError(f"swap_reach must be >= 1 frame (e.g. 5), got {self.swap_reach}")
         if not self.max_speed_m_s > 0:
@@ -190,18 +197,21 @@ def _result(markers: xr.Dataset, xyz: np.ndarray, predicted: np.ndarray, method:
     )
 
 
-def kalman(markers: xr.Dataset, *, resolve_swaps: bool, swap_penalty_m: float, swap_reach: int, **config) -> xr.Dataset:
+def kalman(markers: xr.Dataset, *, resolve_swaps: bool, swap_penalty_m: float, swap_reach: int, duplicate_m: float,
+           duplicate_reach: int, **config) -> xr.Dataset:
     """`kalman` smoothing of a sequence's markers (frame, reflector, xyz), after the limb labels' continuity."""
     xyz, conf = markers["position"].values.astype(np.float64), markers["confidence"].values
-    exchanges = 0
+    exchanges = dropped = 0
     if resolve_swaps:
         names = [str(n) for n in markers["reflector"].values]
-        xyz, conf, exchanges = labels.resolve_swaps(xyz, conf, names, penalty_m=swap_penalty_m, reach=swap_reach)
+        xyz, conf, exchanges, dropped = labels.resolve_swaps(xyz, conf, names, penalty_m=swap_penalty_m, reach=swap_reach,
+                                                             duplicate_m=duplicate_m, duplicate_reach=duplicate_reach)
     dt = 1.0 / float(markers.attrs["fps"])
     tracks = [kalman_track(xyz[:, r], conf[:, r], dt=dt, **config) for r in range(xyz.shape[1])]
     out = _result(markers.assign(confidence=(markers["confidence"].dims, conf)), np.stack([t[0] for t in tracks], 1),
                   np.stack([t[1] for t in tracks], 1), "kalman")
     out.attrs["label_exchanges"] = exchanges
+    out.attrs["label_duplicates_dropped"] = dropped
     return out
 
 

@@ -39,6 +39,12 @@ def exchange(xyz: np.ndarray, frames, parts=LEGS) -> np.ndarray:
     return out
 
 
+def resolve(z, conf=None, *, duplicate_m=0.05):
+    """``labels.resolve_swaps`` at the stage's settings.  -> position, confidence, exchanges, dropped"""
+    conf = np.ones(z.shape[:2]) if conf is None else conf
+    return labels.resolve_swaps(z, conf, NAMES, penalty_m=0.03, reach=5, duplicate_m=duplicate_m, duplicate_reach=15)
+
+
 def test_mirrored_pairs_pair_left_and_right_limb_reflectors_by_name():
     pairs = labels.mirrored_pairs(NAMES)
     assert [(NAMES[a], NAMES[b]) for a, b in pairs] == [
@@ -53,8 +59,7 @@ def test_an_exchanged_stretch_of_the_legs_is_put_back():
     noisy = truth + rng.normal(0, 0.004, truth.shape)
     swapped = exchange(noisy, np.arange(20, 31))
     conf = np.tile(np.linspace(0.5, 1.0, len(NAMES)), (len(truth), 1))
-    position, confidence, count = labels.resolve_swaps(swapped, exchange(conf, np.arange(20, 31)), NAMES,
-                                                       penalty_m=0.03, reach=5)
+    position, confidence, count, _ = resolve(swapped, exchange(conf, np.arange(20, 31)))
     assert count == 3 * 11  # three pairs, eleven frames
     np.testing.assert_array_equal(position, noisy)
     np.testing.assert_array_equal(confidence, conf)  # confidences travel with their positions
@@ -68,8 +73,8 @@ def test_legs_that_cross_in_space_keep_their_labels():
         truth[:, NAMES.index(f"L_{part}"), 1] = np.linspace(0.15, -0.45, n)  # passes the right leg at y = -0.15
         truth[:, NAMES.index(f"L_{part}"), 0] = 0.12  # 12 cm in front of it
         truth[:, NAMES.index(f"R_{part}"), 0] = 0.0
-    _, _, count = labels.resolve_swaps(truth, np.ones(truth.shape[:2]), NAMES, penalty_m=0.03, reach=5)
-    assert count == 0
+    _, _, count, dropped = resolve(truth)
+    assert count == 0 and dropped == 0
 
 
 def test_a_lone_measurement_on_the_other_track_takes_its_label_and_missing_data_is_kept_missing():
@@ -79,7 +84,7 @@ def test_a_lone_measurement_on_the_other_track_takes_its_label_and_missing_data_
     z[25, ankle_l] = truth[25, ankle_r]  # the right ankle, labelled left, and nothing labelled right
     z[25, ankle_r] = np.nan
     z[26:28, ankle_l] = np.nan  # and a gap: the last positions are held over it
-    position, _, count = labels.resolve_swaps(z, np.ones(z.shape[:2]), NAMES, penalty_m=0.03, reach=5)
+    position, _, count, _ = resolve(z)
     assert count == 1
     np.testing.assert_array_equal(position[25, ankle_r], truth[25, ankle_r])
     assert np.isnan(position[25, ankle_l]).all() and np.isnan(position[26:28, ankle_l]).all()
@@ -93,7 +98,7 @@ def test_one_bad_frame_does_not_flip_the_rest_of_the_take():
     z[19, NAMES.index("L_CALF")] = truth[19, NAMES.index("R_CALF")]  # the left calf on the right one's track
     z[19, NAMES.index("R_CALF")] += [2.8, 0.0, 0.0]  # and the right calf wild
     z[20:, NAMES.index("R_CALF")] = np.nan  # then the right calf is lost for good
-    position, _, count = labels.resolve_swaps(z, np.ones(z.shape[:2]), NAMES, penalty_m=0.03, reach=5)
+    position, _, count, _ = resolve(z)
     assert count <= 1  # frame 19 itself may go either way
     np.testing.assert_array_equal(position[20:], z[20:])
 
@@ -109,9 +114,44 @@ def test_viterbi_on_a_hand_computed_case():
 
 def test_a_take_that_starts_exchanged_stays_so():
     truth = walking_legs()
-    _, _, count = labels.resolve_swaps(exchange(truth, np.arange(len(truth))), np.ones(truth.shape[:2]), NAMES,
-                                       penalty_m=0.03, reach=5)
+    _, _, count, _ = resolve(exchange(truth, np.arange(len(truth))))
     assert count == 0  # documented limit: the first frames are taken as labelled
+
+
+def test_one_limb_under_both_labels_loses_the_impostor_label():
+    """The right ankle's label sits on the left ankle for frames 20-27 (the right ankle unlabelled): the right
+    label is dropped there, the left one kept, and the rest of the take is untouched."""
+    truth = walking_legs()
+    l_ankle, r_ankle = NAMES.index("L_ANKLE"), NAMES.index("R_ANKLE")
+    z = truth.copy()
+    z[20:28, r_ankle] = truth[20:28, l_ankle] + [0.0, 0.0, 0.01]  # 1 cm apart: another view's guess of it
+    position, confidence, count, dropped = resolve(z)
+    assert (count, dropped) == (0, 8)
+    assert np.isnan(position[20:28, r_ankle]).all() and (confidence[20:28, r_ankle] == 0).all()
+    np.testing.assert_array_equal(position[20:28, l_ankle], truth[20:28, l_ankle])
+    np.testing.assert_array_equal(np.delete(position, np.s_[20:28], axis=0), np.delete(truth, np.s_[20:28], axis=0))
+    _, _, _, dropped = resolve(z, duplicate_m=0.0)  # off
+    assert dropped == 0
+
+
+def test_a_take_that_opens_with_one_limb_under_both_labels_is_judged_from_the_frames_after():
+    truth = walking_legs()
+    l_calf, r_calf = NAMES.index("L_CALF"), NAMES.index("R_CALF")
+    z = truth.copy()
+    z[:6, l_calf] = truth[:6, r_calf]  # the left label on the right calf from the first frame
+    drop = labels.drop_impostors(z[:, [l_calf, r_calf]], near_m=0.05, reach=15)  # (frame, side)
+    np.testing.assert_array_equal(np.flatnonzero(drop[:, 0]), np.arange(6))
+    assert not drop[:, 1].any()
+    assert not labels.impostors(z[:, [l_calf, r_calf]], near_m=0.05, reach=15).any()  # the frames before alone can't tell
+
+
+def test_limbs_that_come_together_keep_both_labels():
+    """A foot that steps in quickly (6 cm per frame) to touch the still other foot (2 cm apart) and stays: the
+    point lies nearer the still foot's last position, but the feet were already close the frame before."""
+    n = 40
+    xyz = np.zeros((n, 2, 3))
+    xyz[:, 0, 1] = np.maximum(0.50 - 0.06 * np.arange(n), 0.02)  # the left foot closes in, then stays
+    assert not labels.drop_impostors(xyz, near_m=0.05, reach=15).any()
 
 
 def _markers(xyz: np.ndarray) -> xr.Dataset:
@@ -133,7 +173,8 @@ def test_the_kalman_stage_smooths_the_relabelled_legs():
     assert np.nanmax(np.linalg.norm(kept["position"].values[20:31, legs] - truth[20:31, legs], axis=-1)) > 0.2
 
 
-@pytest.mark.parametrize("bad", [{"swap_penalty_m": 0.0}, {"swap_reach": 0}])
+@pytest.mark.parametrize("bad", [{"swap_penalty_m": 0.0}, {"swap_reach": 0}, {"duplicate_m": -0.01},
+                                 {"duplicate_reach": 0}])
 def test_bad_swap_settings_are_refused(bad):
     with pytest.raises(ValueError, match=next(iter(bad))):
         smoothing.KalmanConfig(**bad)
