@@ -34,7 +34,7 @@ class GreedyConfig:
     min_distance_px: float = 3.0  # of two estimates closer than this, the more confident stays
     snap_px: float = 6.0  # how far from an estimate its reflector region may start, pixels
     region_radius_px: float = 10.0  # pixels of a region counted towards its centre
-    split_px: float = 6.0  # > 0: estimates this far apart on one region split it (k-means); 0: off (see docs)
+    split_px: float = 4.0  # > 0: estimates this far apart on one region split it (k-means); 0: off (see docs)
     split_neighbours_m: float = 0.10  # > 0: only reflectors this close on the rest-pose body split a region; 0: any
     c_min: float = 0.1  # smallest accepted fused confidence E
 
