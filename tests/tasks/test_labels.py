@@ -145,6 +145,20 @@ def test_a_take_that_opens_with_one_limb_under_both_labels_is_judged_from_the_fr
     assert not labels.impostors(z[:, [l_calf, r_calf]], near_m=0.05, reach=15).any()  # the frames before alone can't tell
 
 
+def test_where_the_frames_before_and_after_disagree_both_labels_stay():
+    """Frames 10-12 put both labels at the right leg's place; before them the left label was on the left leg,
+    after them it is on the right leg's track: the frames before call the left label the impostor, the frames
+    after the right one, so neither is dropped."""
+    z = np.zeros((24, 2, 3))
+    z[:, 0, 1], z[:, 1, 1] = 0.15, -0.15
+    z[10:13, 0, 1] = -0.14  # both labels on the right leg
+    z[13:, 0, 1], z[13:, 1, 1] = -0.15, 0.15  # then the labels trade places
+    forward = labels.impostors(z, near_m=0.05, reach=15)
+    backward = labels.impostors(z[::-1], near_m=0.05, reach=15)[::-1]
+    assert forward[10:13, 0].all() and backward[10:13, 1].all()
+    assert not labels.drop_impostors(z, near_m=0.05, reach=15).any()
+
+
 def test_limbs_that_come_together_keep_both_labels():
     """A foot that steps in quickly (6 cm per frame) to touch the still other foot (2 cm apart) and stays: the
     point lies nearer the still foot's last position, but the feet were already close the frame before."""
@@ -166,7 +180,7 @@ def test_the_kalman_stage_smooths_the_relabelled_legs():
     markers = _markers(exchange(truth, np.arange(20, 31)))
     config = {k: v for k, v in vars(smoothing.KalmanConfig()).items()}
     fixed = smoothing.kalman(markers, **config)
-    assert fixed.attrs["label_exchanges"] == 3 * 11
+    assert fixed.attrs["label_exchanges"] == 3 * 11 and fixed.attrs["label_duplicates_dropped"] == 0
     legs = [NAMES.index(f"{s}_{p}") for s in "LR" for p in LEGS]
     assert np.abs(fixed["position"].values[:, legs] - truth[:, legs]).max() < 0.01
     kept = smoothing.kalman(markers, **{**config, "resolve_swaps": False})
