@@ -1,7 +1,8 @@
 """Label continuity of the mirrored limb reflectors: an exchanged stretch of a walking pair of legs is
 put back, legs that cross in space keep their labels, a lone measurement on the other side's track
-takes that side's label, one bad frame does not flip the rest of the take, and the Kalman stage
-smooths the relabelled data."""
+takes that side's label, one bad frame does not flip the rest of the take, one limb under both labels
+loses the impostor label (judged from the frames before and after, limbs that touch keep both), and
+the Kalman stage smooths the relabelled data."""
 
 import numpy as np
 import pytest
@@ -39,10 +40,14 @@ def exchange(xyz: np.ndarray, frames, parts=LEGS) -> np.ndarray:
     return out
 
 
-def resolve(z, conf=None, *, duplicate_m=0.05):
-    """``labels.resolve_swaps`` at the stage's settings.  -> position, confidence, exchanges, dropped"""
+STAGE = smoothing.KalmanConfig()
+
+
+def resolve(z, conf=None, *, duplicate_m=STAGE.duplicate_m):
+    """``labels.resolve_swaps`` at the `kalman` stage's defaults.  -> position, confidence, exchanges, dropped"""
     conf = np.ones(z.shape[:2]) if conf is None else conf
-    return labels.resolve_swaps(z, conf, NAMES, penalty_m=0.03, reach=5, duplicate_m=duplicate_m, duplicate_reach=15)
+    return labels.resolve_swaps(z, conf, NAMES, penalty_m=STAGE.swap_penalty_m, reach=STAGE.swap_reach,
+                                duplicate_m=duplicate_m, duplicate_reach=STAGE.duplicate_reach)
 
 
 def test_mirrored_pairs_pair_left_and_right_limb_reflectors_by_name():
@@ -178,7 +183,7 @@ def _markers(xyz: np.ndarray) -> xr.Dataset:
 def test_the_kalman_stage_smooths_the_relabelled_legs():
     truth = walking_legs()
     markers = _markers(exchange(truth, np.arange(20, 31)))
-    config = {k: v for k, v in vars(smoothing.KalmanConfig()).items()}
+    config = dict(vars(smoothing.KalmanConfig()))
     fixed = smoothing.kalman(markers, **config)
     assert fixed.attrs["label_exchanges"] == 3 * 11 and fixed.attrs["label_duplicates_dropped"] == 0
     legs = [NAMES.index(f"{s}_{p}") for s in "LR" for p in LEGS]
