@@ -25,16 +25,26 @@ another right, and the other limb is unlabelled), so fusion puts both labels on 
 measurements lie within a few centimetres while the two sides were apart a frame before, the label
 whose track the point does not continue is dropped for that frame (``drop_impostors``, judged from
 the frames before and from the frames after).
+
+After the exchanges, the same test runs on every other pair of labels that the body keeps apart (more
+than ``REST_NEIGHBOURS_M`` on the rest-pose template): in a deep squat the thigh hides the calf strap
+and the views name the ankle strap "calf", so the calf label sits on the ankle's track beside the ankle
+label; a shoulder label lands on the hand held before it (``drop_shared``). Reflectors closer than that
+at rest (the forehead, chest and back patches, a shoulder's two patches, a wrist and its hand, an ankle
+and its foot) can share one image region and so one point, both labels a few centimetres from the
+truth, and keep both.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from mocapflow.tasks.skeleton import neighbours
 from mocapflow.tasks.targets import mirrored
 
 LEFT_LIMB_REFLECTORS = ("L_ELBOW", "L_WRIST", "L_HAND", "L_CALF", "L_ANKLE", "L_FOOT")  # each has a right mirror
 JUMP_CAP_M = 0.5  # a larger jump between frames is an outlier: it counts as no more than this
+REST_NEIGHBOURS_M = 0.15  # reflectors this close on the rest-pose template may share a point (see the docstring)
 
 
 def mirrored_pairs(names: list[str]) -> list[tuple[int, int]]:
@@ -131,10 +141,34 @@ def drop_impostors(z: np.ndarray, *, near_m: float, reach: int) -> np.ndarray:
     return (forward | backward) & ~conflict[:, None]
 
 
+def coinciding(position: np.ndarray, near_m: float, apart: np.ndarray) -> list[tuple[int, int]]:
+    """Pairs of reflectors, among those ``apart`` allows, measured within ``near_m`` of each other in some frame.
+
+    position (frame, reflector, 3) NaN where missing, apart (reflector, reflector) bool -> [(i, j)], i < j
+    """
+    gap = np.linalg.norm(position[:, :, None] - position[:, None, :], axis=-1)  # (frame, reflector, reflector)
+    close = np.triu((gap < near_m).any(axis=0) & apart, 1)  # NaN compares False: a missing one is never close
+    return [(int(i), int(j)) for i, j in zip(*np.nonzero(close))]
+
+
+def drop_shared(position: np.ndarray, confidence: np.ndarray, names: list[str], *, near_m: float, reach: int) -> int:
+    """One reflector under the labels of two reflectors the body keeps apart: ``drop_impostors`` on each such
+    pair that comes within ``near_m``; the impostor's measurement is removed in place.
+    position (frame, reflector, 3), confidence (frame, reflector) -> number of dropped measurements"""
+    dropped = 0
+    for pair in coinciding(position, near_m, ~neighbours(names, REST_NEIGHBOURS_M)):
+        drop = drop_impostors(position[:, pair], near_m=near_m, reach=reach)  # (frame, side)
+        for side, r in enumerate(pair):
+            position[drop[:, side], r], confidence[drop[:, side], r] = np.nan, 0.0
+        dropped += int(drop.sum())
+    return dropped
+
+
 def resolve_swaps(position: np.ndarray, confidence: np.ndarray, names: list[str], *, penalty_m: float, reach: int,
-                  duplicate_m: float, duplicate_reach: int) -> tuple[np.ndarray, np.ndarray, int, int]:
-    """Drop a limb seen under both labels (``drop_impostors``; ``duplicate_m`` 0: off), then exchange the labels
-    of mirrored limb reflectors where continuity says so.
+                  duplicate_m: float, duplicate_reach: int, shared_m: float) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """Drop a limb seen under both labels (``drop_impostors``; ``duplicate_m`` 0: off), exchange the labels
+    of mirrored limb reflectors where continuity says so, then drop a label on another reflector's point
+    (``drop_shared``; ``shared_m`` 0: off).
 
     position (frame, reflector, 3) NaN where missing, confidence (frame, reflector)
     -> position, confidence (same shapes, relabelled), number of (frame, pair) exchanges, of dropped measurements
@@ -152,4 +186,6 @@ def resolve_swaps(position: np.ndarray, confidence: np.ndarray, names: list[str]
         for values in (position, confidence):
             values[np.ix_(frames, [left, right])] = values[np.ix_(frames, [right, left])]
         count += len(frames)
+    if shared_m > 0:
+        dropped += drop_shared(position, confidence, names, near_m=shared_m, reach=duplicate_reach)
     return position, confidence, count, dropped

@@ -14,7 +14,6 @@ estimate below c_min is dropped.
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,7 +21,7 @@ import xarray as xr
 from scipy import ndimage
 
 from mocapflow.tasks import targets
-from mocapflow.tasks.skeleton import rest_reflector_positions
+from mocapflow.tasks.skeleton import neighbours
 
 
 @dataclass(frozen=True)
@@ -139,23 +138,6 @@ def split_region(seeds: np.ndarray, blob_id: np.ndarray, label: int, iterations:
         part = np.argmin(((px[:, None] - centres[None]) ** 2).sum(-1), axis=1)
         centres = np.stack([px[part == k].mean(0) if (part == k).any() else centres[k] for k in range(len(centres))])
     return centres
-
-
-def neighbours(names: list[str], within_m: float) -> np.ndarray | None:
-    """Which reflectors may share a split region: those within ``within_m`` of each other on the rest-pose
-    template (the two forehead patches, the chest patches), so that a wrong label on another reflector's
-    region is suppressed rather than given a part of it. None (any) when ``within_m`` is 0.  -> (R, R) bool"""
-    return _neighbours(tuple(names), float(within_m))
-
-
-@functools.lru_cache(maxsize=8)
-def _neighbours(names: tuple[str, ...], within_m: float) -> np.ndarray | None:
-    if within_m <= 0:
-        return None
-    rest = rest_reflector_positions(list(names))  # (R, 3), the template body built once per reflector set
-    table = np.linalg.norm(rest[:, None] - rest[None], axis=-1) <= within_m
-    table.flags.writeable = False  # shared between calls
-    return table
 
 
 def suppress_close(xy: np.ndarray, confidence: np.ndarray, min_distance: float) -> np.ndarray:

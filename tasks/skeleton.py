@@ -22,6 +22,7 @@ Calibration of one sequence:
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -93,6 +94,23 @@ def rest_reflector_positions(names: list[str]) -> np.ndarray:
     """World positions of the named reflectors on the template body in its rest pose.  -> (reflector, 3) m"""
     tmpl = template(names)
     return rest_pose_reflectors(tmpl.offsets, tmpl.bones, tmpl.reflector_offsets)
+
+
+def neighbours(names: list[str], within_m: float) -> np.ndarray | None:
+    """Which reflectors lie within ``within_m`` of each other on the rest-pose template (the two forehead
+    patches, the chest patches): those that can share one image region or one point. None (any) when
+    ``within_m`` is 0.  -> (R, R) bool"""
+    return _neighbours(tuple(names), float(within_m))
+
+
+@functools.lru_cache(maxsize=8)
+def _neighbours(names: tuple[str, ...], within_m: float) -> np.ndarray | None:
+    if within_m <= 0:
+        return None
+    rest = rest_reflector_positions(list(names))  # (R, 3), the template body built once per reflector set
+    table = np.linalg.norm(rest[:, None] - rest[None], axis=-1) <= within_m
+    table.flags.writeable = False  # shared between calls
+    return table
 
 
 def coarse_scale(position: np.ndarray, names: list[str], tmpl: Template) -> np.ndarray:

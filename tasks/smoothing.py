@@ -2,8 +2,9 @@
 tracks"). Three swappable implementations of the `smoothed` stage:
 
 - ``kalman``: first the labels of mirrored limb reflectors are kept continuous (labels.py: a label
-  that sits on the other limb's track while that limb's own label is there too is dropped, and a
-  reflector that jumps to the other side's track and back takes that side's label); then per
+  that sits on the other limb's track while that limb's own label is there too is dropped, a
+  reflector that jumps to the other side's track and back takes that side's label, and a label that
+  joins another reflector's track, far from its own, is dropped); then per
   reflector, a filterpy Kalman filter with a constant-velocity (order 1) or constant-acceleration
   (order 2) model; measurement noise grows as the fused confidence falls;
   a track starts only on a measurement that the next ones confirm (reachable at a top speed);
@@ -42,12 +43,15 @@ class KalmanConfig:
     swap_reach: int = 5  # frames a reflector's last position is held over a gap when comparing frames
     duplicate_m: float = 0.05  # > 0: a limb pair this close that was apart has one limb under both labels (labels.py)
     duplicate_reach: int = 15  # frames a side's last position is kept when judging which label is the impostor
+    shared_m: float = 0.05  # > 0: two labels the body keeps apart, this close after being apart: one is dropped (labels.py)
 
     def __post_init__(self):
         if not self.swap_penalty_m > 0:
             raise ValueError(f"swap_penalty_m must be > 0 metres (e.g. 0.03), got {self.swap_penalty_m}")
         if self.duplicate_m < 0:
             raise ValueError(f"duplicate_m must be >= 0 metres (0: off, e.g. 0.05), got {self.duplicate_m}")
+        if self.shared_m < 0:
+            raise ValueError(f"shared_m must be >= 0 metres (0: off, e.g. 0.05), got {self.shared_m}")
         if self.duplicate_reach < 1:
             raise ValueError(f"duplicate_reach must be >= 1 frame (e.g. 15), got {self.duplicate_reach}")
         if self.swap_reach < 1:
@@ -198,14 +202,15 @@ def _result(markers: xr.Dataset, xyz: np.ndarray, predicted: np.ndarray, method:
 
 
 def kalman(markers: xr.Dataset, *, resolve_swaps: bool, swap_penalty_m: float, swap_reach: int, duplicate_m: float,
-           duplicate_reach: int, **config) -> xr.Dataset:
+           duplicate_reach: int, shared_m: float, **config) -> xr.Dataset:
     """`kalman` smoothing of a sequence's markers (frame, reflector, xyz), after the limb labels' continuity."""
     xyz, conf = markers["position"].values.astype(np.float64), markers["confidence"].values
     exchanges = dropped = 0
     if resolve_swaps:
         names = [str(n) for n in markers["reflector"].values]
         xyz, conf, exchanges, dropped = labels.resolve_swaps(xyz, conf, names, penalty_m=swap_penalty_m, reach=swap_reach,
-                                                             duplicate_m=duplicate_m, duplicate_reach=duplicate_reach)
+                                                             duplicate_m=duplicate_m, duplicate_reach=duplicate_reach,
+                                                             shared_m=shared_m)
     dt = 1.0 / float(markers.attrs["fps"])
     tracks = [kalman_track(xyz[:, r], conf[:, r], dt=dt, **config) for r in range(xyz.shape[1])]
     out = _result(markers.assign(confidence=(markers["confidence"].dims, conf)), np.stack([t[0] for t in tracks], 1),

@@ -1,14 +1,15 @@
 """Label continuity of the mirrored limb reflectors: an exchanged stretch of a walking pair of legs is
 put back, legs that cross in space keep their labels, a lone measurement on the other side's track
 takes that side's label, one bad frame does not flip the rest of the take, one limb under both labels
-loses the impostor label (judged from the frames before and after, limbs that touch keep both), and
+loses the impostor label (judged from the frames before and after, limbs that touch keep both), a
+label on another reflector's track is dropped (reflectors side by side on the body keep both), and
 the Kalman stage smooths the relabelled data."""
 
 import numpy as np
 import pytest
 import xarray as xr
 
-from mocapflow.tasks import labels, smoothing
+from mocapflow.tasks import labels, skeleton, smoothing
 from mocapflow.tasks.studio.reflectors import REFLECTOR_TABLE
 
 NAMES = [name for name, *_ in REFLECTOR_TABLE]
@@ -17,17 +18,16 @@ HEIGHTS = {"CALF": 0.45, "ANKLE": 0.10, "FOOT": 0.05}
 
 
 def walking_legs(n=60, fps=30.0) -> np.ndarray:
-    """Every reflector's true track (frame, reflector, 3): a body walking in place, legs swinging in antiphase
-    0.3 m apart, everything else still."""
+    """Every reflector's true track (frame, reflector, 3), x forward, y left, z up: a body walking in place, legs
+    swinging in antiphase 0.3 m apart, everything else still where the rest-pose template puts it (arms out)."""
     t = np.arange(n) / fps
-    xyz = np.zeros((n, len(NAMES), 3))
-    xyz[:, :, 2] = 1.2
-    for r, name in enumerate(NAMES):
-        xyz[:, r, 1] = 0.15 if name.startswith(("L_", "F_L_", "B_L_")) else -0.15
+    rest = skeleton.rest_reflector_positions(NAMES)  # (reflector, 3): x to the right, y forward, z up, hips at 0
+    xyz = np.tile(np.stack([rest[:, 1], -rest[:, 0], rest[:, 2] + 1.0], axis=-1), (n, 1, 1))
     for side, phase in (("L", 0.0), ("R", np.pi)):
         for part in LEGS:
             r = NAMES.index(f"{side}_{part}")
             xyz[:, r, 0] = 0.25 * np.sin(2 * np.pi * 1.0 * t + phase)
+            xyz[:, r, 1] = 0.15 if side == "L" else -0.15
             xyz[:, r, 2] = HEIGHTS[part]
     return xyz
 
@@ -43,11 +43,11 @@ def exchange(xyz: np.ndarray, frames, parts=LEGS) -> np.ndarray:
 STAGE = smoothing.KalmanConfig()
 
 
-def resolve(z, conf=None, *, duplicate_m=STAGE.duplicate_m):
+def resolve(z, conf=None, *, duplicate_m=STAGE.duplicate_m, shared_m=STAGE.shared_m):
     """``labels.resolve_swaps`` at the `kalman` stage's defaults.  -> position, confidence, exchanges, dropped"""
     conf = np.ones(z.shape[:2]) if conf is None else conf
     return labels.resolve_swaps(z, conf, NAMES, penalty_m=STAGE.swap_penalty_m, reach=STAGE.swap_reach,
-                                duplicate_m=duplicate_m, duplicate_reach=STAGE.duplicate_reach)
+                                duplicate_m=duplicate_m, duplicate_reach=STAGE.duplicate_reach, shared_m=shared_m)
 
 
 def test_mirrored_pairs_pair_left_and_right_limb_reflectors_by_name():
@@ -135,8 +135,7 @@ def test_one_limb_under_both_labels_loses_the_impostor_label():
     assert np.isnan(position[20:28, r_ankle]).all() and (confidence[20:28, r_ankle] == 0).all()
     np.testing.assert_array_equal(position[20:28, l_ankle], truth[20:28, l_ankle])
     np.testing.assert_array_equal(np.delete(position, np.s_[20:28], axis=0), np.delete(truth, np.s_[20:28], axis=0))
-    _, _, _, dropped = resolve(z, duplicate_m=0.0)  # off
-    assert dropped == 0
+    assert resolve(z, duplicate_m=0.0, shared_m=0.0)[3] == 0  # both rules off (the later one catches it too)
 
 
 def test_a_take_that_opens_with_one_limb_under_both_labels_is_judged_from_the_frames_after():
@@ -173,6 +172,36 @@ def test_limbs_that_come_together_keep_both_labels():
     assert not labels.drop_impostors(xyz, near_m=0.05, reach=15).any()
 
 
+def test_a_calf_label_on_the_ankle_strap_is_dropped_after_the_ankles_are_put_back():
+    """A deep squat: the thigh hides the left calf strap and the views call the left ankle strap "calf"
+    (frames 20-27), while the ankles' labels are exchanged there. The ankles are put back first; then the
+    calf label sits on the left ankle's track, 35 cm from its own, and is dropped. Nothing else changes."""
+    truth = walking_legs()
+    calf, ankle = NAMES.index("L_CALF"), NAMES.index("L_ANKLE")
+    z = exchange(truth, np.arange(20, 28), parts=("ANKLE",))
+    z[20:28, calf] = truth[20:28, ankle] + [0.0, 0.01, 0.0]
+    position, confidence, count, dropped = resolve(z)
+    assert (count, dropped) == (8, 8)
+    assert np.isnan(position[20:28, calf]).all() and (confidence[20:28, calf] == 0).all()
+    np.testing.assert_array_equal(np.delete(position, calf, axis=1), np.delete(truth, calf, axis=1))
+    np.testing.assert_array_equal(np.delete(position[:, calf], np.s_[20:28], axis=0),
+                                  np.delete(truth[:, calf], np.s_[20:28], axis=0))
+    assert resolve(z, shared_m=0.0)[3] == 0  # off
+
+
+def test_reflectors_side_by_side_on_the_body_may_share_a_point():
+    """The left hand strap's label on the wrist strap's point (11 cm apart at rest; one image region in a
+    view) for frames 20-27: both labels stay, as the image rules made them. The same for the calf (35 cm
+    from the ankle at rest) loses the label, so the exemption is by the body's layout, not by the data."""
+    truth = walking_legs()
+    wrist, hand = NAMES.index("L_WRIST"), NAMES.index("L_HAND")
+    z = truth.copy()
+    z[20:28, hand] = truth[20:28, wrist] + [0.01, 0.0, 0.0]
+    assert resolve(z)[3] == 0
+    assert labels.coinciding(z, 0.05, np.ones((len(NAMES), len(NAMES)), bool))  # the pair does come close
+    assert (wrist, hand) not in labels.coinciding(z, 0.05, ~skeleton.neighbours(NAMES, labels.REST_NEIGHBOURS_M))
+
+
 def _markers(xyz: np.ndarray) -> xr.Dataset:
     return xr.Dataset(
         {"position": (("frame", "reflector", "xyz"), xyz.astype(np.float32)),
@@ -193,7 +222,7 @@ def test_the_kalman_stage_smooths_the_relabelled_legs():
 
 
 @pytest.mark.parametrize("bad", [{"swap_penalty_m": 0.0}, {"swap_reach": 0}, {"duplicate_m": -0.01},
-                                 {"duplicate_reach": 0}])
+                                 {"duplicate_reach": 0}, {"shared_m": -0.01}])
 def test_bad_swap_settings_are_refused(bad):
     with pytest.raises(ValueError, match=next(iter(bad))):
         smoothing.KalmanConfig(**bad)
