@@ -1,0 +1,58 @@
+"""What the motion capture stages cost on their own: skeleton calibration and pose solving fed the
+studio's true 3D reflector positions (every reflector in every frame, confidence 1) instead of the
+pipeline's, on the held-out sequences, scored like `mocapflow evaluate` (MAE and 3D PCK on the 12
+joints of Table 8). The gap between this floor and the evaluated figures is what the 2D labels, the
+depth lifting and fusion cost. Run the held-out evaluation first so the inputs exist
+(`mocapflow evaluate --catalog benchmarks/catalog.yaml`):
+
+    python benchmarks/poses_floor.py
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from mocapflow.pipeline.catalog import load_catalog
+from mocapflow.pipeline.plan import build_plan
+from mocapflow.pipeline.storage import Store
+from mocapflow.schemas import get_schema
+from mocapflow.tasks import poses, skeleton
+from mocapflow.tasks.evaluation import TABLE8_JOINTS, joint_errors
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def true_markers(smoothed, raw):
+    """The smoothed markers' layout (names, frames, attrs) holding the studio's true positions."""
+    truth = smoothed.copy(deep=True)
+    truth["position"].values[...] = raw["gt_reflectors"].sel(reflector=smoothed["reflector"]).values
+    truth["confidence"].values[...] = 1.0
+    truth["predicted"].values[...] = False
+    return truth
+
+
+def main() -> None:
+    catalog = load_catalog(str(ROOT / "benchmarks" / "catalog.yaml"), ())
+    store, plan = Store(catalog.root), build_plan(catalog)
+    per_clip, errors = {}, []
+    for seq in plan.sequences:
+        raw = store.open("frames", plan.items[f"frames/{seq.id}"].key, get_schema("raw_sequence"))
+        smoothed = store.open("smoothed", plan.items[f"smoothed/{seq.id}"].key, get_schema("smoothed_markers")).load()
+        markers = true_markers(smoothed, raw)
+        skel = skeleton.calibrate_skeleton(markers, **asdict(skeleton.SkeletonConfig()))
+        solved = poses.solve_poses(skel, markers, **asdict(poses.PoseConfig()))
+        e = joint_errors(solved["position"].sel(joint=list(TABLE8_JOINTS)).values,
+                         raw["gt_joints"].sel(joint=list(TABLE8_JOINTS)).values)  # (frame, 12) cm
+        per_clip[seq.id] = round(float(np.nanmean(e)), 2)
+        errors.append(e)
+    e = np.concatenate(errors)
+    print(json.dumps({"floor_mae3d_cm": round(float(np.nanmean(e)), 3), "floor_pck3d_5cm": round(float(np.mean(e < 5)), 4),
+                      "floor_pck3d_20cm": round(float(np.mean(e < 20)), 4), "per_sequence_mae_cm": per_clip}))
+
+
+if __name__ == "__main__":
+    main()
