@@ -115,14 +115,6 @@ def test_split_gives_touching_reflectors_their_own_centres():
     np.testing.assert_allclose(kept_one, merged)  # not neighbours on the body: no split, the weaker suppressed
 
 
-def test_only_reflectors_side_by_side_on_the_body_are_neighbours():
-    names = ["F_R_HEAD", "F_L_HEAD", "R_HAND", "L_HAND", "R_WRIST"]
-    table = r2d.neighbours(names, 0.10)
-    assert table[0, 1] and table[1, 0]  # the forehead patches, 6 cm apart
-    assert not table[2, 3] and not table[2, 4]  # the two hands; a hand and its wrist strap (11 cm)
-    assert table.diagonal().all() and r2d.neighbours(names, 0.0) is None
-
-
 def _heatmaps(points_per_frame, off=None, grid=20, stride=4):
     """Confidence maps with a peak per (frame, reflector) point (cells) and an identity-like crop."""
     n_frames, n_refl = len(points_per_frame), len(points_per_frame[0])

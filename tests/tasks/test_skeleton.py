@@ -87,3 +87,11 @@ def test_rigidity_cost_is_not_outweighed_by_a_few_wrong_frames():
 def test_skeleton_config_refuses_a_non_positive_outlier_cap():
     with pytest.raises(ValueError, match="outlier_m"):
         skeleton.SkeletonConfig(outlier_m=0.0)
+
+
+def test_only_reflectors_side_by_side_on_the_body_are_neighbours():
+    names = ["F_R_HEAD", "F_L_HEAD", "R_HAND", "L_HAND", "R_WRIST"]
+    table = skeleton.neighbours(names, 0.10)
+    assert table[0, 1] and table[1, 0]  # the forehead patches, 6 cm apart
+    assert not table[2, 3] and not table[2, 4]  # the two hands; a hand and its wrist strap (11 cm)
+    assert table.diagonal().all() and skeleton.neighbours(names, 0.0) is None
