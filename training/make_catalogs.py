@@ -86,8 +86,6 @@ def main() -> None:
     train += "\n".join(sequences(TRAIN_EXERCISES, 64, 100, rng)) + "\n"
     varied = np.random.default_rng(2026)  # its own stream: the sequences above and validation stay as they were
     train += "\n".join(sequences(TRAIN_EXERCISES, 64, 164, varied, variation=(0.5, 1.0))) + "\n"
-    wide = np.random.default_rng(2028)  # its own stream again: wider performances, added after the two groups above
-    train += "\n".join(sequences(TRAIN_EXERCISES, 64, 228, wide, variation=(1.0, 1.5))) + "\n"
     train += STAGES.format(name="train") + TRAIN_STAGES
     (HERE / "catalog.yaml").write_text(train)
     validation = HEADER.format(title="Validation set of the two-stream FCN (c_min sweep, Fig. 12)", name="validation",
