@@ -151,17 +151,21 @@ def coinciding(position: np.ndarray, near_m: float, apart: np.ndarray) -> list[t
     return [(int(i), int(j)) for i, j in zip(*np.nonzero(close))]
 
 
-def drop_shared(position: np.ndarray, confidence: np.ndarray, names: list[str], *, near_m: float, reach: int) -> int:
-    """One reflector under the labels of two reflectors the body keeps apart: ``drop_impostors`` on each such
-    pair that comes within ``near_m``; the impostor's measurement is removed in place.
+def drop_pair_impostors(position: np.ndarray, confidence: np.ndarray, pair: tuple[int, int], *, near_m: float,
+                        reach: int) -> int:
+    """``drop_impostors`` on the two reflectors of ``pair``, removing each impostor measurement in place.
     position (frame, reflector, 3), confidence (frame, reflector) -> number of dropped measurements"""
-    dropped = 0
-    for pair in coinciding(position, near_m, ~neighbours(names, REST_NEIGHBOURS_M)):
-        drop = drop_impostors(position[:, pair], near_m=near_m, reach=reach)  # (frame, side)
-        for side, r in enumerate(pair):
-            position[drop[:, side], r], confidence[drop[:, side], r] = np.nan, 0.0
-        dropped += int(drop.sum())
-    return dropped
+    drop = drop_impostors(position[:, list(pair)], near_m=near_m, reach=reach)  # (frame, side)
+    for side, r in enumerate(pair):
+        position[drop[:, side], r], confidence[drop[:, side], r] = np.nan, 0.0
+    return int(drop.sum())
+
+
+def drop_shared(position: np.ndarray, confidence: np.ndarray, names: list[str], *, near_m: float, reach: int) -> int:
+    """One reflector under the labels of two reflectors the body keeps apart: ``drop_pair_impostors`` on each
+    such pair that comes within ``near_m``.  -> number of dropped measurements"""
+    return sum(drop_pair_impostors(position, confidence, pair, near_m=near_m, reach=reach)
+               for pair in coinciding(position, near_m, ~neighbours(names, REST_NEIGHBOURS_M)))
 
 
 def resolve_swaps(position: np.ndarray, confidence: np.ndarray, names: list[str], *, penalty_m: float, reach: int,
@@ -177,10 +181,7 @@ def resolve_swaps(position: np.ndarray, confidence: np.ndarray, names: list[str]
     count = dropped = 0
     for left, right in mirrored_pairs(names):
         if duplicate_m > 0:
-            drop = drop_impostors(position[:, [left, right]], near_m=duplicate_m, reach=duplicate_reach)  # (frame, side)
-            for side, r in enumerate((left, right)):
-                position[drop[:, side], r], confidence[drop[:, side], r] = np.nan, 0.0
-            dropped += int(drop.sum())
+            dropped += drop_pair_impostors(position, confidence, (left, right), near_m=duplicate_m, reach=duplicate_reach)
         sides = position[:, [left, right]]  # (frame, side, 3)
         frames = np.flatnonzero(resolve_pair(sides, penalty_m=penalty_m, reach=reach))
         for values in (position, confidence):
