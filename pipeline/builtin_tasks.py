@@ -94,7 +94,7 @@ register(TaskSpec(
     description="coarse scaling, per-level particle joint estimation (Eq. 11, robust), reflector offsets per bone",
 ))
 register(TaskSpec(
-    name="solve_poses", fn=poses.solve_poses, version="2", params=poses.PoseConfig, output="poses",
+    name="solve_poses", fn=poses.solve_poses, version="3", params=poses.PoseConfig, output="poses",
     partition="sequence", inputs={"skeleton": "skeleton", "markers": "smoothed_markers"}, whole_sequence=True,
     description="40-DoF least squares per frame against the calibrated reflector offsets, warm-started",
 ))

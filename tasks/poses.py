@@ -56,7 +56,7 @@ class PoseConfig:
     temporal_weight: float = 0.01  # metres of reflector error equivalent to one radian of change from the last frame
     rest_weight: float = 0.002  # the same, per radian from the rest pose: settles what no reflector sees
     distal_rest_weight: float = 0.02  # the same for wrists and ankles (see DISTAL)
-    max_iterations: int = 50  # Levenberg-Marquardt function evaluations per frame
+    max_iterations: int = 20  # Levenberg-Marquardt function evaluations per frame (the first frame gets 4x more)
     min_reflectors: int = 4  # fewer seen reflectors: the frame is not solved (NaN)
 
 
