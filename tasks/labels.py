@@ -1,5 +1,5 @@
-"""Label continuity of the mirrored limb reflectors, before the temporal filter of the 3D optical data
-(DeepMoCap §3.4.2).
+"""Label continuity of the 3D optical data before its temporal filter (DeepMoCap §3.4.2): the mirrored
+limb reflectors first, then any two labels the body keeps apart that sit on one point.
 
 The FCN names a reflector from its look and from the body around it, and the look of a left and a
 right limb is the same: in a side view, or when the legs cross, a limb's reflectors can take the
