@@ -89,9 +89,10 @@ for name, fn, params, version, what in (
 
 # Motion capture (DeepMoCap §3.5): template calibration per sequence, then the poses.
 register(TaskSpec(
-    name="calibrate_skeleton", fn=skeleton.calibrate_skeleton, version="2", params=skeleton.SkeletonConfig,
+    name="calibrate_skeleton", fn=skeleton.calibrate_skeleton, version="3", params=skeleton.SkeletonConfig,
     output="skeleton", partition="sequence", inputs={"markers": "smoothed_markers"}, whole_sequence=True,
-    description="coarse scaling, per-level particle joint estimation (Eq. 11, robust), reflector offsets per bone",
+    description="coarse scaling, segment-scale fit, per-level particle joint estimation (Eq. 11, robust), "
+                "reflector offsets per bone",
 ))
 register(TaskSpec(
     name="solve_poses", fn=poses.solve_poses, version="3", params=poses.PoseConfig, output="poses",

@@ -12,7 +12,9 @@ SKELETON = register_schema(ArtifactSchema(
     variables={
         "offset": VarSpec(("joint", "xyz"), "float32", "m", description="rest offset from the parent joint"),
         "bone_length": VarSpec(("joint",), "float32", "m", description="length of the offset"),
-        "scale": VarSpec(("joint",), "float32", description="coarse scale of the template joint"),
+        "scale": VarSpec(("joint",), "float32",
+                         description="scale of the template joint's offset: its segment's fitted scale "
+                                     "(the coarse scale when scale_rounds is 0)"),
         "parent": VarSpec(("joint",), "int16", description="parent joint index, -1 for the root"),
         "level": VarSpec(("joint",), "int8", description="hierarchy level L0-L6 (Figure 9a)"),
         "bone": VarSpec(("reflector",), "int16", description="joint whose frame carries the reflector"),

@@ -9,7 +9,11 @@ channel order; we follow the anatomy, not that table.)
 
 Calibration of one sequence:
 1. coarse scaling: the median ratio of observed to template distances between the two straps of
-   each forearm and shin, over the first batch of frames;
+   each forearm and shin, over the first batch of frames; then a fit of one scale per segment
+   (trunk, shoulders, upper arm, forearm, hand, pelvis, thigh, shank, foot; left and right alike)
+   that carries the template's reflectors onto the calibration frames, alternating with the pose
+   solve (``fit_segment_scales``). The four strap distances alone are off by the straps' placement,
+   several percent of a limb; the fit weighs every reflector of every calibration frame;
 2. per hierarchy level L1-L6, G particles around each joint's current position in its parent's
    frame, moved with the optical data by forward kinematics of the poses solved on the current
    skeleton; Eq. (11): keep the particle whose distances to the high-confidence (C > 0.6)
@@ -27,6 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import xarray as xr
+
+from scipy.optimize import least_squares
 
 from mocapflow.tasks.poses import forward_kinematics, rest_pose_reflectors, solve_sequence
 from mocapflow.tasks.studio.body import JOINT_NAMES, LEVELS, PARENTS, Subject, rest_offsets, surface
@@ -47,6 +53,14 @@ for _joint, _subset in {"Shoulder": ("F_x_SHOULDER", "B_x_SHOULDER"), "Elbow": (
     for _side in ("Left", "Right"):
         REFLECTOR_SUBSETS[_side + _joint] = tuple(n.replace("x", _side[0]) for n in _subset)  # anatomical side
 assert set(REFLECTOR_SUBSETS) == set(JOINT_NAMES)
+
+# Segments whose length scales together (left and right alike). A reflector scales with the segment
+# its bone leads to: the forearm straps with the forearm, the pelvis patches with the pelvis, the
+# shoulder patches with the shoulders; the head patches (an end bone) with the trunk.
+SEGMENTS: dict[str, str] = {"Hips": "trunk", "SpineBase": "trunk", "Neck": "trunk", "Head": "trunk",
+                            "Shoulder": "shoulders", "Elbow": "upper_arm", "Wrist": "forearm", "Hand": "hand",
+                            "Hip": "pelvis", "Knee": "thigh", "Ankle": "shank", "Foot": "foot"}
+_CARRIED_BY = {"Hips": "pelvis", "Neck": "shoulders", "Head": "trunk"}  # bones with several (or no) child segments
 
 # straps on one limb segment: their distance depends on the limb's length only (patches sit on the
 # surface, so their distances also follow girth and placement, which vary far more between subjects)
@@ -71,11 +85,17 @@ class SkeletonConfig:
     prior_weight: float = 0.05  # m^2 of Eq. (11) cost per m^2 of distance from the template
     outlier_m: float = 0.03  # largest distance change one frame may add to the Eq. (11) spread (robust cost)
     iterations: int = 2  # alternations of joint (step 2) and reflector-offset (step 3) estimation
+    scale_rounds: int = 3  # alternations of pose solve and segment-scale fit after the coarse scaling (0: coarse only)
+    scale_prior_m: float = 3.0  # metres of reflector error per unit of a segment's scale away from the common scale
     seed: int = 0
 
     def __post_init__(self):
         if not self.outlier_m > 0:
             raise ValueError(f"outlier_m must be > 0 metres (e.g. 0.03), got {self.outlier_m}")
+        if self.scale_rounds < 0:
+            raise ValueError(f"scale_rounds must be >= 0 (0 keeps the coarse scale), got {self.scale_rounds}")
+        if not self.scale_prior_m > 0:
+            raise ValueError(f"scale_prior_m must be > 0 metres (e.g. 0.3), got {self.scale_prior_m}")
 
 
 def template(names: list[str]) -> Template:
@@ -123,6 +143,77 @@ def coarse_scale(position: np.ndarray, names: list[str], tmpl: Template) -> np.n
     ratios = np.concatenate(ratios) if ratios else np.array([])
     ratios = ratios[np.isfinite(ratios)]
     return np.full(len(JOINT_NAMES), float(np.median(ratios)) if ratios.size else 1.0)  # nothing seen: the template
+
+
+def segment_groups(bones: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Segment index of every joint's offset and of every reflector's offset (by its bone), and the
+    segment names.  bones (reflector,) -> (joint,), (reflector,), names"""
+    names = sorted(set(SEGMENTS.values()))
+    kind = [n.removeprefix("Left").removeprefix("Right") for n in JOINT_NAMES]
+    joint_group = np.array([names.index(SEGMENTS[k]) for k in kind])
+    child = {p: j for j, p in enumerate(PARENTS) if p >= 0 and list(PARENTS).count(p) == 1}
+    bone_group = np.array([names.index(_CARRIED_BY[kind[j]]) if kind[j] in _CARRIED_BY else joint_group[child.get(j, j)]
+                           for j in range(len(JOINT_NAMES))])
+    return joint_group, bone_group[bones], names
+
+
+def _scale_design(rot: np.ndarray, tmpl: Template, joint_group: np.ndarray, refl_group: np.ndarray,
+                  n_groups: int) -> np.ndarray:
+    """Each reflector's position relative to the root as a linear function of the segment scales, the
+    poses' rotations held: Σ_j s_g(j) R_parent(j) o_j + s_g(r) R_bone(r) c_r over the joints j from the
+    root down to the reflector's bone.  rot (frame, joint, 3, 3) -> (frame, reflector, 3, group)"""
+    design = np.zeros((len(rot), len(tmpl.bones), 3, n_groups))
+    for r, bone in enumerate(tmpl.bones):
+        design[:, r, :, refl_group[r]] += rot[:, bone] @ tmpl.reflector_offsets[r]
+        j = bone
+        while PARENTS[j] >= 0:  # the root's offset is its translation, a free parameter per frame
+            design[:, r, :, joint_group[j]] += rot[:, PARENTS[j]] @ tmpl.offsets[j]
+            j = PARENTS[j]
+    return design
+
+
+def _robust_linear(a: np.ndarray, b: np.ndarray, x0: np.ndarray, f_scale: float) -> np.ndarray:
+    """argmin_x Σ soft_l1(a x - b) at ``f_scale``.  (m, n), (m,), (n,) -> (n,)"""
+    return least_squares(lambda x: a @ x - b, x0, jac=lambda x: a, loss="soft_l1", f_scale=f_scale).x
+
+
+def fit_segment_scales(obs: np.ndarray, tmpl: Template, scale: np.ndarray, *, rounds: int, prior_m: float,
+                       outlier_m: float, solve: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Per-segment scales of the template that best carry its reflectors onto the optical data.
+
+    Alternates a pose solve on the current scales with a linear fit of the scales and each frame's root
+    position, the rotations held: a reflector is x_fr = root_f + Σ_j s_g(j) R_parent(j) o_j + s_g(r) R_bone(r) c_r,
+    linear in the segment scales s_g. Robust (soft L1 at ``outlier_m``), and each segment is pulled to a
+    common scale with weight ``prior_m`` (metres of reflector error per unit of scale): the straps'
+    placement along a limb varies by several percent of its length, so a segment measured by its own
+    straps alone is that much off, while the common scale averages all of them; the pull also settles
+    the segments no reflector measures (the hands' and feet's end joints).
+    obs (frame, reflector, 3) NaN where unseen, scale (joint,) start -> per joint (joint,), per reflector (reflector,)
+    """
+    joint_group, refl_group, groups = segment_groups(tmpl.bones)
+    n_g = len(groups)
+    s = np.array([np.median(scale[joint_group == g]) for g in range(n_g)])
+    seen = np.isfinite(obs).all(2)  # (frame, reflector)
+    for _ in range(rounds):
+        params, _, _ = solve_sequence(obs, seen.astype(float), tmpl.offsets * s[joint_group][:, None], tmpl.bones,
+                                      tmpl.reflector_offsets * s[refl_group][:, None], **solve)
+        ok = np.isfinite(params).all(1)
+        if ok.sum() < 3:
+            break
+        rot, _ = forward_kinematics(params[ok], tmpl.offsets)  # rotations do not depend on the offsets
+        frame_of, refl_of = np.nonzero(seen[ok])  # one 3-row block per seen reflector
+        n_f, m = int(ok.sum()), len(frame_of)
+        a = np.zeros((m, 3, n_g + 1 + 3 * n_f))  # columns: s_g, the common scale, root_f
+        a[..., :n_g] = _scale_design(rot, tmpl, joint_group, refl_group, n_g)[frame_of, refl_of]
+        for k in range(3):
+            a[np.arange(m), k, n_g + 1 + 3 * frame_of + k] = 1.0
+        prior = np.zeros((n_g, a.shape[-1]))
+        prior[np.arange(n_g), np.arange(n_g)], prior[:, n_g] = prior_m, -prior_m  # w (s_g - c)
+        x0 = np.concatenate([s, [np.median(s)], params[ok][:, :3].reshape(-1)])
+        x = _robust_linear(np.vstack([a.reshape(3 * m, -1), prior]),
+                           np.concatenate([obs[ok][seen[ok]].reshape(-1), np.zeros(n_g)]), x0, outlier_m)
+        s = np.clip(x[:n_g], 0.7 * np.median(s), 1.3 * np.median(s))
+    return s[joint_group], s[refl_group]
 
 
 def calibration_frames(position: np.ndarray, confidence: np.ndarray, *, frames: int, min_confidence: float) -> np.ndarray:
@@ -181,7 +272,8 @@ def reflector_offsets(position: np.ndarray, rot: np.ndarray, pos: np.ndarray, bo
 
 def calibrate(position: np.ndarray, confidence: np.ndarray, names: list[str], *, batch_frames: int, frames: int,
               particles: int, spread_m: float, rounds: int, min_confidence: float, prior_weight: float, outlier_m: float,
-              iterations: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+              iterations: int, scale_rounds: int, scale_prior_m: float,
+              seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
     """Joint offsets, reflector bones and offsets, and the coarse scale of one sequence's optical data.
 
     position (frame, reflector, 3) NaN where missing, confidence (frame, reflector)
@@ -190,16 +282,20 @@ def calibrate(position: np.ndarray, confidence: np.ndarray, names: list[str], *,
     """
     tmpl = template(names)
     scale = coarse_scale(position[:batch_frames], names, tmpl)
-    offsets, refl = tmpl.offsets * scale[:, None], tmpl.reflector_offsets * scale[tmpl.bones, None]
-    prior = offsets.copy()
     sel = calibration_frames(position, confidence, frames=frames, min_confidence=min_confidence)
     obs = np.where((np.nan_to_num(confidence[sel]) > min_confidence)[..., None], position[sel], np.nan)
     conf = np.where(np.isfinite(obs[..., 0]), 1.0, 0.0)
+    solve = dict(min_confidence=0.5, temporal_weight=0.01, rest_weight=0.002, distal_rest_weight=0.02,
+                 max_iterations=50, min_reflectors=4)
+    refl_scale = scale[tmpl.bones]
+    if sel.size >= 3 and scale_rounds:
+        scale, refl_scale = fit_segment_scales(obs, tmpl, scale, rounds=scale_rounds, prior_m=scale_prior_m,
+                                               outlier_m=outlier_m, solve=solve)
+    offsets, refl = tmpl.offsets * scale[:, None], tmpl.reflector_offsets * refl_scale[:, None]
+    prior = offsets.copy()
     if sel.size < 3:
         return offsets, tmpl.bones, refl, scale, 0
     rng = np.random.default_rng(seed)
-    solve = dict(min_confidence=0.5, temporal_weight=0.01, rest_weight=0.002, distal_rest_weight=0.02,
-                 max_iterations=50, min_reflectors=4)
     for _ in range(iterations):
         for level in range(1, LEVELS.max() + 1):
             params, _, _ = solve_sequence(obs, conf, offsets, tmpl.bones, refl, **solve)

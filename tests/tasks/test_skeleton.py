@@ -14,9 +14,9 @@ from mocapflow.tasks.studio import body, motion, reflectors
 NAMES = list(reflectors.REFLECTOR_NAMES)
 
 
-def _recording(exercise, seed, n=90, noise=0.003):
+def _recording(exercise, seed, n=90, noise=0.003, subject=None):
     rng = np.random.default_rng(seed)
-    subject = body.random_subject(rng)
+    subject = subject or body.random_subject(rng)
     prims = body.surface(subject)
     placements = reflectors.place(prims, rng)
     m = motion.exercise(exercise, subject, n_frames=n)
@@ -40,6 +40,43 @@ def test_coarse_scale_follows_the_subject():
     scale = skeleton.coarse_scale(xyz[:30], NAMES, skeleton.template(NAMES))
     true = (subject.height / skeleton.TEMPLATE_HEIGHT) * np.mean([subject.arm_scale, subject.leg_scale])
     assert abs(scale[0] - true) < 0.05, (scale[0], true)
+
+
+def _bone_length_errors(scale, subject):
+    true = np.linalg.norm(body.rest_offsets(subject), axis=1)[1:]
+    fitted = np.linalg.norm(skeleton.template(NAMES).offsets * scale[:, None], axis=1)[1:]
+    return np.abs(fitted / true - 1)  # (joint - root,) relative
+
+
+@pytest.mark.parametrize("wild", [False, True])
+def test_segment_scales_follow_the_subjects_proportions(wild):
+    """Long arms, short legs, broad shoulders: the coarse scale (one number from the forearm and shin
+    straps) cannot follow them; the segment fit moves the bones towards them (each segment is pulled to
+    the common scale, so it goes part of the way), also when one reflector is 50 cm off in a few frames."""
+    subject = body.Subject(height=1.68, arm_scale=1.07, leg_scale=0.94, torso_scale=1.03, shoulder_scale=1.08)
+    _, xyz, _ = _recording("kick_box_kicking", seed=5, subject=subject)
+    if wild:
+        xyz[10:16, NAMES.index("L_CALF")] += [0.5, 0.0, 0.0]
+    tmpl = skeleton.template(NAMES)
+    coarse = skeleton.coarse_scale(xyz[:30], NAMES, tmpl)
+    solve = dict(min_confidence=0.5, temporal_weight=0.01, rest_weight=0.002, distal_rest_weight=0.02,
+                 max_iterations=50, min_reflectors=4)
+    scale, refl_scale = skeleton.fit_segment_scales(xyz[::2], tmpl, coarse, rounds=3, prior_m=3.0, outlier_m=0.03,
+                                                    solve=solve)
+    fitted, before = _bone_length_errors(scale, subject), _bone_length_errors(coarse, subject)
+    assert np.mean(fitted) < 0.8 * np.mean(before) and fitted.max() < 0.09, (fitted.round(3), before.round(3))
+    arm = [body.JOINT_NAMES.index(n) for n in ("LeftElbow", "LeftWrist")]
+    leg = [body.JOINT_NAMES.index(n) for n in ("LeftKnee", "LeftAnkle")]
+    assert scale[arm].min() > scale[leg].max()  # the arms came out longer than the legs, relative to the template
+    forearm = NAMES.index("L_WRIST")  # a strap scales with the segment it sits on
+    assert refl_scale[forearm] == scale[body.JOINT_NAMES.index("LeftWrist")]
+
+
+def test_skeleton_config_refuses_bad_scale_settings():
+    with pytest.raises(ValueError, match="scale_rounds"):
+        skeleton.SkeletonConfig(scale_rounds=-1)
+    with pytest.raises(ValueError, match="scale_prior_m"):
+        skeleton.SkeletonConfig(scale_prior_m=0.0)
 
 
 def test_calibrated_skeleton_places_the_joints():
