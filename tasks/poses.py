@@ -58,6 +58,11 @@ class PoseConfig:
     distal_rest_weight: float = 0.02  # the same for wrists and ankles (see DISTAL)
     max_iterations: int = 20  # Levenberg-Marquardt function evaluations per frame (the first frame gets 4x more)
     min_reflectors: int = 4  # fewer seen reflectors: the frame is not solved (NaN)
+    tolerance: float = 1e-4  # Levenberg-Marquardt stops at this relative change of the cost or of the step
+
+    def __post_init__(self):
+        if not 0 < self.tolerance < 1:
+            raise ValueError(f"tolerance must lie in (0, 1), e.g. 1e-4, got {self.tolerance}")
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -215,7 +220,7 @@ def _fit_jacobian(x: np.ndarray, posed: tuple[np.ndarray, np.ndarray], weights: 
 
 def solve_frame(observed: np.ndarray, weights: np.ndarray, start: np.ndarray, offsets: np.ndarray,
                 bones: np.ndarray, reflector_offsets: np.ndarray, *, temporal_weight: float, rest_weights: np.ndarray,
-                max_iterations: int) -> tuple[np.ndarray, float]:
+                max_iterations: int, tolerance: float) -> tuple[np.ndarray, float]:
     """Parameters fitting the seen reflectors of one frame, and the RMS reflector error.
 
     observed (seen, 3), weights (seen,), bones (seen,), reflector_offsets (seen, 3), start (40,), rest_weights (40,).
@@ -238,7 +243,8 @@ def solve_frame(observed: np.ndarray, weights: np.ndarray, start: np.ndarray, of
     def jac(x):
         return np.vstack([_fit_jacobian(x, posed(x), weights, bones, reflector_offsets), regular])
 
-    fit = least_squares(fun, start, jac=jac, method="lm", max_nfev=max_iterations, xtol=1e-6, ftol=1e-6)
+    fit = least_squares(fun, start, jac=jac, method="lm", max_nfev=max_iterations, xtol=tolerance,
+                        ftol=tolerance)
     err = reflector_positions(*posed(fit.x), bones, reflector_offsets)[0] - observed
     return fit.x, float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
 
@@ -246,7 +252,7 @@ def solve_frame(observed: np.ndarray, weights: np.ndarray, start: np.ndarray, of
 def solve_sequence(position: np.ndarray, confidence: np.ndarray, offsets: np.ndarray, bones: np.ndarray,
                    reflector_offsets: np.ndarray, *, min_confidence: float, temporal_weight: float,
                    rest_weight: float, distal_rest_weight: float, max_iterations: int,
-                   min_reflectors: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   min_reflectors: int, tolerance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Parameters of every frame, warm-started from the previous solved frame.
 
     position (frame, reflector, 3) NaN where missing, confidence (frame, reflector)
@@ -267,15 +273,16 @@ def solve_sequence(position: np.ndarray, confidence: np.ndarray, offsets: np.nda
         if start is None:  # first frame: from the rest pose, held near it first to avoid twisted minima
             start = initial_params(np.where(seen[:, None], position[i], np.nan), offsets, bones, reflector_offsets)
             start, _ = solve_frame(*frame, start, *rig, temporal_weight=0.0, rest_weights=10 * rest_weights,
-                                   max_iterations=4 * max_iterations)
+                                   max_iterations=4 * max_iterations, tolerance=tolerance)
         params[i], rms[i] = solve_frame(*frame, start, *rig, temporal_weight=temporal_weight,
-                                        rest_weights=rest_weights, max_iterations=max_iterations)
+                                        rest_weights=rest_weights, max_iterations=max_iterations, tolerance=tolerance)
         previous = params[i]
     return params, rms, used
 
 
 def solve_poses(skeleton: xr.Dataset, markers: xr.Dataset, *, min_confidence: float, temporal_weight: float,
-                rest_weight: float, distal_rest_weight: float, max_iterations: int, min_reflectors: int) -> xr.Dataset:
+                rest_weight: float, distal_rest_weight: float, max_iterations: int, min_reflectors: int,
+                tolerance: float) -> xr.Dataset:
     """`poses` stage: joint world positions and local rotations of every frame of a sequence."""
     names = [str(n) for n in markers["reflector"].values]
     skel = skeleton.sel(reflector=names)
@@ -285,7 +292,7 @@ def solve_poses(skeleton: xr.Dataset, markers: xr.Dataset, *, min_confidence: fl
         skel["bone"].values.astype(int), skel["reflector_offset"].values.astype(np.float64),
         min_confidence=min_confidence, temporal_weight=temporal_weight, rest_weight=rest_weight,
         distal_rest_weight=distal_rest_weight, max_iterations=max_iterations,
-        min_reflectors=min_reflectors)
+        min_reflectors=min_reflectors, tolerance=tolerance)
     solved = np.isfinite(params).all(1)
     local = local_rotations(np.nan_to_num(params))  # (frame, joint, 3, 3)
     _, pos = forward_kinematics(np.nan_to_num(params), offsets)

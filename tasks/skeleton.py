@@ -286,7 +286,7 @@ def calibrate(position: np.ndarray, confidence: np.ndarray, names: list[str], *,
     obs = np.where((np.nan_to_num(confidence[sel]) > min_confidence)[..., None], position[sel], np.nan)
     conf = np.where(np.isfinite(obs[..., 0]), 1.0, 0.0)
     solve = dict(min_confidence=0.5, temporal_weight=0.01, rest_weight=0.002, distal_rest_weight=0.02,
-                 max_iterations=50, min_reflectors=4)
+                 max_iterations=50, min_reflectors=4, tolerance=1e-6)
     refl_scale = scale[tmpl.bones]
     if sel.size >= 3 and scale_rounds:
         scale, refl_scale = fit_segment_scales(obs, tmpl, scale, rounds=scale_rounds, prior_m=scale_prior_m,

@@ -4,6 +4,7 @@ stable with 30 % of the reflectors missing, and bone lengths never change."""
 from dataclasses import asdict
 
 import numpy as np
+import pytest
 import xarray as xr
 
 from mocapflow.tasks import poses
@@ -140,3 +141,9 @@ def test_one_pull_row_per_parameter_is_the_two_pulls_up_to_a_constant():
 
     gaps = [both(x) - np.sum((w * (x[rows] - target)) ** 2) for x in rng.normal(0, 1.0, (4, N_DOF))]
     np.testing.assert_allclose(gaps, gaps[0], rtol=0, atol=1e-12)
+
+
+def test_pose_config_refuses_a_tolerance_outside_0_1():
+    for bad in (0.0, -1e-4, 1.0):
+        with pytest.raises(ValueError, match="tolerance"):
+            poses.PoseConfig(tolerance=bad)

@@ -60,7 +60,7 @@ def test_segment_scales_follow_the_subjects_proportions(wild):
     tmpl = skeleton.template(NAMES)
     coarse = skeleton.coarse_scale(xyz[:30], NAMES, tmpl)
     solve = dict(min_confidence=0.5, temporal_weight=0.01, rest_weight=0.002, distal_rest_weight=0.02,
-                 max_iterations=50, min_reflectors=4)
+                 max_iterations=50, min_reflectors=4, tolerance=1e-6)
     scale, refl_scale = skeleton.fit_segment_scales(xyz[::2], tmpl, coarse, rounds=3, prior_m=3.0, outlier_m=0.03,
                                                     solve=solve)
     fitted, before = _bone_length_errors(scale, subject), _bone_length_errors(coarse, subject)
