@@ -31,7 +31,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import xarray as xr
-
 from scipy.optimize import least_squares
 
 from mocapflow.tasks.poses import forward_kinematics, rest_pose_reflectors, solve_sequence
@@ -95,7 +94,7 @@ class SkeletonConfig:
         if self.scale_rounds < 0:
             raise ValueError(f"scale_rounds must be >= 0 (0 keeps the coarse scale), got {self.scale_rounds}")
         if not self.scale_prior_m > 0:
-            raise ValueError(f"scale_prior_m must be > 0 metres (e.g. 0.3), got {self.scale_prior_m}")
+            raise ValueError(f"scale_prior_m must be > 0 metres (e.g. 3.0), got {self.scale_prior_m}")
 
 
 def template(names: list[str]) -> Template:
@@ -212,7 +211,7 @@ def fit_segment_scales(obs: np.ndarray, tmpl: Template, scale: np.ndarray, *, ro
         x0 = np.concatenate([s, [np.median(s)], params[ok][:, :3].reshape(-1)])
         x = _robust_linear(np.vstack([a.reshape(3 * m, -1), prior]),
                            np.concatenate([obs[ok][seen[ok]].reshape(-1), np.zeros(n_g)]), x0, outlier_m)
-        s = np.clip(x[:n_g], 0.7 * np.median(s), 1.3 * np.median(s))
+        s = np.clip(x[:n_g], 0.7 * np.median(s), 1.3 * np.median(s))  # a degenerate fit cannot run off
     return s[joint_group], s[refl_group]
 
 
@@ -274,10 +273,10 @@ def calibrate(position: np.ndarray, confidence: np.ndarray, names: list[str], *,
               particles: int, spread_m: float, rounds: int, min_confidence: float, prior_weight: float, outlier_m: float,
               iterations: int, scale_rounds: int, scale_prior_m: float,
               seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
-    """Joint offsets, reflector bones and offsets, and the coarse scale of one sequence's optical data.
+    """Joint offsets, reflector bones and offsets, and the template scale of one sequence's optical data.
 
     position (frame, reflector, 3) NaN where missing, confidence (frame, reflector)
-    -> offsets (joint, 3), bones (reflector,), reflector offsets (reflector, 3), coarse scale (joint,),
+    -> offsets (joint, 3), bones (reflector,), reflector offsets (reflector, 3), template scale per joint (joint,),
        frames used (0: too few well-observed frames, the scaled template is returned)
     """
     tmpl = template(names)
