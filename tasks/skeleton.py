@@ -27,13 +27,13 @@ Calibration of one sequence:
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 import xarray as xr
 from scipy.optimize import least_squares
 
-from mocapflow.tasks.poses import forward_kinematics, rest_pose_reflectors, solve_sequence
+from mocapflow.tasks.poses import PoseConfig, forward_kinematics, rest_pose_reflectors, solve_sequence
 from mocapflow.tasks.studio.body import JOINT_NAMES, LEVELS, PARENTS, Subject, rest_offsets, surface
 from mocapflow.tasks.studio.reflectors import place
 
@@ -60,6 +60,11 @@ SEGMENTS: dict[str, str] = {"Hips": "trunk", "SpineBase": "trunk", "Neck": "trun
                             "Shoulder": "shoulders", "Elbow": "upper_arm", "Wrist": "forearm", "Hand": "hand",
                             "Hip": "pelvis", "Knee": "thigh", "Ankle": "shank", "Foot": "foot"}
 _CARRIED_BY = {"Hips": "pelvis", "Neck": "shoulders", "Head": "trunk"}  # bones with several (or no) child segments
+
+# The calibration's own pose solves: only confident data, more evaluations and a tighter stop than the
+# `poses` stage, since every solve moves the skeleton that the next one starts from.
+CALIBRATION_SOLVE = PoseConfig(min_confidence=0.5, temporal_weight=0.01, rest_weight=0.002, distal_rest_weight=0.02,
+                               max_iterations=50, min_reflectors=4, tolerance=1e-6)
 
 # straps on one limb segment: their distance depends on the limb's length only (patches sit on the
 # surface, so their distances also follow girth and placement, which vary far more between subjects)
@@ -150,7 +155,8 @@ def segment_groups(bones: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]
     names = sorted(set(SEGMENTS.values()))
     kind = [n.removeprefix("Left").removeprefix("Right") for n in JOINT_NAMES]
     joint_group = np.array([names.index(SEGMENTS[k]) for k in kind])
-    child = {p: j for j, p in enumerate(PARENTS) if p >= 0 and list(PARENTS).count(p) == 1}
+    children = np.bincount(PARENTS[PARENTS >= 0], minlength=len(PARENTS))
+    child = {p: j for j, p in enumerate(PARENTS) if p >= 0 and children[p] == 1}
     bone_group = np.array([names.index(_CARRIED_BY[kind[j]]) if kind[j] in _CARRIED_BY else joint_group[child.get(j, j)]
                            for j in range(len(JOINT_NAMES))])
     return joint_group, bone_group[bones], names
@@ -177,7 +183,7 @@ def _robust_linear(a: np.ndarray, b: np.ndarray, x0: np.ndarray, f_scale: float)
 
 
 def fit_segment_scales(obs: np.ndarray, tmpl: Template, scale: np.ndarray, *, rounds: int, prior_m: float,
-                       outlier_m: float, solve: dict) -> tuple[np.ndarray, np.ndarray]:
+                       outlier_m: float) -> tuple[np.ndarray, np.ndarray]:
     """Per-segment scales of the template that best carry its reflectors onto the optical data.
 
     Alternates a pose solve on the current scales with a linear fit of the scales and each frame's root
@@ -195,7 +201,7 @@ def fit_segment_scales(obs: np.ndarray, tmpl: Template, scale: np.ndarray, *, ro
     seen = np.isfinite(obs).all(2)  # (frame, reflector)
     for _ in range(rounds):
         params, _, _ = solve_sequence(obs, seen.astype(float), tmpl.offsets * s[joint_group][:, None], tmpl.bones,
-                                      tmpl.reflector_offsets * s[refl_group][:, None], **solve)
+                                      tmpl.reflector_offsets * s[refl_group][:, None], **asdict(CALIBRATION_SOLVE))
         ok = np.isfinite(params).all(1)
         if ok.sum() < 3:
             break
@@ -284,12 +290,11 @@ def calibrate(position: np.ndarray, confidence: np.ndarray, names: list[str], *,
     sel = calibration_frames(position, confidence, frames=frames, min_confidence=min_confidence)
     obs = np.where((np.nan_to_num(confidence[sel]) > min_confidence)[..., None], position[sel], np.nan)
     conf = np.where(np.isfinite(obs[..., 0]), 1.0, 0.0)
-    solve = dict(min_confidence=0.5, temporal_weight=0.01, rest_weight=0.002, distal_rest_weight=0.02,
-                 max_iterations=50, min_reflectors=4, tolerance=1e-6)
+    solve = asdict(CALIBRATION_SOLVE)
     refl_scale = scale[tmpl.bones]
     if sel.size >= 3 and scale_rounds:
         scale, refl_scale = fit_segment_scales(obs, tmpl, scale, rounds=scale_rounds, prior_m=scale_prior_m,
-                                               outlier_m=outlier_m, solve=solve)
+                                               outlier_m=outlier_m)
     offsets, refl = tmpl.offsets * scale[:, None], tmpl.reflector_offsets * refl_scale[:, None]
     prior = offsets.copy()
     if sel.size < 3:

@@ -59,10 +59,7 @@ def test_segment_scales_follow_the_subjects_proportions(wild):
         xyz[10:16, NAMES.index("L_CALF")] += [0.5, 0.0, 0.0]
     tmpl = skeleton.template(NAMES)
     coarse = skeleton.coarse_scale(xyz[:30], NAMES, tmpl)
-    solve = dict(min_confidence=0.5, temporal_weight=0.01, rest_weight=0.002, distal_rest_weight=0.02,
-                 max_iterations=50, min_reflectors=4, tolerance=1e-6)
-    scale, refl_scale = skeleton.fit_segment_scales(xyz[::2], tmpl, coarse, rounds=3, prior_m=3.0, outlier_m=0.03,
-                                                    solve=solve)
+    scale, refl_scale = skeleton.fit_segment_scales(xyz[::2], tmpl, coarse, rounds=3, prior_m=3.0, outlier_m=0.03)
     fitted, before = _bone_length_errors(scale, subject), _bone_length_errors(coarse, subject)
     assert np.mean(fitted) < 0.8 * np.mean(before) and fitted.max() < 0.09, (fitted.round(3), before.round(3))
     arm = [body.JOINT_NAMES.index(n) for n in ("LeftElbow", "LeftWrist")]
