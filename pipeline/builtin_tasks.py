@@ -95,7 +95,7 @@ register(TaskSpec(
                 "reflector offsets per bone",
 ))
 register(TaskSpec(
-    name="solve_poses", fn=poses.solve_poses, version="4", params=poses.PoseConfig, output="poses",
+    name="solve_poses", fn=poses.solve_poses, version="5", params=poses.PoseConfig, output="poses",
     partition="sequence", inputs={"skeleton": "skeleton", "markers": "smoothed_markers"}, whole_sequence=True,
     description="40-DoF least squares per frame against the calibrated reflector offsets, warm-started",
 ))

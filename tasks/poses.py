@@ -10,6 +10,13 @@ Each frame is a nonlinear least-squares problem (scipy ``least_squares``, Levenb
 residuals are the confidence-weighted reflector errors of the reflectors seen in that frame, plus
 a small pull towards the previous frame's parameters, so a joint whose reflectors are all missing
 keeps its last rotation instead of drifting. Frames are warm-started from the previous solution.
+
+Order and gate: the solve starts at an anchor frame, the first that sees nearly every reflector and
+whose reflectors sharing a bone lie at their calibrated distances (a take may open with wrong labels),
+runs forward to the end, then backward from the anchor to the first frame. Each later frame leaves out
+the reflectors that lie more than ``gate_m`` from where the last two solved frames' motion (constant
+velocity) puts them: a label that jumps to another limb, or a limb that reappears under the wrong label,
+does not pull the skeleton there; the limb holds its predicted rotation until its reflectors come back.
 The Jacobian is analytic: a rotation-vector step dθ of joint j turns everything below j about the
 joint by ω = W_j J_r(θ_j) dθ (W_j the joint's world rotation, J_r the right Jacobian of SO(3)), so a
 reflector at p moves by ω × (p − o_j).
@@ -59,10 +66,16 @@ class PoseConfig:
     max_iterations: int = 20  # Levenberg-Marquardt function evaluations per frame (the first frame gets 4x more)
     min_reflectors: int = 4  # fewer seen reflectors: the frame is not solved (NaN)
     tolerance: float = 1e-4  # Levenberg-Marquardt stops at this relative change of the cost or of the step
+    gate_m: float = 0.25  # a reflector this far from where the last two solved frames' motion puts it is left out; 0: off
+    anchor_tolerance_m: float = 0.05  # start from the first frame whose same-bone reflectors agree this well; 0: frame 0
 
     def __post_init__(self):
         if not 0 < self.tolerance < 1:
             raise ValueError(f"tolerance must lie in (0, 1), e.g. 1e-4, got {self.tolerance}")
+        for name in ("gate_m", "anchor_tolerance_m"):
+            value = getattr(self, name)
+            if not 0 <= value < 10:
+                raise ValueError(f"{name} must lie in [0, 10) metres (0 turns it off), e.g. 0.25, got {value}")
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -249,40 +262,97 @@ def solve_frame(observed: np.ndarray, weights: np.ndarray, start: np.ndarray, of
     return fit.x, float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
 
 
+ANCHOR_MISSING = 2  # an anchor frame may miss this many more reflectors than the best-seen frame
+
+
+def anchor_frame(position: np.ndarray, seen: np.ndarray, bones: np.ndarray, reflector_offsets: np.ndarray, *,
+                 tolerance_m: float, min_reflectors: int) -> int:
+    """The frame the solve starts from: the first that sees at least all but ``ANCHOR_MISSING`` of the
+    best-seen frame's reflectors, and whose reflectors on a common bone lie within ``tolerance_m`` of their
+    calibrated distance; 0 where none does or ``tolerance_m`` is 0.
+
+    position (frame, reflector, 3), seen (frame, reflector) bool, bones (reflector,), reflector_offsets (reflector, 3)
+    """
+    count = seen.sum(1)  # (frame,)
+    if tolerance_m <= 0 or count.max() < min_reflectors:
+        return 0
+    a, b = np.nonzero(np.triu(bones[:, None] == bones[None], k=1))  # (pair,) reflectors sharing a bone
+    calibrated = np.linalg.norm(reflector_offsets[a] - reflector_offsets[b], axis=-1)  # (pair,)
+    both = seen[:, a] & seen[:, b]  # (frame, pair)
+    measured = np.linalg.norm(position[:, a] - position[:, b], axis=-1)  # (frame, pair)
+    broken = (both & ~(np.abs(measured - calibrated) <= tolerance_m)).any(1)  # (frame,)
+    ok = ~broken & (count >= max(count.max() - ANCHOR_MISSING, min_reflectors))
+    return int(np.argmax(ok)) if ok.any() else 0
+
+
+def gate(position: np.ndarray, seen: np.ndarray, last: np.ndarray, before: np.ndarray | None, offsets: np.ndarray,
+         bones: np.ndarray, reflector_offsets: np.ndarray, *, gate_m: float, min_reflectors: int) -> np.ndarray:
+    """``seen`` less the reflectors farther than ``gate_m`` from their constant-velocity prediction (the last
+    solved parameters plus their last step); unchanged where that would leave fewer than ``min_reflectors``.
+
+    position (reflector, 3), seen (reflector,) bool, last and before (40,) -> (reflector,) bool
+    """
+    if gate_m <= 0:
+        return seen
+    predicted = last if before is None else 2 * last - before  # (40,)
+    rot, pos = forward_kinematics(predicted[None], offsets)
+    expected = reflector_positions(rot, pos, bones, reflector_offsets)[0]  # (reflector, 3)
+    near = np.linalg.norm(position - expected, axis=1) <= gate_m  # NaN (unseen) compares False
+    kept = seen & near
+    return kept if kept.sum() >= min_reflectors else seen
+
+
 def solve_sequence(position: np.ndarray, confidence: np.ndarray, offsets: np.ndarray, bones: np.ndarray,
                    reflector_offsets: np.ndarray, *, min_confidence: float, temporal_weight: float,
                    rest_weight: float, distal_rest_weight: float, max_iterations: int,
-                   min_reflectors: int, tolerance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Parameters of every frame, warm-started from the previous solved frame.
+                   min_reflectors: int, tolerance: float, gate_m: float,
+                   anchor_tolerance_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Parameters of every frame: from the anchor frame forward, then from it backward, each frame warm-started
+    from the one solved before it.
 
     position (frame, reflector, 3) NaN where missing, confidence (frame, reflector)
     -> params (frame, 40) NaN where unsolved, rms error (frame,), reflectors used (frame,)
     """
     n = position.shape[0]
     params, rms, used = np.full((n, N_DOF), np.nan), np.full(n, np.nan), np.zeros(n, np.int16)
-    previous = None
     rest_weights = np.where(DISTAL, distal_rest_weight, rest_weight)
-    for i in range(n):
-        seen = np.isfinite(position[i]).all(1) & (np.nan_to_num(confidence[i]) >= min_confidence)
-        used[i] = seen.sum()
-        if used[i] < min_reflectors:
+    seen_all = np.isfinite(position).all(2) & (np.nan_to_num(confidence) >= min_confidence)  # (frame, reflector)
+    anchor = anchor_frame(position, seen_all, bones, reflector_offsets, tolerance_m=anchor_tolerance_m,
+                          min_reflectors=min_reflectors)
+    last = before = None  # the two frames solved last, in solving order
+    for i in [*range(anchor, n), *range(anchor - 1, -1, -1)]:
+        if i == anchor - 1:  # turn back: continue from the anchor's side
+            last, before = _solved(params, anchor), _solved(params, anchor + 1)
+            if last is None:
+                before = None
+        seen = seen_all[i]
+        if seen.sum() < min_reflectors:
             continue
+        if last is not None:
+            seen = gate(position[i], seen, last, before, offsets, bones, reflector_offsets, gate_m=gate_m,
+                        min_reflectors=min_reflectors)
+        used[i] = seen.sum()
         frame = (position[i, seen], np.sqrt(np.clip(confidence[i, seen], 0.0, 1.0)))
         rig = (offsets, bones[seen], reflector_offsets[seen])
-        start = previous
+        start = last
         if start is None:  # first frame: from the rest pose, held near it first to avoid twisted minima
             start = initial_params(np.where(seen[:, None], position[i], np.nan), offsets, bones, reflector_offsets)
             start, _ = solve_frame(*frame, start, *rig, temporal_weight=0.0, rest_weights=10 * rest_weights,
                                    max_iterations=4 * max_iterations, tolerance=tolerance)
         params[i], rms[i] = solve_frame(*frame, start, *rig, temporal_weight=temporal_weight,
                                         rest_weights=rest_weights, max_iterations=max_iterations, tolerance=tolerance)
-        previous = params[i]
+        last, before = params[i], last
     return params, rms, used
+
+
+def _solved(params: np.ndarray, i: int) -> np.ndarray | None:
+    """Frame i's parameters where it exists and was solved.  (frame, 40) -> (40,) or None"""
+    return params[i] if 0 <= i < len(params) and np.isfinite(params[i]).all() else None
 
 
 def solve_poses(skeleton: xr.Dataset, markers: xr.Dataset, *, min_confidence: float, temporal_weight: float,
                 rest_weight: float, distal_rest_weight: float, max_iterations: int, min_reflectors: int,
-                tolerance: float) -> xr.Dataset:
+                tolerance: float, gate_m: float, anchor_tolerance_m: float) -> xr.Dataset:
     """`poses` stage: joint world positions and local rotations of every frame of a sequence."""
     names = [str(n) for n in markers["reflector"].values]
     skel = skeleton.sel(reflector=names)
@@ -292,7 +362,7 @@ def solve_poses(skeleton: xr.Dataset, markers: xr.Dataset, *, min_confidence: fl
         skel["bone"].values.astype(int), skel["reflector_offset"].values.astype(np.float64),
         min_confidence=min_confidence, temporal_weight=temporal_weight, rest_weight=rest_weight,
         distal_rest_weight=distal_rest_weight, max_iterations=max_iterations,
-        min_reflectors=min_reflectors, tolerance=tolerance)
+        min_reflectors=min_reflectors, tolerance=tolerance, gate_m=gate_m, anchor_tolerance_m=anchor_tolerance_m)
     solved = np.isfinite(params).all(1)
     local = local_rotations(np.nan_to_num(params))  # (frame, joint, 3, 3)
     _, pos = forward_kinematics(np.nan_to_num(params), offsets)
