@@ -147,3 +147,68 @@ def test_pose_config_refuses_a_tolerance_outside_0_1():
     for bad in (0.0, -1e-4, 1.0):
         with pytest.raises(ValueError, match="tolerance"):
             poses.PoseConfig(tolerance=bad)
+
+
+def _exercise(name, seed, n_frames=40):
+    """True joint positions and noise-free reflectors of one exercise, with the rig."""
+    subject, offsets, bones, refl = _rig(seed=seed)
+    m = motion.exercise(name, subject, n_frames=n_frames)
+    rot, pos = body.forward_kinematics(m.local_rot, m.root_pos, offsets)
+    return pos, reflector_positions(rot, pos, bones, refl), offsets, bones, refl
+
+
+def _joint_error(params, offsets, pos, joints, frames):
+    _, solved = forward_kinematics(params, offsets)
+    idx = [body.JOINT_INDEX[j] for j in joints]
+    return np.linalg.norm(solved[frames][:, idx] - pos[frames][:, idx], axis=-1)
+
+
+def test_a_take_that_opens_with_wrong_leg_labels_is_solved_from_its_first_consistent_frame():
+    pos, xyz, offsets, bones, refl = _exercise("knee_flexion", seed=11)
+    names = list(reflectors.REFLECTOR_NAMES)
+    wrong = xyz.copy()
+    for part in ("CALF", "ANKLE", "FOOT"):  # frames 0-7: the right leg's labels on the left leg's straps
+        wrong[:8, names.index(f"R_{part}")] = xyz[:8, names.index(f"L_{part}")]
+    wrong[:8, names.index("L_ANKLE")] = xyz[:8, names.index("L_PELVIS")] + [0.0, 0.1, 0.0]  # and a wild left ankle
+    seen = np.ones(xyz.shape[:2], bool)
+    assert poses.anchor_frame(wrong, seen, bones, refl, tolerance_m=0.05, min_reflectors=4) == 8
+    assert poses.anchor_frame(xyz, seen, bones, refl, tolerance_m=0.05, min_reflectors=4) == 0
+    assert poses.anchor_frame(wrong, seen, bones, refl, tolerance_m=0.0, min_reflectors=4) == 0  # off
+
+    conf = np.ones(xyz.shape[:2])
+    legs, opening = ("LeftKnee", "LeftAnkle", "RightKnee", "RightAnkle", "RightFoot"), slice(0, 8)
+    config = asdict(poses.PoseConfig())
+    shipped = _joint_error(poses.solve_sequence(wrong, conf, offsets, bones, refl, **config)[0], offsets, pos, legs,
+                           opening)
+    in_order = _joint_error(poses.solve_sequence(wrong, conf, offsets, bones, refl,
+                                                 **{**config, "anchor_tolerance_m": 0.0})[0], offsets, pos, legs, opening)
+    assert shipped.mean() < 0.06 and in_order.mean() > 2 * shipped.mean(), (shipped.mean(), in_order.mean())
+    rest = _joint_error(poses.solve_sequence(wrong, conf, offsets, bones, refl, **config)[0], offsets, pos, legs,
+                        slice(8, None))
+    assert np.median(rest) < 0.01  # from the anchor on, the true labels are followed
+
+
+def test_a_label_that_jumps_to_the_other_limb_is_left_out():
+    pos, xyz, offsets, bones, refl = _exercise("elbow_flexion", seed=13)
+    names = list(reflectors.REFLECTOR_NAMES)
+    wrong, removed = xyz.copy(), xyz.copy()
+    for part in ("ELBOW", "WRIST", "HAND"):  # frames 20-23: the right arm's labels on the left arm
+        wrong[20:24, names.index(f"R_{part}")] = xyz[20:24, names.index(f"L_{part}")]
+        removed[20:24, names.index(f"R_{part}")] = np.nan
+    conf = np.ones(xyz.shape[:2])
+    config = asdict(poses.PoseConfig())
+    gated, _, used = poses.solve_sequence(wrong, conf, offsets, bones, refl, **config)
+    assert (used[20:24] == 23).all() and (used[24:] >= 25).all()  # left out while they jump, taken back after
+    np.testing.assert_allclose(gated, poses.solve_sequence(removed, conf, offsets, bones, refl, **config)[0], atol=1e-9)
+    ungated = poses.solve_sequence(wrong, conf, offsets, bones, refl, **{**config, "gate_m": 0.0})[0]
+    arm, jump = ("RightElbow", "RightWrist", "RightHand"), slice(20, 24)
+    e_gated, e_ungated = (_joint_error(p, offsets, pos, arm, jump).mean() for p in (gated, ungated))
+    assert e_ungated > 4 * e_gated, (e_gated, e_ungated)  # pulled to the other arm without the gate
+    clean, _, used = poses.solve_sequence(xyz, conf, offsets, bones, refl, **config)
+    assert (used == 26).all() and _joint_error(clean, offsets, pos, arm, slice(None)).max() < 0.04  # true motion passes
+
+
+@pytest.mark.parametrize("field,bad", [("gate_m", -0.1), ("gate_m", 25.0), ("anchor_tolerance_m", -1.0)])
+def test_bad_gate_and_anchor_settings_are_refused(field, bad):
+    with pytest.raises(ValueError, match=field):
+        poses.PoseConfig(**{field: bad})
