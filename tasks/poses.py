@@ -287,16 +287,17 @@ def anchor_frame(position: np.ndarray, seen: np.ndarray, bones: np.ndarray, refl
 
 def gate(position: np.ndarray, seen: np.ndarray, last: np.ndarray, before: np.ndarray | None, offsets: np.ndarray,
          bones: np.ndarray, reflector_offsets: np.ndarray, *, gate_m: float, min_reflectors: int) -> np.ndarray:
-    """``seen`` less the reflectors farther than ``gate_m`` from their constant-velocity prediction (the last
-    solved parameters plus their last step); unchanged where that would leave fewer than ``min_reflectors``.
+    """``seen`` less the reflectors farther than ``gate_m`` from their constant-velocity prediction (where the
+    last solved frame puts them plus their last step; extrapolated in space, not in the parameters, whose
+    limb twists may trade off between frames); unchanged where that would leave fewer than ``min_reflectors``.
 
     position (reflector, 3), seen (reflector,) bool, last and before (40,) -> (reflector,) bool
     """
     if gate_m <= 0:
         return seen
-    predicted = last if before is None else 2 * last - before  # (40,)
-    rot, pos = forward_kinematics(predicted[None], offsets)
-    expected = reflector_positions(rot, pos, bones, reflector_offsets)[0]  # (reflector, 3)
+    rot, pos = forward_kinematics(np.stack([last] if before is None else [last, before]), offsets)
+    placed = reflector_positions(rot, pos, bones, reflector_offsets)  # (1 or 2, reflector, 3)
+    expected = placed[0] if before is None else 2 * placed[0] - placed[1]  # (reflector, 3)
     near = np.linalg.norm(position - expected, axis=1) <= gate_m  # NaN (unseen) compares False
     kept = seen & near
     return kept if kept.sum() >= min_reflectors else seen
