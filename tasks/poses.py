@@ -15,8 +15,9 @@ Order and gate: the solve starts at an anchor frame, the first that sees nearly 
 whose reflectors sharing a bone lie at their calibrated distances (a take may open with wrong labels),
 runs forward to the end, then backward from the anchor to the first frame. Each later frame leaves out
 the reflectors that lie more than ``gate_m`` from where the last two solved frames' motion (constant
-velocity) puts them: a label that jumps to another limb, or a limb that reappears under the wrong label,
-does not pull the skeleton there; the limb holds its predicted rotation until its reflectors come back.
+velocity) puts them, or that lie more than ``margin_m`` nearer another reflector's prediction than
+their own: a label that jumps to another limb or to a neighbouring strap, or a limb that reappears under
+the wrong label, does not pull the skeleton there; the limb holds its rotation until its reflectors come back.
 The Jacobian is analytic: a rotation-vector step dθ of joint j turns everything below j about the
 joint by ω = W_j J_r(θ_j) dθ (W_j the joint's world rotation, J_r the right Jacobian of SO(3)), so a
 reflector at p moves by ω × (p − o_j).
@@ -68,11 +69,12 @@ class PoseConfig:
     tolerance: float = 1e-4  # Levenberg-Marquardt stops at this relative change of the cost or of the step
     gate_m: float = 0.25  # a reflector this far from where the last two solved frames' motion puts it is left out; 0: off
     anchor_tolerance_m: float = 0.05  # start from the first frame whose same-bone reflectors agree this well; 0: frame 0
+    margin_m: float = 0.05  # a reflector this much nearer another reflector's prediction than its own is left out; 0: off
 
     def __post_init__(self):
         if not 0 < self.tolerance < 1:
             raise ValueError(f"tolerance must lie in (0, 1), e.g. 1e-4, got {self.tolerance}")
-        for name in ("gate_m", "anchor_tolerance_m"):
+        for name in ("gate_m", "anchor_tolerance_m", "margin_m"):
             value = getattr(self, name)
             if not 0 <= value < 10:
                 raise ValueError(f"{name} must lie in [0, 10) metres (0 turns it off), e.g. 0.25, got {value}")
@@ -286,28 +288,37 @@ def anchor_frame(position: np.ndarray, seen: np.ndarray, bones: np.ndarray, refl
 
 
 def gate(position: np.ndarray, seen: np.ndarray, last: np.ndarray, before: np.ndarray | None, offsets: np.ndarray,
-         bones: np.ndarray, reflector_offsets: np.ndarray, *, gate_m: float, min_reflectors: int) -> np.ndarray:
-    """``seen`` less the reflectors farther than ``gate_m`` from their constant-velocity prediction (where the
-    last solved frame puts them plus their last step; extrapolated in space, not in the parameters, whose
-    limb twists may trade off between frames); unchanged where that would leave fewer than ``min_reflectors``.
+         bones: np.ndarray, reflector_offsets: np.ndarray, *, gate_m: float, margin_m: float,
+         min_reflectors: int) -> np.ndarray:
+    """``seen`` less the reflectors whose measurement lies farther than ``gate_m`` from their constant-velocity
+    prediction, or more than ``margin_m`` nearer another reflector's prediction than their own (a label on a
+    neighbouring strap, or on the other limb's); unchanged where that would leave fewer than ``min_reflectors``.
+    Predictions are where the last solved frame puts the reflectors plus their last step, extrapolated in
+    space, not in the parameters, whose limb twists may trade off between frames.
 
     position (reflector, 3), seen (reflector,) bool, last and before (40,) -> (reflector,) bool
     """
-    if gate_m <= 0:
+    if gate_m <= 0 and margin_m <= 0:
         return seen
     rot, pos = forward_kinematics(np.stack([last] if before is None else [last, before]), offsets)
     placed = reflector_positions(rot, pos, bones, reflector_offsets)  # (1 or 2, reflector, 3)
     expected = placed[0] if before is None else 2 * placed[0] - placed[1]  # (reflector, 3)
-    near = np.linalg.norm(position - expected, axis=1) <= gate_m  # NaN (unseen) compares False
-    kept = seen & near
+    distance = np.linalg.norm(position[:, None] - expected[None], axis=-1)  # (measured, predicted), NaN rows unseen
+    own = np.diagonal(distance)  # (reflector,)
+    kept = seen.copy()
+    if gate_m > 0:
+        kept &= own <= gate_m
+    if margin_m > 0:
+        other = np.where(np.eye(len(own), dtype=bool), np.inf, distance).min(axis=1)  # nearest other prediction
+        kept &= ~(own - other > margin_m)
     return kept if kept.sum() >= min_reflectors else seen
 
 
 def solve_sequence(position: np.ndarray, confidence: np.ndarray, offsets: np.ndarray, bones: np.ndarray,
                    reflector_offsets: np.ndarray, *, min_confidence: float, temporal_weight: float,
                    rest_weight: float, distal_rest_weight: float, max_iterations: int,
-                   min_reflectors: int, tolerance: float, gate_m: float,
-                   anchor_tolerance_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   min_reflectors: int, tolerance: float, gate_m: float, anchor_tolerance_m: float,
+                   margin_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Parameters of every frame: from the anchor frame forward, then from it backward, each frame warm-started
     from the one solved before it.
 
@@ -331,7 +342,7 @@ def solve_sequence(position: np.ndarray, confidence: np.ndarray, offsets: np.nda
             continue
         if last is not None:
             seen = gate(position[i], seen, last, before, offsets, bones, reflector_offsets, gate_m=gate_m,
-                        min_reflectors=min_reflectors)
+                        margin_m=margin_m, min_reflectors=min_reflectors)
         used[i] = seen.sum()
         frame = (position[i, seen], np.sqrt(np.clip(confidence[i, seen], 0.0, 1.0)))
         rig = (offsets, bones[seen], reflector_offsets[seen])
@@ -353,7 +364,7 @@ def _solved(params: np.ndarray, i: int) -> np.ndarray | None:
 
 def solve_poses(skeleton: xr.Dataset, markers: xr.Dataset, *, min_confidence: float, temporal_weight: float,
                 rest_weight: float, distal_rest_weight: float, max_iterations: int, min_reflectors: int,
-                tolerance: float, gate_m: float, anchor_tolerance_m: float) -> xr.Dataset:
+                tolerance: float, gate_m: float, anchor_tolerance_m: float, margin_m: float) -> xr.Dataset:
     """`poses` stage: joint world positions and local rotations of every frame of a sequence."""
     names = [str(n) for n in markers["reflector"].values]
     skel = skeleton.sel(reflector=names)
@@ -363,7 +374,8 @@ def solve_poses(skeleton: xr.Dataset, markers: xr.Dataset, *, min_confidence: fl
         skel["bone"].values.astype(int), skel["reflector_offset"].values.astype(np.float64),
         min_confidence=min_confidence, temporal_weight=temporal_weight, rest_weight=rest_weight,
         distal_rest_weight=distal_rest_weight, max_iterations=max_iterations,
-        min_reflectors=min_reflectors, tolerance=tolerance, gate_m=gate_m, anchor_tolerance_m=anchor_tolerance_m)
+        min_reflectors=min_reflectors, tolerance=tolerance, gate_m=gate_m, anchor_tolerance_m=anchor_tolerance_m,
+        margin_m=margin_m)
     solved = np.isfinite(params).all(1)
     local = local_rotations(np.nan_to_num(params))  # (frame, joint, 3, 3)
     _, pos = forward_kinematics(np.nan_to_num(params), offsets)

@@ -200,7 +200,7 @@ def test_a_label_that_jumps_to_the_other_limb_is_left_out():
     gated, _, used = poses.solve_sequence(wrong, conf, offsets, bones, refl, **config)
     assert (used[20:24] == 23).all() and (used[24:] >= 25).all()  # left out while they jump, taken back after
     np.testing.assert_allclose(gated, poses.solve_sequence(removed, conf, offsets, bones, refl, **config)[0], atol=1e-9)
-    ungated = poses.solve_sequence(wrong, conf, offsets, bones, refl, **{**config, "gate_m": 0.0})[0]
+    ungated = poses.solve_sequence(wrong, conf, offsets, bones, refl, **{**config, "gate_m": 0.0, "margin_m": 0.0})[0]
     arm, jump = ("RightElbow", "RightWrist", "RightHand"), slice(20, 24)
     e_gated, e_ungated = (_joint_error(p, offsets, pos, arm, jump).mean() for p in (gated, ungated))
     assert e_ungated > 4 * e_gated, (e_gated, e_ungated)  # pulled to the other arm without the gate
@@ -208,7 +208,25 @@ def test_a_label_that_jumps_to_the_other_limb_is_left_out():
     assert (used == 26).all() and _joint_error(clean, offsets, pos, arm, slice(None)).max() < 0.04  # true motion passes
 
 
-@pytest.mark.parametrize("field,bad", [("gate_m", -0.1), ("gate_m", 25.0), ("anchor_tolerance_m", -1.0)])
-def test_bad_gate_and_anchor_settings_are_refused(field, bad):
+def test_a_label_on_a_neighbouring_strap_is_left_out():
+    pos, xyz, offsets, bones, refl = _exercise("classic_squat", seed=17)
+    names = list(reflectors.REFLECTOR_NAMES)
+    calf, ankle = names.index("L_CALF"), names.index("L_ANKLE")
+    wrong, removed = xyz.copy(), xyz.copy()
+    wrong[15:22, calf] = xyz[15:22, ankle]  # the calf label on the ankle strap, within the gate of its own place
+    removed[15:22, calf] = np.nan
+    config = asdict(poses.PoseConfig(gate_m=0.3))
+    assert np.linalg.norm(wrong[15:22, calf] - xyz[15:22, calf], axis=-1).max() < config["gate_m"]
+    conf = np.ones(xyz.shape[:2])
+    kept, _, used = poses.solve_sequence(wrong, conf, offsets, bones, refl, **config)
+    assert (used[15:22] == 25).all()
+    np.testing.assert_allclose(kept, poses.solve_sequence(removed, conf, offsets, bones, refl, **config)[0], atol=1e-9)
+    _, _, used = poses.solve_sequence(wrong, conf, offsets, bones, refl, **{**config, "margin_m": 0.0})
+    assert (used[15:22] == 26).all()  # without the margin rule the gate alone keeps it
+
+
+@pytest.mark.parametrize("field,bad", [("gate_m", -0.1), ("gate_m", 25.0), ("anchor_tolerance_m", -1.0),
+                                       ("margin_m", -0.05)])
+def test_bad_gate_anchor_and_margin_settings_are_refused(field, bad):
     with pytest.raises(ValueError, match=field):
         poses.PoseConfig(**{field: bad})
