@@ -12,12 +12,14 @@ a small pull towards the previous frame's parameters, so a joint whose reflector
 keeps its last rotation instead of drifting. Frames are warm-started from the previous solution.
 
 Order and gate: the solve starts at an anchor frame, the first that sees nearly every reflector and
-whose reflectors sharing a bone lie at their calibrated distances (a take may open with wrong labels),
+whose reflectors keep the distances the skeleton allows (a take may open with wrong labels),
 runs forward to the end, then backward from the anchor to the first frame. Each later frame leaves out
 the reflectors that lie more than ``gate_m`` from where the last two solved frames' motion (constant
 velocity) puts them, or that lie more than ``margin_m`` nearer another reflector's prediction than
 their own: a label that jumps to another limb or to a neighbouring strap, or a limb that reappears under
 the wrong label, does not pull the skeleton there; the limb holds its rotation until its reflectors come back.
+Left-out reflectors that make up a limb on their own (two or more keeping the skeleton's distances) are
+taken back at once, so a limb the solve has lost is found again.
 The Jacobian is analytic: a rotation-vector step dθ of joint j turns everything below j about the
 joint by ω = W_j J_r(θ_j) dθ (W_j the joint's world rotation, J_r the right Jacobian of SO(3)), so a
 reflector at p moves by ω × (p − o_j).
@@ -30,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 import xarray as xr
 from scipy.optimize import least_squares
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial.transform import Rotation
 
 from mocapflow.tasks.studio.body import JOINT_NAMES, PARENTS
@@ -68,13 +71,13 @@ class PoseConfig:
     min_reflectors: int = 4  # fewer seen reflectors: the frame is not solved (NaN)
     tolerance: float = 1e-4  # Levenberg-Marquardt stops at this relative change of the cost or of the step
     gate_m: float = 0.25  # a reflector this far from where the last two solved frames' motion puts it is left out; 0: off
-    anchor_tolerance_m: float = 0.05  # start from the first frame whose same-bone reflectors agree this well; 0: frame 0
+    rigid_tolerance_m: float = 0.05  # how far reflector distances may stray from the skeleton's (anchor, take-back); 0: off
     margin_m: float = 0.05  # a reflector this much nearer another reflector's prediction than its own is left out; 0: off
 
     def __post_init__(self):
         if not 0 < self.tolerance < 1:
             raise ValueError(f"tolerance must lie in (0, 1), e.g. 1e-4, got {self.tolerance}")
-        for name in ("gate_m", "anchor_tolerance_m", "margin_m"):
+        for name in ("gate_m", "rigid_tolerance_m", "margin_m"):
             value = getattr(self, name)
             if not 0 <= value < 10:
                 raise ValueError(f"{name} must lie in [0, 10) metres (0 turns it off), e.g. 0.25, got {value}")
@@ -264,27 +267,70 @@ def solve_frame(observed: np.ndarray, weights: np.ndarray, start: np.ndarray, of
     return fit.x, float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
 
 
-ANCHOR_MISSING = 2  # an anchor frame may miss this many more reflectors than the best-seen frame
+def distance_bounds(offsets: np.ndarray, bones: np.ndarray, reflector_offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The least and greatest distance the skeleton allows between two reflectors on one bone (their fixed
+    distance) or on a bone and its child (they turn about the joint between them); NaN for other pairs.
+
+    offsets (joint, 3), bones (reflector,), reflector_offsets (reflector, 3) -> two (reflector, reflector)
+    """
+    n = len(bones)
+    lo, hi = np.full((n, n), np.nan), np.full((n, n), np.nan)
+    same = (bones[:, None] == bones[None]) & ~np.eye(n, dtype=bool)
+    fixed = np.linalg.norm(reflector_offsets[:, None] - reflector_offsets[None], axis=-1)  # (a, b)
+    lo[same], hi[same] = fixed[same], fixed[same]
+    child = PARENTS[bones][None, :] == bones[:, None]  # (a, b): b's bone hangs from a's bone
+    to_joint = np.linalg.norm(reflector_offsets[:, None] - offsets[bones][None], axis=-1)  # (a, b): a to b's joint
+    own = np.broadcast_to(np.linalg.norm(reflector_offsets, axis=-1)[None], (n, n))  # (a, b): b to its joint
+    lo[child], hi[child] = np.abs(to_joint - own)[child], (to_joint + own)[child]
+    lo[child.T], hi[child.T] = lo.T[child.T], hi.T[child.T]
+    return lo, hi
 
 
-def anchor_frame(position: np.ndarray, seen: np.ndarray, bones: np.ndarray, reflector_offsets: np.ndarray, *,
+def within_bounds(points: np.ndarray, lo: np.ndarray, hi: np.ndarray, tolerance_m: float) -> np.ndarray:
+    """Which pairs of points keep their distance within the bounds (pairs without bounds do).
+    points (..., n, 3), lo and hi (n, n) -> (..., n, n) bool; NaN points agree with everything"""
+    d = np.linalg.norm(points[..., :, None, :] - points[..., None, :, :], axis=-1)
+    return ~((d < lo - tolerance_m) | (d > hi + tolerance_m))
+
+
+def anchor_frame(position: np.ndarray, seen: np.ndarray, bounds: tuple[np.ndarray, np.ndarray], *,
                  tolerance_m: float, min_reflectors: int) -> int:
-    """The frame the solve starts from: the first that sees at least all but ``ANCHOR_MISSING`` of the
-    best-seen frame's reflectors, and whose reflectors on a common bone lie within ``tolerance_m`` of their
-    calibrated distance; 0 where none does or ``tolerance_m`` is 0.
+    """The frame the solve starts from: the first that sees at least as many reflectors as the take's median
+    frame, and whose seen reflectors keep within ``tolerance_m`` of the skeleton's distance bounds
+    (``distance_bounds``); 0 where none does or ``tolerance_m`` is 0.
 
-    position (frame, reflector, 3), seen (frame, reflector) bool, bones (reflector,), reflector_offsets (reflector, 3)
+    position (frame, reflector, 3), seen (frame, reflector) bool
     """
     count = seen.sum(1)  # (frame,)
     if tolerance_m <= 0 or count.max() < min_reflectors:
         return 0
-    a, b = np.nonzero(np.triu(bones[:, None] == bones[None], k=1))  # (pair,) reflectors sharing a bone
-    calibrated = np.linalg.norm(reflector_offsets[a] - reflector_offsets[b], axis=-1)  # (pair,)
-    both = seen[:, a] & seen[:, b]  # (frame, pair)
-    measured = np.linalg.norm(position[:, a] - position[:, b], axis=-1)  # (frame, pair)
-    broken = (both & ~(np.abs(measured - calibrated) <= tolerance_m)).any(1)  # (frame,)
-    ok = ~broken & (count >= max(count.max() - ANCHOR_MISSING, min_reflectors))
+    agree = within_bounds(np.where(seen[..., None], position, np.nan), *bounds, tolerance_m)  # (frame, r, r)
+    ok = agree.all(axis=(1, 2)) & (count >= max(np.median(count), min_reflectors))
     return int(np.argmax(ok)) if ok.any() else 0
+
+
+def take_back(position: np.ndarray, seen: np.ndarray, kept: np.ndarray, bounds: tuple[np.ndarray, np.ndarray], *,
+              tolerance_m: float, coincide_m: float) -> np.ndarray:
+    """``kept`` plus the left-out reflectors that make up a limb on their own: two or more, linked by bounds
+    (one bone, or a bone and its child), every linked pair within ``tolerance_m`` of its bounds, none within
+    ``coincide_m`` of a kept reflector (a copy of another label). A limb the solve has lost (put where its
+    true reflectors no longer match the prediction) comes back this way; a lone wrong label does not.
+
+    position (reflector, 3), seen and kept (reflector,) bool -> (reflector,) bool
+    """
+    left = np.flatnonzero(seen & ~kept)
+    if tolerance_m <= 0 or len(left) < 2:
+        return kept
+    lo, hi = (b[np.ix_(left, left)] for b in bounds)
+    _, limb = connected_components(np.isfinite(lo), directed=False)  # (left,) limb of each left-out reflector
+    agree = within_bounds(position[left], lo, hi, tolerance_m)  # (left, left)
+    copies = (np.linalg.norm(position[left][:, None] - position[kept][None], axis=-1) < coincide_m).any(1)
+    kept = kept.copy()
+    for g in np.unique(limb):
+        members = limb == g
+        if members.sum() >= 2 and agree[np.ix_(members, members)].all() and not copies[members].any():
+            kept[left[members]] = True
+    return kept
 
 
 def gate(position: np.ndarray, seen: np.ndarray, last: np.ndarray, before: np.ndarray | None, offsets: np.ndarray,
@@ -317,7 +363,7 @@ def gate(position: np.ndarray, seen: np.ndarray, last: np.ndarray, before: np.nd
 def solve_sequence(position: np.ndarray, confidence: np.ndarray, offsets: np.ndarray, bones: np.ndarray,
                    reflector_offsets: np.ndarray, *, min_confidence: float, temporal_weight: float,
                    rest_weight: float, distal_rest_weight: float, max_iterations: int,
-                   min_reflectors: int, tolerance: float, gate_m: float, anchor_tolerance_m: float,
+                   min_reflectors: int, tolerance: float, gate_m: float, rigid_tolerance_m: float,
                    margin_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Parameters of every frame: from the anchor frame forward, then from it backward, each frame warm-started
     from the one solved before it.
@@ -329,8 +375,8 @@ def solve_sequence(position: np.ndarray, confidence: np.ndarray, offsets: np.nda
     params, rms, used = np.full((n, N_DOF), np.nan), np.full(n, np.nan), np.zeros(n, np.int16)
     rest_weights = np.where(DISTAL, distal_rest_weight, rest_weight)
     seen_all = np.isfinite(position).all(2) & (np.nan_to_num(confidence) >= min_confidence)  # (frame, reflector)
-    anchor = anchor_frame(position, seen_all, bones, reflector_offsets, tolerance_m=anchor_tolerance_m,
-                          min_reflectors=min_reflectors)
+    bounds = distance_bounds(offsets, bones, reflector_offsets)
+    anchor = anchor_frame(position, seen_all, bounds, tolerance_m=rigid_tolerance_m, min_reflectors=min_reflectors)
     last = before = None  # the two frames solved last, in solving order
     for i in [*range(anchor, n), *range(anchor - 1, -1, -1)]:
         if i == anchor - 1:  # turn back: continue from the anchor's side
@@ -341,8 +387,9 @@ def solve_sequence(position: np.ndarray, confidence: np.ndarray, offsets: np.nda
         if seen.sum() < min_reflectors:
             continue
         if last is not None:
-            seen = gate(position[i], seen, last, before, offsets, bones, reflector_offsets, gate_m=gate_m,
+            kept = gate(position[i], seen, last, before, offsets, bones, reflector_offsets, gate_m=gate_m,
                         margin_m=margin_m, min_reflectors=min_reflectors)
+            seen = take_back(position[i], seen, kept, bounds, tolerance_m=rigid_tolerance_m, coincide_m=margin_m)
         used[i] = seen.sum()
         frame = (position[i, seen], np.sqrt(np.clip(confidence[i, seen], 0.0, 1.0)))
         rig = (offsets, bones[seen], reflector_offsets[seen])
@@ -364,7 +411,7 @@ def _solved(params: np.ndarray, i: int) -> np.ndarray | None:
 
 def solve_poses(skeleton: xr.Dataset, markers: xr.Dataset, *, min_confidence: float, temporal_weight: float,
                 rest_weight: float, distal_rest_weight: float, max_iterations: int, min_reflectors: int,
-                tolerance: float, gate_m: float, anchor_tolerance_m: float, margin_m: float) -> xr.Dataset:
+                tolerance: float, gate_m: float, rigid_tolerance_m: float, margin_m: float) -> xr.Dataset:
     """`poses` stage: joint world positions and local rotations of every frame of a sequence."""
     names = [str(n) for n in markers["reflector"].values]
     skel = skeleton.sel(reflector=names)
@@ -374,7 +421,7 @@ def solve_poses(skeleton: xr.Dataset, markers: xr.Dataset, *, min_confidence: fl
         skel["bone"].values.astype(int), skel["reflector_offset"].values.astype(np.float64),
         min_confidence=min_confidence, temporal_weight=temporal_weight, rest_weight=rest_weight,
         distal_rest_weight=distal_rest_weight, max_iterations=max_iterations,
-        min_reflectors=min_reflectors, tolerance=tolerance, gate_m=gate_m, anchor_tolerance_m=anchor_tolerance_m,
+        min_reflectors=min_reflectors, tolerance=tolerance, gate_m=gate_m, rigid_tolerance_m=rigid_tolerance_m,
         margin_m=margin_m)
     solved = np.isfinite(params).all(1)
     local = local_rotations(np.nan_to_num(params))  # (frame, joint, 3, 3)

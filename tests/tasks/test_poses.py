@@ -171,9 +171,10 @@ def test_a_take_that_opens_with_wrong_leg_labels_is_solved_from_its_first_consis
         wrong[:8, names.index(f"R_{part}")] = xyz[:8, names.index(f"L_{part}")]
     wrong[:8, names.index("L_ANKLE")] = xyz[:8, names.index("L_PELVIS")] + [0.0, 0.1, 0.0]  # and a wild left ankle
     seen = np.ones(xyz.shape[:2], bool)
-    assert poses.anchor_frame(wrong, seen, bones, refl, tolerance_m=0.05, min_reflectors=4) == 8
-    assert poses.anchor_frame(xyz, seen, bones, refl, tolerance_m=0.05, min_reflectors=4) == 0
-    assert poses.anchor_frame(wrong, seen, bones, refl, tolerance_m=0.0, min_reflectors=4) == 0  # off
+    bounds = poses.distance_bounds(offsets, bones, refl)
+    assert poses.anchor_frame(wrong, seen, bounds, tolerance_m=0.05, min_reflectors=4) == 8
+    assert poses.anchor_frame(xyz, seen, bounds, tolerance_m=0.05, min_reflectors=4) == 0
+    assert poses.anchor_frame(wrong, seen, bounds, tolerance_m=0.0, min_reflectors=4) == 0  # off
 
     conf = np.ones(xyz.shape[:2])
     legs, opening = ("LeftKnee", "LeftAnkle", "RightKnee", "RightAnkle", "RightFoot"), slice(0, 8)
@@ -181,7 +182,7 @@ def test_a_take_that_opens_with_wrong_leg_labels_is_solved_from_its_first_consis
     shipped = _joint_error(poses.solve_sequence(wrong, conf, offsets, bones, refl, **config)[0], offsets, pos, legs,
                            opening)
     in_order = _joint_error(poses.solve_sequence(wrong, conf, offsets, bones, refl,
-                                                 **{**config, "anchor_tolerance_m": 0.0})[0], offsets, pos, legs, opening)
+                                                 **{**config, "rigid_tolerance_m": 0.0})[0], offsets, pos, legs, opening)
     assert shipped.mean() < 0.06 and in_order.mean() > 2 * shipped.mean(), (shipped.mean(), in_order.mean())
     rest = _joint_error(poses.solve_sequence(wrong, conf, offsets, bones, refl, **config)[0], offsets, pos, legs,
                         slice(8, None))
@@ -225,7 +226,23 @@ def test_a_label_on_a_neighbouring_strap_is_left_out():
     assert (used[15:22] == 26).all()  # without the margin rule the gate alone keeps it
 
 
-@pytest.mark.parametrize("field,bad", [("gate_m", -0.1), ("gate_m", 25.0), ("anchor_tolerance_m", -1.0),
+def test_a_limb_that_comes_back_far_from_where_it_was_held_is_taken_back():
+    pos, xyz, offsets, bones, refl = _exercise("jumping_jack", seed=13)
+    names = list(reflectors.REFLECTOR_NAMES)
+    arm = [names.index(f"R_{part}") for part in ("ELBOW", "WRIST", "HAND")]
+    gap = xyz.copy()
+    gap[5:9][:, arm] = np.nan  # the right arm unseen for four frames while it swings up
+    conf = np.ones(xyz.shape[:2])
+    config = asdict(poses.PoseConfig())
+    params, _, used = poses.solve_sequence(gap, conf, offsets, bones, refl, **config)
+    assert (used[9:] == 26).all()  # beyond the gate on return, yet they agree with each other: taken back
+    assert _joint_error(params, offsets, pos, ("RightElbow", "RightHand"), slice(9, None)).max() < 0.01
+    params, _, used = poses.solve_sequence(gap, conf, offsets, bones, refl, **{**config, "rigid_tolerance_m": 0.0})
+    assert (used[9:14] == 23).all()  # without taking back, the held arm never meets its reflectors again
+    assert _joint_error(params, offsets, pos, ("RightHand",), slice(12, 14)).min() > 0.3
+
+
+@pytest.mark.parametrize("field,bad", [("gate_m", -0.1), ("gate_m", 25.0), ("rigid_tolerance_m", -1.0),
                                        ("margin_m", -0.05)])
 def test_bad_gate_anchor_and_margin_settings_are_refused(field, bad):
     with pytest.raises(ValueError, match=field):
