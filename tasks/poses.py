@@ -11,8 +11,9 @@ residuals are the confidence-weighted reflector errors of the reflectors seen in
 a small pull towards the previous frame's parameters, so a joint whose reflectors are all missing
 keeps its last rotation instead of drifting. Frames are warm-started from the previous solution.
 
-Order and gate: the solve starts at an anchor frame, the first that sees nearly every reflector and
-whose reflectors keep the distances the skeleton allows (a take may open with wrong labels),
+Order and gate: the solve starts at an anchor frame, the first that sees at least the take's median
+count of reflectors and whose reflectors keep the distances the skeleton allows (a take may open with
+wrong labels),
 runs forward to the end, then backward from the anchor to the first frame. Each later frame leaves out
 the reflectors that lie more than ``gate_m`` from where the last two solved frames' motion (constant
 velocity) puts them, or that lie more than ``margin_m`` nearer another reflector's prediction than
@@ -20,6 +21,7 @@ their own: a label that jumps to another limb or to a neighbouring strap, or a l
 the wrong label, does not pull the skeleton there; the limb holds its rotation until its reflectors come back.
 Left-out reflectors that make up a limb on their own (two or more keeping the skeleton's distances) are
 taken back at once, so a limb the solve has lost is found again.
+
 The Jacobian is analytic: a rotation-vector step dθ of joint j turns everything below j about the
 joint by ω = W_j J_r(θ_j) dθ (W_j the joint's world rotation, J_r the right Jacobian of SO(3)), so a
 reflector at p moves by ω × (p − o_j).
@@ -293,6 +295,9 @@ def within_bounds(points: np.ndarray, lo: np.ndarray, hi: np.ndarray, tolerance_
     return ~((d < lo - tolerance_m) | (d > hi + tolerance_m))
 
 
+ANCHOR_BLOCK = 256  # frames whose distance tables are built at once while looking for the anchor
+
+
 def anchor_frame(position: np.ndarray, seen: np.ndarray, bounds: tuple[np.ndarray, np.ndarray], *,
                  tolerance_m: float, min_reflectors: int) -> int:
     """The frame the solve starts from: the first that sees at least as many reflectors as the take's median
@@ -304,9 +309,13 @@ def anchor_frame(position: np.ndarray, seen: np.ndarray, bounds: tuple[np.ndarra
     count = seen.sum(1)  # (frame,)
     if tolerance_m <= 0 or count.max() < min_reflectors:
         return 0
-    agree = within_bounds(np.where(seen[..., None], position, np.nan), *bounds, tolerance_m)  # (frame, r, r)
-    ok = agree.all(axis=(1, 2)) & (count >= max(np.median(count), min_reflectors))
-    return int(np.argmax(ok)) if ok.any() else 0
+    enough = np.flatnonzero(count >= max(np.median(count), min_reflectors))
+    for block in np.array_split(enough, max(1, len(enough) // ANCHOR_BLOCK)):  # a long take is scanned in blocks
+        points = np.where(seen[block, :, None], position[block], np.nan)  # (block, reflector, 3)
+        ok = within_bounds(points, *bounds, tolerance_m).all(axis=(1, 2))  # (block,)
+        if ok.any():
+            return int(block[np.argmax(ok)])
+    return 0
 
 
 def take_back(position: np.ndarray, seen: np.ndarray, kept: np.ndarray, bounds: tuple[np.ndarray, np.ndarray], *,
