@@ -32,11 +32,12 @@ def main() -> None:
     solve_ms, calib_s = [], []
     for seq in plan.sequences:
         markers = store.open("smoothed", plan.items[f"smoothed/{seq.id}"].key, get_schema("smoothed_markers")).load()
+        views = store.open("markers3d", plan.items[f"markers3d/{seq.id}"].key, get_schema("markers3d")).load()
         started = time.perf_counter()
         skel = skeleton.calibrate_skeleton(markers, **asdict(skeleton.SkeletonConfig()))
         calib_s.append(time.perf_counter() - started)
         started = time.perf_counter()
-        poses.solve_poses(skel, markers, **asdict(poses.PoseConfig()))
+        poses.solve_poses(skel, markers, views, **asdict(poses.PoseConfig()))
         solve_ms.append(1000 * (time.perf_counter() - started) / markers.sizes["frame"])
     print(json.dumps({"pose_solve_ms_per_frame_median": round(statistics.median(solve_ms), 2),
                       "skeleton_calibration_s_median": round(statistics.median(calib_s), 2),

@@ -71,7 +71,7 @@ register(TaskSpec(
 
 # 3D optical data (DeepMoCap §3.4): 2D -> 3D and fusion, then temporal filtering.
 register(TaskSpec(
-    name="fuse_views", fn=markers3d.markers3d, version="1", params=markers3d.Markers3DConfig, output="markers3d",
+    name="fuse_views", fn=markers3d.markers3d, version="2", params=markers3d.Markers3DConfig, output="markers3d",
     partition="sequence", inputs={"reflectors": "reflectors2d", "masks": "reflector_masks", "frames": "raw_sequence"},
     reads={"reflectors": ("x", "y", "confidence"), "masks": ("blob_id",), "frames": ("depth",) + CALIBRATION
            + ("cam_to_world",)},
@@ -96,6 +96,7 @@ register(TaskSpec(
 ))
 register(TaskSpec(
     name="solve_poses", fn=poses.solve_poses, version="5", params=poses.PoseConfig, output="poses",
-    partition="sequence", inputs={"skeleton": "skeleton", "markers": "smoothed_markers"}, whole_sequence=True,
+    partition="sequence", inputs={"skeleton": "skeleton", "markers": "smoothed_markers", "views": "markers3d"},
+    reads={"views": ("view_position", "view_confidence")}, whole_sequence=True,
     description="40-DoF least squares per frame against the calibrated reflector offsets, warm-started",
 ))

@@ -34,7 +34,7 @@ stages:
     inputs: {markers: smoothed}
   poses:             # joint rotations and positions per frame
     task: solve_poses
-    inputs: {skeleton: skeleton, markers: smoothed}
+    inputs: {skeleton: skeleton, markers: smoothed, views: markers3d}
 """
 
 

@@ -10,7 +10,7 @@ _ATTRS = {"length_unit": str, "up_axis": str, "fps": float}
 
 MARKERS3D = register_schema(ArtifactSchema(
     name="markers3d",
-    version=1,
+    version=2,
     coords={**_COORDS, "view": VarSpec(("view",), "str")},
     variables={
         "position": VarSpec(("frame", "reflector", "xyz"), "float32", "m", description="world position, NaN if unseen"),
@@ -18,6 +18,10 @@ MARKERS3D = register_schema(ArtifactSchema(
         "views": VarSpec(("frame", "reflector"), "int8", description="views fused"),
         "residual": VarSpec(("frame", "reflector", "view"), "float32", "m",
                             description="each view's distance from the fused point, NaN if unseen"),
+        "view_position": VarSpec(("frame", "reflector", "view", "xyz"), "float32", "m",
+                                 description="each view's own estimate of the reflector centre, NaN if unseen"),
+        "view_confidence": VarSpec(("frame", "reflector", "view"), "float32",
+                                   description="each view's 2D confidence E of that estimate, 0 if unseen"),
     },
     required_attrs=_ATTRS,
     frame_chunk=64,

@@ -12,7 +12,8 @@ confidence-weighted mean over views (Eq. 10), after rejecting a view farther tha
 the others' median. A strap is seen from all sides, each view on the surface facing it: the limb
 centre is where the surface normals meet, i.e. the closest points between the normal lines of each
 pair of views (Eq. A1), averaged; a strap seen by one view only is pushed along its normal by the
-limb radius. The total confidence C_f is the mean of the views' confidences.
+limb radius. The total confidence C_f is the mean of the views' confidences. Each view's own centre guess
+and confidence are kept beside the fused point, so that a later stage can use a view that fusion outvoted.
 """
 
 from __future__ import annotations
@@ -217,6 +218,13 @@ def fuse_frame(points, rays, confidence, names, *, patch_tolerance_m, strap_tole
     return xyz, conf, used_n, residual
 
 
+def view_centres(points: np.ndarray, rays: np.ndarray, names: list[str]) -> np.ndarray:
+    """Each view's own guess of each reflector's centre: a patch's surface point, a strap's surface point
+    one nominal radius along the viewing ray (as in ``fuse_strap``).  (view, frame, R, 3) x2 -> (view, frame, R, 3)"""
+    radius = np.array([nominal_radius(n) if KINDS[n] == "strap" else 0.0 for n in names])  # (R,)
+    return points + rays * radius[:, None]
+
+
 def markers3d(reflectors: xr.Dataset, masks: xr.Dataset, frames: xr.Dataset, *, contour_px: int,
               max_depth_spread_mm: float, patch_tolerance_m: float, strap_tolerance_m: float,
               min_confidence: float) -> xr.Dataset:
@@ -241,11 +249,15 @@ def markers3d(reflectors: xr.Dataset, masks: xr.Dataset, frames: xr.Dataset, *, 
     fused = [fuse_frame(points[:, i], rays[:, i], confidence[:, i], names, patch_tolerance_m=patch_tolerance_m,
                         strap_tolerance_m=strap_tolerance_m) for i in range(n_frames)]
     xyz, conf, used, residual = (np.stack(column) for column in zip(*fused))
+    own = view_centres(points, rays, names)  # (view, frame, reflector, 3)
+    own_conf = np.where(np.isfinite(own[..., 0]), confidence, 0.0)  # (view, frame, reflector)
     return xr.Dataset(
         {"position": (("frame", "reflector", "xyz"), xyz.astype(np.float32)),
          "confidence": (("frame", "reflector"), conf.astype(np.float32)),
          "views": (("frame", "reflector"), used.astype(np.int8)),
-         "residual": (("frame", "reflector", "view"), residual.astype(np.float32))},
+         "residual": (("frame", "reflector", "view"), residual.astype(np.float32)),
+         "view_position": (("frame", "reflector", "view", "xyz"), own.transpose(1, 2, 0, 3).astype(np.float32)),
+         "view_confidence": (("frame", "reflector", "view"), own_conf.transpose(1, 2, 0).astype(np.float32))},
         coords={"frame": reflectors["frame"].values, "reflector": names, "view": np.array(views, dtype=object),
                 "xyz": ["x", "y", "z"]},
         attrs={"length_unit": "m", "up_axis": "Z", "fps": float(frames.attrs["fps"])},

@@ -20,7 +20,9 @@ velocity) puts them, or that lie more than ``margin_m`` nearer another reflector
 their own: a label that jumps to another limb or to a neighbouring strap, or a limb that reappears under
 the wrong label, does not pull the skeleton there; the limb holds its rotation until its reflectors come back.
 Left-out reflectors that make up a limb on their own (two or more keeping the skeleton's distances) are
-taken back at once, so a limb the solve has lost is found again.
+taken back at once, so a limb the solve has lost is found again. A reflector still without data takes a
+single view's estimate (under any label) that lies within ``view_m`` of its prediction: where two views
+swap the legs and one labels them right, fusion follows the two, and the one view's estimate remains.
 
 The Jacobian is analytic: a rotation-vector step dθ of joint j turns everything below j about the
 joint by ω = W_j J_r(θ_j) dθ (W_j the joint's world rotation, J_r the right Jacobian of SO(3)), so a
@@ -75,11 +77,12 @@ class PoseConfig:
     gate_m: float = 0.25  # a reflector this far from where the last two solved frames' motion puts it is left out; 0: off
     rigid_tolerance_m: float = 0.05  # how far reflector distances may stray from the skeleton's (anchor, take-back); 0: off
     margin_m: float = 0.05  # a reflector this much nearer another reflector's prediction than its own is left out; 0: off
+    view_m: float = 0.05  # a reflector left without data takes a view's own estimate this near its prediction; 0: off
 
     def __post_init__(self):
         if not 0 < self.tolerance < 1:
             raise ValueError(f"tolerance must lie in (0, 1), e.g. 1e-4, got {self.tolerance}")
-        for name in ("gate_m", "rigid_tolerance_m", "margin_m"):
+        for name in ("gate_m", "rigid_tolerance_m", "margin_m", "view_m"):
             value = getattr(self, name)
             if not 0 <= value < 10:
                 raise ValueError(f"{name} must lie in [0, 10) metres (0 turns it off), e.g. 0.25, got {value}")
@@ -342,22 +345,24 @@ def take_back(position: np.ndarray, seen: np.ndarray, kept: np.ndarray, bounds: 
     return kept
 
 
-def gate(position: np.ndarray, seen: np.ndarray, last: np.ndarray, before: np.ndarray | None, offsets: np.ndarray,
-         bones: np.ndarray, reflector_offsets: np.ndarray, *, gate_m: float, margin_m: float,
-         min_reflectors: int) -> np.ndarray:
-    """``seen`` less the reflectors whose measurement lies farther than ``gate_m`` from their constant-velocity
-    prediction, or more than ``margin_m`` nearer another reflector's prediction than their own (a label on a
-    neighbouring strap, or on the other limb's); unchanged where that would leave fewer than ``min_reflectors``.
-    Predictions are where the last solved frame puts the reflectors plus their last step, extrapolated in
-    space, not in the parameters, whose limb twists may trade off between frames.
-
-    position (reflector, 3), seen (reflector,) bool, last and before (40,) -> (reflector,) bool
-    """
-    if gate_m <= 0 and margin_m <= 0:
-        return seen
+def predict(last: np.ndarray, before: np.ndarray | None, offsets: np.ndarray, bones: np.ndarray,
+            reflector_offsets: np.ndarray) -> np.ndarray:
+    """Where the reflectors should be in the next frame: where the last solved frame puts them plus their last
+    step (constant velocity), extrapolated in space, not in the parameters, whose limb twists may trade off
+    between frames.  last and before (40,) -> (reflector, 3)"""
     rot, pos = forward_kinematics(np.stack([last] if before is None else [last, before]), offsets)
     placed = reflector_positions(rot, pos, bones, reflector_offsets)  # (1 or 2, reflector, 3)
-    expected = placed[0] if before is None else 2 * placed[0] - placed[1]  # (reflector, 3)
+    return placed[0] if before is None else 2 * placed[0] - placed[1]
+
+
+def gate(position: np.ndarray, seen: np.ndarray, expected: np.ndarray, *, gate_m: float, margin_m: float,
+         min_reflectors: int) -> np.ndarray:
+    """``seen`` less the reflectors whose measurement lies farther than ``gate_m`` from their prediction
+    ``expected``, or more than ``margin_m`` nearer another reflector's prediction than their own (a label on a
+    neighbouring strap, or on the other limb's); unchanged where that would leave fewer than ``min_reflectors``.
+
+    position and expected (reflector, 3), seen (reflector,) bool -> (reflector,) bool
+    """
     distance = np.linalg.norm(position[:, None] - expected[None], axis=-1)  # (measured, predicted), NaN rows unseen
     own = np.diagonal(distance)  # (reflector,)
     kept = seen.copy()
@@ -369,15 +374,44 @@ def gate(position: np.ndarray, seen: np.ndarray, last: np.ndarray, before: np.nd
     return kept if kept.sum() >= min_reflectors else seen
 
 
+def from_views(expected: np.ndarray, kept: np.ndarray, estimates: np.ndarray, estimate_confidence: np.ndarray, *,
+               view_m: float, margin_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """For each reflector without a kept measurement, the single view's estimate (under any label) nearest its
+    prediction, within ``view_m`` and not ``margin_m`` nearer another reflector's prediction; each estimate
+    serves one reflector. Fusion outvotes a view that labels a limb right when the other views swap the
+    legs; its estimate still lies where the solve expects that reflector.
+
+    expected (reflector, 3), kept (reflector,) bool, estimates (n, 3) NaN where none, estimate_confidence (n,)
+    -> positions (reflector, 3) NaN where none taken, confidences (reflector,)
+    """
+    position, confidence = np.full_like(expected, np.nan), np.zeros(len(expected))
+    valid = np.isfinite(estimates).all(1)
+    if view_m <= 0 or not valid.any() or kept.all():
+        return position, confidence
+    estimates, estimate_confidence = estimates[valid], estimate_confidence[valid]
+    distance = np.linalg.norm(estimates[:, None] - expected[None], axis=-1)  # (estimate, reflector)
+    free = np.ones(len(estimates), bool)
+    for r in np.flatnonzero(~kept):
+        own = distance[:, r]
+        other = np.delete(distance, r, axis=1).min(axis=1)
+        ok = free & (own <= view_m) & ~(own - other > margin_m)
+        if ok.any():
+            k = np.flatnonzero(ok)[np.argmin(own[ok])]
+            position[r], confidence[r], free[k] = estimates[k], estimate_confidence[k], False
+    return position, confidence
+
+
 def solve_sequence(position: np.ndarray, confidence: np.ndarray, offsets: np.ndarray, bones: np.ndarray,
                    reflector_offsets: np.ndarray, *, min_confidence: float, temporal_weight: float,
                    rest_weight: float, distal_rest_weight: float, max_iterations: int,
                    min_reflectors: int, tolerance: float, gate_m: float, rigid_tolerance_m: float,
-                   margin_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   margin_m: float, view_m: float, estimates: np.ndarray | None = None,
+                   estimate_confidence: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Parameters of every frame: from the anchor frame forward, then from it backward, each frame warm-started
     from the one solved before it.
 
-    position (frame, reflector, 3) NaN where missing, confidence (frame, reflector)
+    position (frame, reflector, 3) NaN where missing, confidence (frame, reflector); optional single views'
+    estimates (frame, n, 3) and their confidences (frame, n) for ``from_views``
     -> params (frame, 40) NaN where unsolved, rms error (frame,), reflectors used (frame,)
     """
     n = position.shape[0]
@@ -392,19 +426,26 @@ def solve_sequence(position: np.ndarray, confidence: np.ndarray, offsets: np.nda
             last, before = _solved(params, anchor), _solved(params, anchor + 1)
             if last is None:
                 before = None
-        seen = seen_all[i]
+        seen, observed, weight = seen_all[i], position[i], confidence[i]
         if seen.sum() < min_reflectors:
             continue
         if last is not None:
-            kept = gate(position[i], seen, last, before, offsets, bones, reflector_offsets, gate_m=gate_m,
-                        margin_m=margin_m, min_reflectors=min_reflectors)
-            seen = take_back(position[i], seen, kept, bounds, tolerance_m=rigid_tolerance_m, coincide_m=margin_m)
+            expected = predict(last, before, offsets, bones, reflector_offsets)
+            kept = gate(observed, seen, expected, gate_m=gate_m, margin_m=margin_m, min_reflectors=min_reflectors)
+            seen = take_back(observed, seen, kept, bounds, tolerance_m=rigid_tolerance_m, coincide_m=margin_m)
+            if estimates is not None:
+                extra, extra_weight = from_views(expected, seen, estimates[i], estimate_confidence[i], view_m=view_m,
+                                                 margin_m=margin_m)
+                taken = np.isfinite(extra[:, 0])
+                observed = np.where(taken[:, None], extra, observed)
+                weight = np.where(taken, np.maximum(extra_weight, min_confidence), weight)
+                seen = seen | taken
         used[i] = seen.sum()
-        frame = (position[i, seen], np.sqrt(np.clip(confidence[i, seen], 0.0, 1.0)))
+        frame = (observed[seen], np.sqrt(np.clip(weight[seen], 0.0, 1.0)))
         rig = (offsets, bones[seen], reflector_offsets[seen])
         start = last
         if start is None:  # first frame: from the rest pose, held near it first to avoid twisted minima
-            start = initial_params(np.where(seen[:, None], position[i], np.nan), offsets, bones, reflector_offsets)
+            start = initial_params(np.where(seen[:, None], observed, np.nan), offsets, bones, reflector_offsets)
             start, _ = solve_frame(*frame, start, *rig, temporal_weight=0.0, rest_weights=10 * rest_weights,
                                    max_iterations=4 * max_iterations, tolerance=tolerance)
         params[i], rms[i] = solve_frame(*frame, start, *rig, temporal_weight=temporal_weight,
@@ -418,12 +459,19 @@ def _solved(params: np.ndarray, i: int) -> np.ndarray | None:
     return params[i] if 0 <= i < len(params) and np.isfinite(params[i]).all() else None
 
 
-def solve_poses(skeleton: xr.Dataset, markers: xr.Dataset, *, min_confidence: float, temporal_weight: float,
-                rest_weight: float, distal_rest_weight: float, max_iterations: int, min_reflectors: int,
-                tolerance: float, gate_m: float, rigid_tolerance_m: float, margin_m: float) -> xr.Dataset:
-    """`poses` stage: joint world positions and local rotations of every frame of a sequence."""
+def solve_poses(skeleton: xr.Dataset, markers: xr.Dataset, views: xr.Dataset, *, min_confidence: float,
+                temporal_weight: float, rest_weight: float, distal_rest_weight: float, max_iterations: int,
+                min_reflectors: int, tolerance: float, gate_m: float, rigid_tolerance_m: float, margin_m: float,
+                view_m: float) -> xr.Dataset:
+    """`poses` stage: joint world positions and local rotations of every frame of a sequence, from the
+    (smoothed) ``markers`` and, for reflectors they leave without data, the single views' estimates of ``views``
+    (the fused markers' ``view_position`` and ``view_confidence``)."""
     names = [str(n) for n in markers["reflector"].values]
     skel = skeleton.sel(reflector=names)
+    own = views.sel(reflector=names, frame=markers["frame"].values)
+    n_frames = markers.sizes["frame"]
+    estimates = own["view_position"].transpose("frame", "reflector", "view", "xyz").values.astype(np.float64)
+    estimate_confidence = own["view_confidence"].transpose("frame", "reflector", "view").values.astype(np.float64)
     offsets = skel["offset"].values.astype(np.float64)
     params, rms, used = solve_sequence(
         markers["position"].values.astype(np.float64), markers["confidence"].values.astype(np.float64), offsets,
@@ -431,7 +479,8 @@ def solve_poses(skeleton: xr.Dataset, markers: xr.Dataset, *, min_confidence: fl
         min_confidence=min_confidence, temporal_weight=temporal_weight, rest_weight=rest_weight,
         distal_rest_weight=distal_rest_weight, max_iterations=max_iterations,
         min_reflectors=min_reflectors, tolerance=tolerance, gate_m=gate_m, rigid_tolerance_m=rigid_tolerance_m,
-        margin_m=margin_m)
+        margin_m=margin_m, view_m=view_m, estimates=estimates.reshape(n_frames, -1, 3),
+        estimate_confidence=estimate_confidence.reshape(n_frames, -1))
     solved = np.isfinite(params).all(1)
     local = local_rotations(np.nan_to_num(params))  # (frame, joint, 3, 3)
     _, pos = forward_kinematics(np.nan_to_num(params), offsets)

@@ -66,7 +66,7 @@ _CARRIED_BY = {"Hips": "pelvis", "Neck": "shoulders", "Head": "trunk"}  # bones 
 # selection, not consecutive, so there is no motion to gate by and no anchor to pick: in frame order.
 CALIBRATION_SOLVE = PoseConfig(min_confidence=0.5, temporal_weight=0.01, rest_weight=0.002, distal_rest_weight=0.02,
                                max_iterations=50, min_reflectors=4, tolerance=1e-6, gate_m=0.0,
-                               rigid_tolerance_m=0.0, margin_m=0.0)
+                               rigid_tolerance_m=0.0, margin_m=0.0, view_m=0.0)
 
 # straps on one limb segment: their distance depends on the limb's length only (patches sit on the
 # surface, so their distances also follow girth and placement, which vary far more between subjects)

@@ -72,7 +72,7 @@ VALIDATION_STAGES = """  heatmaps: {task: fcn_heatmaps, inputs: {masks: masks, f
   markers3d: {task: fuse_views, inputs: {reflectors: reflectors2d, masks: masks, frames: frames}}
   smoothed: {task: kalman, inputs: {markers: markers3d}}
   skeleton: {task: calibrate_skeleton, inputs: {markers: smoothed}}
-  poses: {task: solve_poses, inputs: {skeleton: skeleton, markers: smoothed}}
+  poses: {task: solve_poses, inputs: {skeleton: skeleton, markers: smoothed, views: markers3d}}
 
 evaluation:
   sequences: "*"

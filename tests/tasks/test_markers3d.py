@@ -141,3 +141,8 @@ def test_missing_frames_of_a_view_are_skipped_not_fused():
     np.testing.assert_allclose(out["position"].values[:, 0], [world, world], atol=0.01)
     np.testing.assert_array_equal(out["views"].values[:, 0], [1, 1])
     assert np.isnan(out["residual"].sel(view="b").values).all()  # view b contributed nothing
+    # each view's own estimate is kept beside the fused point: view a's is the point, view b has none
+    own = out["view_position"].sel(reflector="F_SPINEMID")
+    np.testing.assert_allclose(own.sel(view="a").values, [world, world], atol=0.01)
+    assert np.isnan(own.sel(view="b").values).all()
+    np.testing.assert_allclose(out["view_confidence"].sel(reflector="F_SPINEMID").values, [[0.9, 0.0], [0.9, 0.0]])

@@ -91,7 +91,10 @@ def test_wrapper_keeps_bone_lengths_and_writes_unit_quaternions():
     skeleton = xr.Dataset({"offset": (("joint", "xyz"), offsets), "bone": (("reflector",), bones),
                            "reflector_offset": (("reflector", "xyz"), refl)},
                           coords={"joint": list(body.JOINT_NAMES), "reflector": names, "xyz": ["x", "y", "z"]})
-    out = poses.solve_poses(skeleton, markers, **asdict(poses.PoseConfig()))
+    views = xr.Dataset({"view_position": (("frame", "reflector", "view", "xyz"), np.full((20, 26, 1, 3), np.nan)),
+                        "view_confidence": (("frame", "reflector", "view"), np.zeros((20, 26, 1)))},
+                       coords={"frame": np.arange(20), "reflector": names})
+    out = poses.solve_poses(skeleton, markers, views, **asdict(poses.PoseConfig()))
     p = out["position"].values
     assert np.isnan(p[5:7]).all() and np.isfinite(p[[0, 4, 7, 19]]).all()
     solved = np.isfinite(p[:, 0, 0])
@@ -245,8 +248,31 @@ def test_a_limb_that_comes_back_far_from_where_it_was_held_is_taken_back():
     assert _joint_error(params, offsets, pos, ("RightHand",), slice(12, 14)).min() > 0.3
 
 
+def test_a_reflector_fusion_outvoted_takes_the_one_view_that_saw_it():
+    pos, xyz, offsets, bones, refl = _exercise("knee_flexion", seed=19)
+    names = list(reflectors.REFLECTOR_NAMES)
+    right = [names.index(f"R_{part}") for part in ("CALF", "ANKLE", "FOOT")]
+    left = [names.index(f"L_{part}") for part in ("CALF", "ANKLE", "FOOT")]
+    fused = xyz.copy()
+    fused[10:20][:, right] = xyz[10:20][:, left]  # two views swapped the legs: fusion put the right labels on the left leg
+    # the views' own estimates: the third view's right leg where it is, the two others' "right" labels on the left leg
+    estimates = np.concatenate([xyz[:, right], xyz[:, left], xyz[:, left]], axis=1)  # (frame, 9, 3)
+    estimate_confidence = np.full(estimates.shape[:2], 0.8)
+    conf = np.ones(xyz.shape[:2])
+    config = asdict(poses.PoseConfig())
+    legs, swap = ("RightKnee", "RightAnkle", "RightFoot"), slice(10, 20)
+    params, _, used = poses.solve_sequence(fused, conf, offsets, bones, refl, **config, estimates=estimates,
+                                           estimate_confidence=estimate_confidence)
+    assert (used[swap] == 26).all()  # the copies left out, the third view's estimates taken instead
+    assert _joint_error(params, offsets, pos, legs, swap).max() < 0.01
+    without, _, used = poses.solve_sequence(fused, conf, offsets, bones, refl, **{**config, "view_m": 0.0},
+                                            estimates=estimates, estimate_confidence=estimate_confidence)
+    assert (used[swap] == 23).all()
+    assert _joint_error(without, offsets, pos, legs, swap).mean() > 5 * _joint_error(params, offsets, pos, legs, swap).mean()
+
+
 @pytest.mark.parametrize("field,bad", [("gate_m", -0.1), ("gate_m", 25.0), ("rigid_tolerance_m", -1.0),
-                                       ("margin_m", -0.05)])
+                                       ("margin_m", -0.05), ("view_m", -0.01)])
 def test_bad_gate_anchor_and_margin_settings_are_refused(field, bad):
     with pytest.raises(ValueError, match=field):
         poses.PoseConfig(**{field: bad})
