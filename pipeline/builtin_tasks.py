@@ -98,5 +98,6 @@ register(TaskSpec(
     name="solve_poses", fn=poses.solve_poses, version="5", params=poses.PoseConfig, output="poses",
     partition="sequence", inputs={"skeleton": "skeleton", "markers": "smoothed_markers", "views": "markers3d"},
     reads={"views": ("view_position", "view_confidence")}, whole_sequence=True,
-    description="40-DoF least squares per frame against the calibrated reflector offsets, warm-started",
+    description="40-DoF least squares per frame against the calibrated reflector offsets, warm-started from an "
+                "anchor frame; wrong labels gated out, lost limbs taken back, outvoted single views used",
 ))

@@ -374,20 +374,22 @@ def gate(position: np.ndarray, seen: np.ndarray, expected: np.ndarray, *, gate_m
     return kept if kept.sum() >= min_reflectors else seen
 
 
-def from_views(expected: np.ndarray, kept: np.ndarray, estimates: np.ndarray, estimate_confidence: np.ndarray, *,
-               view_m: float, margin_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """For each reflector without a kept measurement, the single view's estimate (under any label) nearest its
-    prediction, within ``view_m`` and not ``margin_m`` nearer another reflector's prediction; each estimate
-    serves one reflector. Fusion outvotes a view that labels a limb right when the other views swap the
-    legs; its estimate still lies where the solve expects that reflector.
+def from_views(observed: np.ndarray, weight: np.ndarray, kept: np.ndarray, expected: np.ndarray, estimates: np.ndarray,
+               estimate_confidence: np.ndarray, *, view_m: float, margin_m: float,
+               min_confidence: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The frame's measurements with, for each reflector without a kept one, the single view's estimate (under
+    any label) nearest its prediction, within ``view_m`` and not ``margin_m`` nearer another reflector's
+    prediction; each estimate serves one reflector, at its view's confidence. Fusion outvotes a view that
+    labels a limb right when the other views swap the legs; its estimate still lies where the solve
+    expects that reflector.
 
-    expected (reflector, 3), kept (reflector,) bool, estimates (n, 3) NaN where none, estimate_confidence (n,)
-    -> positions (reflector, 3) NaN where none taken, confidences (reflector,)
+    observed and expected (reflector, 3), weight (reflector,), kept (reflector,) bool, estimates (n, 3) NaN where
+    none, estimate_confidence (n,) -> observed, weight, kept with the estimates taken
     """
-    position, confidence = np.full_like(expected, np.nan), np.zeros(len(expected))
     valid = np.isfinite(estimates).all(1)
     if view_m <= 0 or not valid.any() or kept.all():
-        return position, confidence
+        return observed, weight, kept
+    observed, weight, kept = observed.copy(), weight.copy(), kept.copy()
     estimates, estimate_confidence = estimates[valid], estimate_confidence[valid]
     distance = np.linalg.norm(estimates[:, None] - expected[None], axis=-1)  # (estimate, reflector)
     free = np.ones(len(estimates), bool)
@@ -397,8 +399,9 @@ def from_views(expected: np.ndarray, kept: np.ndarray, estimates: np.ndarray, es
         ok = free & (own <= view_m) & ~(own - other > margin_m)
         if ok.any():
             k = np.flatnonzero(ok)[np.argmin(own[ok])]
-            position[r], confidence[r], free[k] = estimates[k], estimate_confidence[k], False
-    return position, confidence
+            observed[r], weight[r], kept[r] = estimates[k], max(estimate_confidence[k], min_confidence), True
+            free[k] = False
+    return observed, weight, kept
 
 
 def solve_sequence(position: np.ndarray, confidence: np.ndarray, offsets: np.ndarray, bones: np.ndarray,
@@ -422,10 +425,8 @@ def solve_sequence(position: np.ndarray, confidence: np.ndarray, offsets: np.nda
     anchor = anchor_frame(position, seen_all, bounds, tolerance_m=rigid_tolerance_m, min_reflectors=min_reflectors)
     last = before = None  # the two frames solved last, in solving order
     for i in [*range(anchor, n), *range(anchor - 1, -1, -1)]:
-        if i == anchor - 1:  # turn back: continue from the anchor's side
-            last, before = _solved(params, anchor), _solved(params, anchor + 1)
-            if last is None:
-                before = None
+        if i == anchor - 1:  # turn back: continue from the anchor's side (an anchor after frame 0 is always solved)
+            last, before = params[anchor], _solved(params, anchor + 1)
         seen, observed, weight = seen_all[i], position[i], confidence[i]
         if seen.sum() < min_reflectors:
             continue
@@ -434,12 +435,9 @@ def solve_sequence(position: np.ndarray, confidence: np.ndarray, offsets: np.nda
             kept = gate(observed, seen, expected, gate_m=gate_m, margin_m=margin_m, min_reflectors=min_reflectors)
             seen = take_back(observed, seen, kept, bounds, tolerance_m=rigid_tolerance_m, coincide_m=margin_m)
             if estimates is not None:
-                extra, extra_weight = from_views(expected, seen, estimates[i], estimate_confidence[i], view_m=view_m,
-                                                 margin_m=margin_m)
-                taken = np.isfinite(extra[:, 0])
-                observed = np.where(taken[:, None], extra, observed)
-                weight = np.where(taken, np.maximum(extra_weight, min_confidence), weight)
-                seen = seen | taken
+                observed, weight, seen = from_views(observed, weight, seen, expected, estimates[i],
+                                                    estimate_confidence[i], view_m=view_m, margin_m=margin_m,
+                                                    min_confidence=min_confidence)
         used[i] = seen.sum()
         frame = (observed[seen], np.sqrt(np.clip(weight[seen], 0.0, 1.0)))
         rig = (offsets, bones[seen], reflector_offsets[seen])
@@ -470,8 +468,8 @@ def solve_poses(skeleton: xr.Dataset, markers: xr.Dataset, views: xr.Dataset, *,
     skel = skeleton.sel(reflector=names)
     own = views.sel(reflector=names, frame=markers["frame"].values)
     n_frames = markers.sizes["frame"]
-    estimates = own["view_position"].transpose("frame", "reflector", "view", "xyz").values.astype(np.float64)
-    estimate_confidence = own["view_confidence"].transpose("frame", "reflector", "view").values.astype(np.float64)
+    estimates = own["view_position"].transpose("frame", "reflector", "view", "xyz").values.reshape(n_frames, -1, 3)
+    estimate_confidence = own["view_confidence"].transpose("frame", "reflector", "view").values.reshape(n_frames, -1)
     offsets = skel["offset"].values.astype(np.float64)
     params, rms, used = solve_sequence(
         markers["position"].values.astype(np.float64), markers["confidence"].values.astype(np.float64), offsets,
@@ -479,8 +477,8 @@ def solve_poses(skeleton: xr.Dataset, markers: xr.Dataset, views: xr.Dataset, *,
         min_confidence=min_confidence, temporal_weight=temporal_weight, rest_weight=rest_weight,
         distal_rest_weight=distal_rest_weight, max_iterations=max_iterations,
         min_reflectors=min_reflectors, tolerance=tolerance, gate_m=gate_m, rigid_tolerance_m=rigid_tolerance_m,
-        margin_m=margin_m, view_m=view_m, estimates=estimates.reshape(n_frames, -1, 3),
-        estimate_confidence=estimate_confidence.reshape(n_frames, -1))
+        margin_m=margin_m, view_m=view_m, estimates=estimates.astype(np.float64),
+        estimate_confidence=estimate_confidence.astype(np.float64))
     solved = np.isfinite(params).all(1)
     local = local_rotations(np.nan_to_num(params))  # (frame, joint, 3, 3)
     _, pos = forward_kinematics(np.nan_to_num(params), offsets)
