@@ -409,12 +409,15 @@ def solve_sequence(position: np.ndarray, confidence: np.ndarray, offsets: np.nda
                    rest_weight: float, distal_rest_weight: float, max_iterations: int,
                    min_reflectors: int, tolerance: float, gate_m: float, rigid_tolerance_m: float,
                    margin_m: float, view_m: float, estimates: np.ndarray | None = None,
-                   estimate_confidence: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   estimate_confidence: np.ndarray | None = None,
+                   initial: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Parameters of every frame: from the anchor frame forward, then from it backward, each frame warm-started
-    from the one solved before it.
+    from the one solved before it, or from its own ``initial`` parameters where given.
 
     position (frame, reflector, 3) NaN where missing, confidence (frame, reflector); optional single views'
-    estimates (frame, n, 3) and their confidences (frame, n) for ``from_views``
+    estimates (frame, n, 3) and their confidences (frame, n) for ``from_views``; optional ``initial`` (frame, 40),
+    NaN where none: a previous solve of the same frames on a slightly different skeleton (the calibration's
+    solves), which starts (and, by ``temporal_weight``, holds) each frame nearer its answer than another frame does
     -> params (frame, 40) NaN where unsolved, rms error (frame,), reflectors used (frame,)
     """
     n = position.shape[0]
@@ -441,7 +444,7 @@ def solve_sequence(position: np.ndarray, confidence: np.ndarray, offsets: np.nda
         used[i] = seen.sum()
         frame = (observed[seen], np.sqrt(np.clip(weight[seen], 0.0, 1.0)))
         rig = (offsets, bones[seen], reflector_offsets[seen])
-        start = last
+        start = initial[i] if initial is not None and np.isfinite(initial[i]).all() else last
         if start is None:  # first frame: from the rest pose, held near it first to avoid twisted minima
             start = initial_params(np.where(seen[:, None], observed, np.nan), offsets, bones, reflector_offsets)
             start, _ = solve_frame(*frame, start, *rig, temporal_weight=0.0, rest_weights=10 * rest_weights,

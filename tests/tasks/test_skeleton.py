@@ -59,7 +59,7 @@ def test_segment_scales_follow_the_subjects_proportions(wild):
         xyz[10:16, NAMES.index("L_CALF")] += [0.5, 0.0, 0.0]
     tmpl = skeleton.template(NAMES)
     coarse = skeleton.coarse_scale(xyz[:30], NAMES, tmpl)
-    scale, refl_scale = skeleton.fit_segment_scales(xyz[::2], tmpl, coarse, rounds=3, prior_m=3.0, outlier_m=0.03)
+    scale, refl_scale, _ = skeleton.fit_segment_scales(xyz[::2], tmpl, coarse, rounds=3, prior_m=3.0, outlier_m=0.03)
     fitted, before = _bone_length_errors(scale, subject), _bone_length_errors(coarse, subject)
     assert np.mean(fitted) < 0.8 * np.mean(before) and fitted.max() < 0.09, (fitted.round(3), before.round(3))
     arm = [body.JOINT_NAMES.index(n) for n in ("LeftElbow", "LeftWrist")]
