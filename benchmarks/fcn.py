@@ -1,5 +1,6 @@
 """2D reflector estimation benchmark: inference time per view-frame on one CPU core at the default input
-size (the `heatmaps` stage function whole: resize, crop, network; and the greedy `reflectors2d` step),
+size (the `heatmaps` stage function whole: resize, crop, network, in float32 and in bfloat16; and the
+greedy `reflectors2d` step),
 the training wall time and the weight file's size. Accuracy comes from the held-out split:
 
     taskset -c 0 python benchmarks/fcn.py
@@ -35,23 +36,27 @@ WEIGHTS = ROOT / "models" / "deepmocap_fcn.pt"
 
 
 def time_per_view_frame(frames: int = 16) -> dict[str, float]:
-    """Median milliseconds per view-frame of the heatmaps stage function (batch of one) and of greedy inference."""
+    """Median milliseconds per view-frame of the heatmaps stage function (batch of one) in each precision, the two
+    interleaved, and of greedy inference."""
     torch.set_num_threads(1)
     raw = synthesize(build_rig(SequenceSpec("jumping_jack", frames=frames, seed=9100, random_layout=True)), 0, frames)
     m = masks(raw[["depth", "ir"]], **asdict(MaskConfig()))
     f = dis(raw, **asdict(DisConfig()))
     weights = torch.load(WEIGHTS, weights_only=True)
-    heat_ms, greedy_ms = [], []
+    heat_ms, greedy_ms = {"float32": [], "bfloat16": []}, []
     for view in raw["view"].values[:1]:
         for i in range(frames):
             one_m, one_f = m.sel(view=[view]).isel(frame=[i]), f.sel(view=[view]).isel(frame=[i])
-            t = time.perf_counter()
-            h = fcn_heatmaps(one_m, one_f, weights=weights, batch=1)
-            heat_ms.append(1000 * (time.perf_counter() - t))
+            for precision, times in heat_ms.items():
+                t = time.perf_counter()
+                h = fcn_heatmaps(one_m, one_f, weights=weights, batch=1, precision=precision)
+                times.append(1000 * (time.perf_counter() - t))
             t = time.perf_counter()
             greedy_reflectors(h, one_m, **asdict(GreedyConfig()))
             greedy_ms.append(1000 * (time.perf_counter() - t))
-    return {"heatmaps_ms": statistics.median(heat_ms[2:]), "reflectors2d_ms": statistics.median(greedy_ms[2:])}
+    return {"heatmaps_ms": statistics.median(heat_ms["float32"][2:]),
+            "heatmaps_bfloat16_ms": statistics.median(heat_ms["bfloat16"][2:]),
+            "reflectors2d_ms": statistics.median(greedy_ms[2:])}
 
 
 def training_figures() -> dict:

@@ -16,10 +16,20 @@ from mocapflow.tasks.studio.reflectors import REFLECTOR_NAMES
 from mocapflow.tasks.training import CropConfig, sample_inputs
 
 
+PRECISIONS = ("float32", "bfloat16")
+
+
 @dataclass(frozen=True)
 class HeatmapConfig:
     weights: str = ""  # a file written by `mocapflow train`; empty: the weights shipped with mocapflow
     batch: int = 8
+    precision: str = "float32"  # "bfloat16": the network's convolutions in bfloat16 (torch autocast)
+
+    def __post_init__(self):
+        if self.precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {PRECISIONS}, got {self.precision!r}")
+        if self.batch < 1:
+            raise ValueError(f"batch must be >= 1 crops, got {self.batch}")
 
 
 def crop_to_image(m: np.ndarray, sample_scale: float) -> np.ndarray:
@@ -30,26 +40,28 @@ def crop_to_image(m: np.ndarray, sample_scale: float) -> np.ndarray:
         [[0, 0, 0.5 / sample_scale - 0.5], [0, 0, 0.5 / sample_scale - 0.5]])
 
 
-def infer(model, depth_images: np.ndarray, flow_images: np.ndarray, batch: int) -> tuple[np.ndarray, np.ndarray]:
+def infer(model, depth_images: np.ndarray, flow_images: np.ndarray, batch: int,
+          precision: str = "float32") -> tuple[np.ndarray, np.ndarray]:
     """Last-stage maps of ``model`` on crops.  (n, s, s, 3) uint8 x2 -> S (n, 26, g, g), L (n, 26, g, g, 2)"""
     import torch
 
     from mocapflow.tasks.fcn import N_REFLECTORS, to_input
 
     s_out, l_out = [], []
-    with torch.inference_mode():
+    low = torch.autocast("cpu", dtype=torch.bfloat16, enabled=precision == "bfloat16")
+    with torch.inference_mode(), low:
         for a in range(0, len(depth_images), batch):
             depth = to_input(depth_images[a:a + batch])
             flow = to_input(flow_images[a:a + batch]) if model.arch.flow_stream else None
             s, fields = model(depth, flow)[-1]
             n, _, gh, gw = s.shape
-            s_out.append(s[:, :N_REFLECTORS].clamp(0, 1).numpy())
+            s_out.append(s[:, :N_REFLECTORS].clamp(0, 1).float().numpy())
             l_out.append(np.zeros((n, N_REFLECTORS, gh, gw, 2), np.float32) if fields is None else
-                         fields.reshape(n, N_REFLECTORS, 2, gh, gw).permute(0, 1, 3, 4, 2).numpy())
+                         fields.reshape(n, N_REFLECTORS, 2, gh, gw).permute(0, 1, 3, 4, 2).float().numpy())
     return np.concatenate(s_out), np.concatenate(l_out)
 
 
-def fcn_heatmaps(masks: xr.Dataset, flow: xr.Dataset, *, weights: dict, batch: int) -> xr.Dataset:
+def fcn_heatmaps(masks: xr.Dataset, flow: xr.Dataset, *, weights: dict, batch: int, precision: str) -> xr.Dataset:
     """Confidence maps, OFFs and crop affines for every view and frame of ``masks``/``flow``."""
     from mocapflow.tasks.fcn import unpack
 
@@ -69,7 +81,7 @@ def fcn_heatmaps(masks: xr.Dataset, flow: xr.Dataset, *, weights: dict, batch: i
             depth_crops.append(targets.warp_depth(depth_s, a, size))
             flow_crops.append(targets.warp_flow(flow_s, a, size))
             per_frame.append(crop_to_image(a, crop.sample_scale).ravel())
-        s, fields = infer(model, np.stack(depth_crops), np.stack(flow_crops), batch)
+        s, fields = infer(model, np.stack(depth_crops), np.stack(flow_crops), batch, precision)
         confidence.append(s)
         off.append(fields)
         affines.append(np.stack(per_frame))

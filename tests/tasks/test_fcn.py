@@ -1,6 +1,7 @@
 """The two-stream FCN: stage outputs and their feedback (Eq. 1), ablation options, loss (Eq. 2-3), weights round-trip."""
 
 import io
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -52,3 +53,22 @@ def test_weights_round_trip_through_plain_tensors():
         torch.testing.assert_close(model(x, x)[-1][0], again(x, x)[-1][0])
     with pytest.raises(ValueError, match="mocapflow train"):
         fcn.unpack({"architecture": {"input_size": 32}, "state": {}})
+
+
+def test_bfloat16_inference_gives_the_float32_maps_within_its_rounding():
+    from mocapflow.tasks.heatmaps import HeatmapConfig, infer
+
+    from mocapflow import models
+
+    weights = torch.load(Path(models.__file__).parent / "deepmocap_fcn.pt", weights_only=True)  # the shipped weights
+    model = fcn.unpack(weights)
+    rng = np.random.default_rng(2)
+    size = model.arch.input_size
+    depth = rng.integers(0, 256, (3, size, size, 3), dtype=np.uint8)
+    flow = np.full((3, size, size, 3), 128, np.uint8)
+    s32, l32 = infer(model, depth, flow, 2, "float32")
+    s16, l16 = infer(model, depth, flow, 2, "bfloat16")
+    assert s16.dtype == np.float32 and s16.shape == s32.shape and l16.shape == l32.shape
+    assert 0 < np.abs(s16 - s32).max() < 0.05 and np.abs(l16 - l32).max() < 0.05  # bfloat16 keeps 8 bits of mantissa
+    with pytest.raises(ValueError, match="precision"):
+        HeatmapConfig(precision="float16")
