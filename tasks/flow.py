@@ -13,6 +13,12 @@ valid, its correspondence in frame f-1 lies inside the image on valid depth, and
 depth change is at most ``max_depth_jump`` metres per frame (larger jumps are occlusions or
 mismatches at silhouettes). Everywhere else — reflector holes, out-of-range and dropout pixels,
 the first frame of a sequence — the motion is 0 and ``valid`` is false.
+
+``dis`` may estimate only around the subject (``roi_ir`` > 0): in the box of both frames' reflector
+pixels (IR at or above ``roi_ir``) grown by ``roi_margin_px``, the only part of the image the FCN's
+crop takes flow from (tasks/training.py cuts it around the same reflectors). Outside that box the
+motion is 0 and ``valid`` false, as for invalid depth. A frame pair without reflector pixels gets the
+whole image.
 """
 
 from __future__ import annotations
@@ -40,6 +46,27 @@ def dis_flow(ir_ref: np.ndarray, ir_other: np.ndarray, *, preset: str, refine_it
     dis = cv2.DISOpticalFlow_create(DIS_PRESETS[preset])
     dis.setVariationalRefinementIterations(refine_iterations)
     return dis.calc(ir_ref, ir_other, None)
+
+
+def subject_box(ir_a: np.ndarray, ir_b: np.ndarray, *, threshold: float, margin_px: int,
+                min_side_px: int = 64) -> tuple[slice, slice]:
+    """Rows and columns around the pixels of either frame at or above ``threshold``, grown by ``margin_px``
+    and to at least ``min_side_px`` a side (DIS needs a few patches); the whole image when none is.
+    (y, x) x2 -> (rows, cols)"""
+    h, w = ir_a.shape
+    bright = (ir_a >= threshold) | (ir_b >= threshold)
+    rows, cols = np.flatnonzero(bright.any(axis=1)), np.flatnonzero(bright.any(axis=0))
+    if rows.size == 0:
+        return slice(0, h), slice(0, w)
+    return _span(rows[0], rows[-1], margin_px, min_side_px, h), _span(cols[0], cols[-1], margin_px, min_side_px, w)
+
+
+def _span(first: int, last: int, margin: int, min_side: int, size: int) -> slice:
+    """[first - margin, last + margin] widened about its centre to ``min_side``, kept inside [0, size)."""
+    grow = max(0, min_side - (last - first + 1 + 2 * margin)) / 2
+    lo, hi = int(first - margin - np.ceil(grow)), int(last + margin + np.ceil(grow)) + 1
+    lo, hi = max(0, lo), min(size, hi)
+    return slice(lo, hi)
 
 
 def lift(flow2d: np.ndarray, z_ref: np.ndarray, z_other: np.ndarray, rays: np.ndarray,
@@ -128,6 +155,13 @@ class DisConfig:
     ir_max: float = 12000.0
     max_depth_jump: float = 0.15
     color_scale_m: float = 0.05
+    roi_ir: float = 0.0  # > 0: estimate only around the pixels this bright (the reflectors) in either frame
+    roi_margin_px: int = 32  # the box around them grows by this much on each side
+
+    def __post_init__(self):
+        if self.roi_ir < 0 or self.roi_margin_px < 0:
+            raise ValueError(f"roi_ir and roi_margin_px must be >= 0 (0 roi_ir: the whole image), got "
+                             f"{self.roi_ir} and {self.roi_margin_px}")
 
 
 @dataclass(frozen=True)
@@ -153,14 +187,23 @@ class PrimalDualConfig:
 
 
 def dis(frames: xr.Dataset, *, preset: str, refine_iterations: int, ir_max: float, max_depth_jump: float,
-        color_scale_m: float) -> xr.Dataset:
-    """Stage `flow`, implementation `dis`: DIS optical flow on IR lifted to 3D with both depth maps."""
+        color_scale_m: float, roi_ir: float, roi_margin_px: int) -> xr.Dataset:
+    """Stage `flow`, implementation `dis`: DIS optical flow on IR lifted to 3D with both depth maps
+    (around the subject only, where ``roi_ir`` > 0)."""
     if preset not in DIS_PRESETS:
         raise ValueError(f"unknown DIS preset {preset!r}; use one of {sorted(DIS_PRESETS)}")
 
     def estimate(ir_ref, ir_prev, z_ref, z_prev, rays):
-        flow2d = dis_flow(ir_to_8bit(ir_ref, ir_max), ir_to_8bit(ir_prev, ir_max), preset=preset,
-                          refine_iterations=refine_iterations)
-        return lift(flow2d, z_ref, z_prev, rays, max_depth_jump)
+        box = (slice(None), slice(None))
+        if roi_ir > 0:
+            box = subject_box(ir_ref, ir_prev, threshold=roi_ir, margin_px=roi_margin_px)
+        flow2d = dis_flow(ir_to_8bit(ir_ref[box], ir_max), ir_to_8bit(ir_prev[box], ir_max), preset=preset,
+                          refine_iterations=refine_iterations)  # (h', w', 2) inside the box
+        motion, valid = lift(flow2d, z_ref[box], z_prev[box], rays[box], max_depth_jump)
+        if roi_ir <= 0:
+            return motion, valid
+        full_motion, full_valid = np.zeros(z_ref.shape + (3,), np.float32), np.zeros(z_ref.shape, bool)
+        full_motion[box], full_valid[box] = motion, valid
+        return full_motion, full_valid
 
     return flow_sequence(frames, estimate, color_scale_m=color_scale_m, max_depth_jump=max_depth_jump)

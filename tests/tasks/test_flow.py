@@ -10,7 +10,7 @@ import xarray as xr
 
 from conftest import plane_sequence
 from mocapflow.schemas import get_schema
-from mocapflow.tasks.flow import DisConfig, PrimalDualConfig, dis
+from mocapflow.tasks.flow import DisConfig, PrimalDualConfig, dis, subject_box
 from mocapflow.tasks.pdflow import primal_dual
 
 VARIANTS = {"dis": lambda ds: dis(ds, **asdict(DisConfig())),
@@ -79,3 +79,34 @@ def test_unknown_dis_preset_is_a_clear_error():
 def test_flow_dataset_dims_are_named():
     out = dis(plane_sequence([np.zeros(3)]), **asdict(DisConfig()))
     assert out.flow.dims == ("view", "frame", "y", "x", "xyz") and isinstance(out, xr.Dataset)
+
+
+def test_subject_box_grows_the_bright_pixels_box_and_stays_inside_the_image():
+    a, b = np.zeros((100, 120)), np.zeros((100, 120))
+    a[40:45, 50:52], b[47, 60] = 40000, 40000  # the reflectors of both frames count
+    assert subject_box(a, b, threshold=30000, margin_px=10, min_side_px=8) == (slice(30, 58), slice(40, 71))
+    assert subject_box(a, b, threshold=30000, margin_px=0, min_side_px=30) == (slice(29, 59), slice(40, 71))
+    a[2, 118] = 40000  # near the edges: clipped to the image
+    assert subject_box(a, b, threshold=30000, margin_px=10, min_side_px=8) == (slice(0, 58), slice(40, 120))
+    assert subject_box(np.zeros((100, 120)), b * 0, threshold=30000, margin_px=10) == (slice(0, 100), slice(0, 120))
+
+
+def test_flow_around_the_subject_only_matches_the_whole_image_there_and_is_empty_elsewhere():
+    step = np.array([0.01, 0.0, 0.0])
+    ds = plane_sequence([step], hole=(0.0, 0.0))  # the hole is a reflector: saturated IR
+    config = {**asdict(DisConfig()), "roi_ir": 30000.0, "roi_margin_px": 24}
+    whole, around = dis(ds, **asdict(DisConfig())), dis(ds, **config)
+    get_schema("scene_flow").validate(around)
+    rows, cols = subject_box(ds.ir.values[0, 1], ds.ir.values[0, 0], threshold=30000, margin_px=24)
+    inside = np.zeros(ds.ir.shape[2:], bool)
+    inside[rows, cols] = True
+    assert 0.01 < inside.mean() < 0.5  # a real crop of the image
+    flow, valid = around.flow.values[0, 1].astype(np.float32), around.valid.values[0, 1]
+    assert not valid[~inside].any() and not flow[~inside].any()
+    assert (around.colorized_flow.values[0, 1][~inside] == 128).all()
+    ring = valid & whole.valid.values[0, 1]
+    assert ring.sum() > 100
+    assert np.median(np.linalg.norm(flow[ring] - step, axis=-1)) < 0.002
+    np.testing.assert_allclose(np.median(flow[ring], axis=0), np.median(whole.flow.values[0, 1][ring], axis=0), atol=5e-4)
+    with pytest.raises(ValueError, match="roi_ir"):
+        DisConfig(roi_ir=-1.0)
