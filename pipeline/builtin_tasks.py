@@ -89,7 +89,7 @@ for name, fn, params, version, what in (
 
 # Motion capture (DeepMoCap §3.5): template calibration per sequence, then the poses.
 register(TaskSpec(
-    name="calibrate_skeleton", fn=skeleton.calibrate_skeleton, version="4", params=skeleton.SkeletonConfig,
+    name="calibrate_skeleton", fn=skeleton.calibrate_skeleton, version="5", params=skeleton.SkeletonConfig,
     output="skeleton", partition="sequence", inputs={"markers": "smoothed_markers"}, whole_sequence=True,
     description="coarse scaling, segment-scale fit, per-level particle joint estimation (Eq. 11, robust), "
                 "reflector offsets per bone",
