@@ -15,10 +15,10 @@ mismatches at silhouettes). Everywhere else — reflector holes, out-of-range an
 the first frame of a sequence — the motion is 0 and ``valid`` is false.
 
 ``dis`` may estimate only around the subject (``roi_ir`` > 0): in the box of both frames' reflector
-pixels (IR at or above ``roi_ir``) grown by ``roi_margin_px``, the only part of the image the FCN's
-crop takes flow from (tasks/training.py cuts it around the same reflectors). Outside that box the
+pixels (IR at or above ``roi_ir``) grown by ``roi_margin_px``. The FCN's crop is centred on the same
+reflectors (tasks/training.py) but reaches further, and sees no motion there: outside the box the
 motion is 0 and ``valid`` false, as for invalid depth. A frame pair without reflector pixels gets the
-whole image.
+whole image. Off by default: the 2D labels hold but the poses lose (docs/results.md, 3D optical flow).
 """
 
 from __future__ import annotations
