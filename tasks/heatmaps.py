@@ -6,6 +6,8 @@ the affine that takes their input pixels back to the image.
 
 from __future__ import annotations
 
+import functools
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,6 +17,8 @@ from mocapflow.tasks import targets
 from mocapflow.tasks.studio.reflectors import REFLECTOR_NAMES
 from mocapflow.tasks.training import CropConfig, sample_inputs
 
+
+log = logging.getLogger(__name__)
 
 PRECISIONS = ("float32", "bfloat16")
 
@@ -40,6 +44,25 @@ def crop_to_image(m: np.ndarray, sample_scale: float) -> np.ndarray:
         [[0, 0, 0.5 / sample_scale - 0.5], [0, 0, 0.5 / sample_scale - 0.5]])
 
 
+@functools.lru_cache(maxsize=1)
+def native_bfloat16() -> bool:
+    """Whether this CPU computes bfloat16 natively (AVX512-BF16 or AMX); elsewhere torch emulates it, slower
+    than float32. torch only answers through private helpers, so an unknown answer counts as native."""
+    import torch
+
+    try:
+        return bool(torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported())
+    except AttributeError:
+        return True
+
+
+@functools.lru_cache(maxsize=1)
+def _warn_emulated() -> None:
+    """Once per process."""
+    log.warning("heatmaps: precision 'bfloat16' on a CPU without AVX512-BF16 or AMX is emulated and slower than "
+                "float32; set the heatmaps stage's params to {precision: float32}")
+
+
 def infer(model, depth_images: np.ndarray, flow_images: np.ndarray, batch: int,
           precision: str = "float32") -> tuple[np.ndarray, np.ndarray]:
     """Last-stage maps of ``model`` on crops.  (n, s, s, 3) uint8 x2 -> S (n, 26, g, g), L (n, 26, g, g, 2)"""
@@ -47,6 +70,8 @@ def infer(model, depth_images: np.ndarray, flow_images: np.ndarray, batch: int,
 
     from mocapflow.tasks.fcn import N_REFLECTORS, to_input
 
+    if precision == "bfloat16" and not native_bfloat16():
+        _warn_emulated()
     s_out, l_out = [], []
     low = torch.autocast("cpu", dtype=torch.bfloat16, enabled=precision == "bfloat16")
     with torch.inference_mode(), low:

@@ -72,3 +72,20 @@ def test_bfloat16_inference_gives_the_float32_maps_within_its_rounding():
     assert 0 < np.abs(s16 - s32).max() < 0.05 and np.abs(l16 - l32).max() < 0.05  # bfloat16 keeps 8 bits of mantissa
     with pytest.raises(ValueError, match="precision"):
         HeatmapConfig(precision="float16")
+
+
+def test_bfloat16_without_native_support_is_named_in_a_warning(monkeypatch, caplog):
+    from mocapflow.tasks import heatmaps
+
+    arch = fcn.FcnArchitecture(input_size=32, stream_width=8, fused_width=8, stage_width=8, stages=2)
+    model = fcn.TwoStreamFCN(arch).eval()
+    crops = np.full((1, 32, 32, 3), 128, np.uint8)
+    monkeypatch.setattr(heatmaps, "native_bfloat16", lambda: False)
+    heatmaps._warn_emulated.cache_clear()
+    with caplog.at_level("WARNING", logger="mocapflow.tasks.heatmaps"):
+        heatmaps.infer(model, crops, crops, 1, "float32")
+        assert not caplog.records  # float32 never warns
+        for _ in range(3):
+            heatmaps.infer(model, crops, crops, 1, "bfloat16")
+    assert len(caplog.records) == 1  # once per process, not once per region
+    assert "precision: float32" in caplog.text and "AVX512-BF16" in caplog.text
