@@ -29,7 +29,6 @@ import xarray as xr  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-CHAIN = ("masks", "flow", "heatmaps", "reflectors2d")
 SENSOR = ("depth", "ir", "fx", "fy", "cx", "cy", "dist", "width", "height", "cam_to_world")  # what the stages read
 
 
@@ -60,16 +59,20 @@ def raw_frames(folder: Path) -> xr.Dataset:
     return store.open("frames", version.key, get_schema("raw_sequence"))[list(SENSOR)]
 
 
+def apply(calls: dict, stage: str, *inputs: xr.Dataset) -> xr.Dataset:
+    """``stage``'s task on ``inputs`` with the catalog's parameters (``stage_calls``)."""
+    fn, params = calls[stage]
+    return fn(*inputs, **params)
+
+
 def view_chain(folder: Path, view: str) -> tuple[xr.Dataset, xr.Dataset]:
     """One view's reflectors2d and masks, computed in memory from its raw frames."""
     calls = stage_calls(folder)
     frames = raw_frames(folder).sel(view=[view]).load()
-    fn = {name: calls[name] for name in CHAIN}
-    masks = fn["masks"][0](frames[["depth", "ir"]], **fn["masks"][1])
-    flow = fn["flow"][0](frames, **fn["flow"][1])
-    heatmaps = fn["heatmaps"][0](masks[["colorized_depth", "blob_id", "blob_area"]], flow[["colorized_flow"]],
-                                 **fn["heatmaps"][1])
-    reflectors = fn["reflectors2d"][0](heatmaps, masks[["blob_id", "blob_area"]], **fn["reflectors2d"][1])
+    masks = apply(calls, "masks", frames[["depth", "ir"]])
+    flow = apply(calls, "flow", frames)
+    heatmaps = apply(calls, "heatmaps", masks[["colorized_depth", "blob_id", "blob_area"]], flow[["colorized_flow"]])
+    reflectors = apply(calls, "reflectors2d", heatmaps, masks[["blob_id", "blob_area"]])
     return reflectors, masks[["blob_id"]]
 
 
@@ -82,14 +85,10 @@ def run(folder: Path, workers: int) -> float:
     calls = stage_calls(folder)
     reflectors = xr.concat([r for r, _ in per_view], dim="view")
     masks = xr.concat([m for _, m in per_view], dim="view")
-    fuse, p = calls["markers3d"]
-    markers = fuse(reflectors, masks, frames.load(), **p)
-    smooth, p = calls["smoothed"]
-    smoothed = smooth(markers, **p)
-    calibrate, p = calls["skeleton"]
-    skeleton = calibrate(smoothed, **p)
-    solve, p = calls["poses"]
-    poses = solve(skeleton, smoothed, markers[["view_position", "view_confidence"]], **p)
+    markers = apply(calls, "markers3d", reflectors, masks, frames.load())
+    smoothed = apply(calls, "smoothed", markers)
+    skeleton = apply(calls, "skeleton", smoothed)
+    poses = apply(calls, "poses", skeleton, smoothed, markers[["view_position", "view_confidence"]])
     assert poses.sizes["frame"] == frames.sizes["frame"]
     return time.perf_counter() - STARTED
 

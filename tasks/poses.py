@@ -13,8 +13,7 @@ keeps its last rotation instead of drifting. Frames are warm-started from the pr
 
 Order and gate: the solve starts at an anchor frame, the first that sees at least the take's median
 count of reflectors and whose reflectors keep the distances the skeleton allows (a take may open with
-wrong labels),
-runs forward to the end, then backward from the anchor to the first frame. Each later frame leaves out
+wrong labels), runs forward to the end, then backward from the anchor to the first frame. Each later frame leaves out
 the reflectors that lie more than ``gate_m`` from where the last two solved frames' motion (constant
 velocity) puts them, or that lie more than ``margin_m`` nearer another reflector's prediction than
 their own: a label that jumps to another limb or to a neighbouring strap, or a limb that reappears under
