@@ -4,12 +4,19 @@ One runner for every stage: load the inputs of a frame region (plus the task's h
 storage, call the pure task with the stage's params as keyword arguments, crop the halo, check
 the schema, write the region, commit its marker. Regions already committed are skipped, so a
 killed run resumes where it stopped.
+
+A *unit* runs one frame region of a group of partitions that work region by region: the stages of
+one sequence x view (say masks -> flow -> heatmaps -> reflectors2d), or of one sequence. Each
+member's output is written as usual and handed to the members after it in memory (with the last
+frames of the group's previous region, for a halo), and an input several members read (the raw
+frames) is loaded once. The artifacts are the same as partition by partition.
 """
 
 from __future__ import annotations
 
 import logging
 import socket
+import threading
 import time
 import traceback
 from dataclasses import dataclass, fields
@@ -48,10 +55,27 @@ def regions(n_frames: int, region_frames: int, frame_chunk: int) -> list[tuple[i
     return [(a, min(a + size, n_frames)) for a in range(0, n_frames, size)]
 
 
-def run_partition(item: WorkItem, *upstream: Result) -> Result:
+def spans(item: WorkItem) -> list[tuple[int, int]]:
+    """The frame regions ``item`` is produced in (one for a whole-sequence task)."""
+    spec = registry.get(item.stage.task)
+    n = item.sequence.n_frames
+    return [(0, n)] if spec.whole_sequence else regions(n, item.stage.region_frames, get_schema(spec.output).frame_chunk)
+
+
+def failed_upstream(item: WorkItem, upstream) -> list[str]:
+    """The partitions ``item`` reads whose Result (among ``upstream``: Results or lists of them) is not ok."""
+    reads = set(item.depends_on)
+    return sorted({r.partition for r in _flat(upstream) if not r.ok and r.partition in reads})
+
+
+def _flat(upstream) -> list[Result]:
+    return [r for u in upstream for r in (u if isinstance(u, (list, tuple)) else [u])]
+
+
+def run_partition(item: WorkItem, *upstream) -> Result:
     """Produce ``item`` unless it is complete; failures come back as a Result, never raised."""
     pid = item.partition.id
-    failed_up = [r.partition for r in upstream if not r.ok]
+    failed_up = failed_upstream(item, upstream)
     if failed_up:
         return Result(pid, "skipped", error=f"upstream failed: {', '.join(failed_up)}")
     started = time.perf_counter()
@@ -72,6 +96,169 @@ def run_partition(item: WorkItem, *upstream: Result) -> Result:
                       seconds=time.perf_counter() - started)
 
 
+@dataclass(frozen=True)
+class Unit:
+    """Frames [start, stop) of a group of partitions (``items``, upstream first) of one sequence x view or one
+    sequence, run in one task; ``first`` / ``last``: the group's first / last region."""
+
+    items: tuple[WorkItem, ...]
+    start: int
+    stop: int
+    first: bool
+    last: bool
+
+    @property
+    def id(self) -> str:
+        head = self.items[0].partition
+        where = "/".join(p for p in (head.sequence, head.view) if p is not None)
+        return f"{'+'.join(i.partition.stage for i in self.items)}/{where}@{self.start}-{self.stop}"
+
+
+def run_unit(unit: Unit, *upstream) -> list[Result]:
+    """Produce frames [start, stop) of every member of ``unit`` not yet written, each member's output going to
+    the members after it in memory; one Result per member (in order), failures reported, never raised. A
+    member whose input failed (here or in an earlier region) is skipped; the others go on."""
+    store = Store(unit.items[0].catalog.root)
+    loader = _UnitInputs(store, unit)
+    done: list[Result] = []
+    for item in unit.items:
+        pid = item.partition.id
+        earlier = [r.partition for r in _flat(upstream) if r.partition == pid and not r.ok]
+        failed_up = failed_upstream(item, list(upstream) + done)
+        if earlier:
+            done.append(Result(pid, "skipped", error="an earlier region of this partition failed"))
+        elif failed_up:
+            done.append(Result(pid, "skipped", error=f"upstream failed: {', '.join(failed_up)}"))
+        else:
+            done.append(_unit_member(item, unit, store, loader))
+    return done
+
+
+def _unit_member(item: WorkItem, unit: Unit, store: Store, loader: "_UnitInputs") -> Result:
+    """One member's region of a unit: computed and written under the member's lock, the partition committed
+    after the chain's last region."""
+    pid, stage, key = item.partition.id, item.partition.stage, item.key
+    started = time.perf_counter()
+    try:
+        registry.import_plugins(item.catalog.plugins)
+        if store.is_complete(stage, key):
+            return Result(pid, "cached")
+        with store.lock(stage, key, pid):
+            if store.is_complete(stage, key):
+                return Result(pid, "cached")
+            written = 0
+            if not store.region_done(stage, key, unit.start, unit.stop):
+                spec = registry.get(item.stage.task)
+                if unit.first or not store.pending_lineage(stage, key):
+                    store.begin(stage, key, item.lineage(started=now(), host=socket.gethostname()))
+                out = _compute_region(item, spec, store, unit.start, unit.stop, load=loader.for_member(item))
+                store.write_region(stage, key, get_schema(spec.output), out, item.sequence.n_frames, unit.start,
+                                   unit.stop, seconds=time.perf_counter() - started)
+                loader.keep(item, out)
+                written = 1
+            committed = unit.last and _commit_if_whole(item, store)
+        status = "executed" if written or committed else "cached"
+        return Result(pid, status, seconds=time.perf_counter() - started, regions=written)
+    except MocapflowError as exc:
+        return Result(pid, "failed", error=str(exc), seconds=time.perf_counter() - started)
+    except Exception as exc:  # a task's own bug: report it with its traceback, keep the run alive
+        return Result(pid, "failed", error=f"{type(exc).__name__}: {exc}", detail=traceback.format_exc(),
+                      seconds=time.perf_counter() - started)
+
+
+def _commit_if_whole(item: WorkItem, store: Store) -> bool:
+    """Commit ``item``'s partition if every region is written (lineage: the sum of the regions' seconds)."""
+    stage, key = item.partition.stage, item.key
+    if not all(store.region_done(stage, key, a, b) for a, b in spans(item)):
+        return False
+    spec = registry.get(item.stage.task)
+    begun = store.pending_lineage(stage, key)
+    store.commit(stage, key, item.lineage(started=begun.get("started", now()), finished=now(),
+                                          host=socket.gethostname(),
+                                          compute_seconds=round(store.region_seconds(stage, key), 3),
+                                          code_version=spec.version, schema=item.components["schema"]))
+    return True
+
+
+class _UnitInputs:
+    """Inputs of a unit's members: the output of an earlier member of this region from memory (earlier frames
+    of a halo from storage), anything else from storage, each upstream artifact loaded once for the unit
+    (every variable and frame its readers in the unit need)."""
+
+    def __init__(self, store: Store, unit: Unit):
+        self.store, self.unit = store, unit
+        self.memory: dict[str, xr.Dataset] = {}
+        self.loaded: dict[tuple, xr.Dataset] = {}
+        self.wanted: dict[tuple, tuple] = {}  # upstream -> (variables or None for all, lo, hi)
+        members = {i.partition.stage for i in unit.items}
+        self.halos: dict[str, int] = {}  # member -> the most frames before a region that a member reads of it
+        for item in unit.items:
+            spec = registry.get(item.stage.task)
+            lo, hi = max(0, unit.start - spec.halo[0]), min(item.sequence.n_frames, unit.stop + spec.halo[1])
+            for role, up in item.upstream.items():
+                if up.stage in members:
+                    self.halos[up.stage] = max(self.halos.get(up.stage, 0), spec.halo[0])
+                    continue
+                names, a, b = self.wanted.get(_source(up), ((), lo, hi))
+                reads = spec.reads.get(role)
+                names = None if names is None or reads is None else tuple(dict.fromkeys(names + tuple(reads)))
+                self.wanted[_source(up)] = (names, min(a, lo), max(b, hi))
+        with _TAILS_LOCK:  # the previous region's last frames, before this unit replaces them
+            self.tails = {i.partition.stage: _TAILS.get((i.partition.stage, i.key)) for i in unit.items}
+
+    def keep(self, item: WorkItem, out: xr.Dataset) -> None:
+        """``item``'s output of this region, for the members after it; its last frames also for the chain's next
+        region (a halo), if that runs in this process."""
+        self.memory[item.partition.stage] = out
+        halo = self.halos.get(item.partition.stage, 0)
+        if halo and not self.unit.last and "frame" in out.dims:
+            with _TAILS_LOCK:
+                _TAILS[(item.partition.stage, item.key)] = out.isel(frame=slice(-halo, None))
+                while len(_TAILS) > 32:
+                    _TAILS.pop(next(iter(_TAILS)))
+
+    def for_member(self, item: WorkItem):
+        view = item.partition.view
+
+        def load(up, lo, hi, variables):
+            if up.stage in self.memory:
+                return self._from_memory(up, view, lo, hi, variables)
+            source = _source(up)
+            if source not in self.wanted:  # a member that found this region written: from storage
+                return _load_input(self.store, up, view, lo, hi, variables, partial=True)
+            if source not in self.loaded:
+                names, a, b = self.wanted[source]
+                self.loaded[source] = _load_input(self.store, up, view, a, b, names, partial=True)
+            ds = self.loaded[source]
+            return (ds if variables is None else ds[list(variables)]).sel(frame=slice(lo, hi - 1))
+
+        return load
+
+    def _from_memory(self, up, view, lo: int, hi: int, variables) -> xr.Dataset:
+        ds = self.memory[up.stage]
+        ds = ds if variables is None else ds[list(variables)]
+        assert hi <= self.unit.stop, (up.stage, hi, self.unit.stop)  # chains hold no look-ahead halo
+        if lo >= self.unit.start:
+            return ds.sel(frame=slice(lo, hi - 1))
+        tail = self.tails.get(up.stage)
+        if tail is not None and tail["frame"].size and int(tail["frame"][0]) <= lo and \
+                int(tail["frame"][-1]) == self.unit.start - 1:
+            earlier = tail if variables is None else tail[list(variables)]
+            earlier = earlier.sel(frame=slice(lo, self.unit.start - 1))
+        else:
+            earlier = _load_input(self.store, up, view, lo, self.unit.start, variables, partial=True)
+        return xr.concat([earlier, ds], dim="frame", data_vars="minimal", coords="minimal", compat="override",
+                         join="override")
+
+
+_TAILS: dict[tuple[str, str], xr.Dataset] = {}  # (stage, key) -> the last frames of its latest region, this process
+_TAILS_LOCK = threading.Lock()
+
+
+def _source(up) -> tuple:
+    return (up.stage, tuple(sorted((str(k), v) for k, v in up.keys.items())))
+
+
 def _produce(item: WorkItem, store: Store) -> int:
     spec = registry.get(item.stage.task)
     schema = get_schema(spec.output)
@@ -81,8 +268,7 @@ def _produce(item: WorkItem, store: Store) -> int:
     n = item.sequence.n_frames
     written = 0
     t0 = time.perf_counter()
-    spans = [(0, n)] if spec.whole_sequence else regions(n, item.stage.region_frames, schema.frame_chunk)
-    for start, stop in spans:
+    for start, stop in spans(item):
         if store.region_done(stage, key, start, stop):
             continue
         out = _compute_region(item, spec, store, start, stop)
@@ -95,7 +281,10 @@ def _produce(item: WorkItem, store: Store) -> int:
     return written
 
 
-def _compute_region(item: WorkItem, spec: registry.TaskSpec, store: Store, start: int, stop: int) -> xr.Dataset:
+def _compute_region(item: WorkItem, spec: registry.TaskSpec, store: Store, start: int, stop: int,
+                    load=None) -> xr.Dataset:
+    """``item``'s task on frames [start, stop); ``load(up, lo, hi, variables)`` gives an input (from storage
+    when None)."""
     if spec.source:
         dataset = item.catalog.datasets[item.stage.dataset]
         return read_frames(item.catalog, dataset, item.sequence, start, stop)
@@ -104,8 +293,10 @@ def _compute_region(item: WorkItem, spec: registry.TaskSpec, store: Store, start
     else:
         lo = max(0, start - spec.halo[0])
         hi = min(item.sequence.n_frames, stop + spec.halo[1])
-        inputs = {role: _load_input(store, up, item.partition.view, lo, hi, spec.reads.get(role))
-                  for role, up in item.upstream.items()}
+        if load is None:
+            def load(up, lo, hi, variables):
+                return _load_input(store, up, item.partition.view, lo, hi, variables)
+        inputs = {role: load(up, lo, hi, spec.reads.get(role)) for role, up in item.upstream.items()}
     params = {f.name: getattr(item.stage.params, f.name) for f in fields(item.stage.params)}
     for name, (path, sha) in item.weights.items():  # weight files arrive as tensors, loaded once per worker
         params[name] = load_weights(path, sha)
@@ -136,15 +327,18 @@ def _load_samples(store: Store, up, variables=None) -> xr.Dataset:
     return xr.concat(parts, dim="sample", data_vars="minimal", coords="minimal", compat="override", join="override")
 
 
-def _load_input(store: Store, up, view: str | None, lo: int, hi: int, variables=None) -> xr.Dataset:
-    """Upstream artifact for this partition's view(s) and frames [lo, hi) (only ``variables``), in memory."""
+def _load_input(store: Store, up, view: str | None, lo: int, hi: int, variables=None,
+                partial: bool = False) -> xr.Dataset:
+    """Upstream artifact for this partition's view(s) and frames [lo, hi) (only ``variables``), in memory.
+    ``partial``: the artifact may be incomplete (the caller knows those frames are written)."""
     parts = []
     for key in up.keys.values():
-        ds = store.open(up.stage, key, get_schema(up.schema))
+        ds = store.open(up.stage, key, get_schema(up.schema), partial=partial)
         if variables is not None:
             ds = ds[list(variables)]
-        if up.partition == "sequence" and view is not None:
-            ds = ds.sel(view=[view])
+        if up.partition == "sequence" and view is not None:  # a slice, not a list: zarr reads it 3x faster
+            at = [str(v) for v in ds["view"].values].index(str(view))
+            ds = ds.isel(view=slice(at, at + 1))
         if "frame" in ds.dims:
             ds = ds.isel(frame=slice(lo, hi))
         parts.append(ds)

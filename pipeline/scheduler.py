@@ -1,10 +1,16 @@
 """Scheduling partitions with Dask.
 
-One Dask task per partition; edges are the partitions it reads. Only small work items travel in
-the graph (never arrays or models): workers read inputs from storage and write outputs there.
-Locally an in-process cluster with ``workers`` threads runs the graph; ``address`` attaches to an
-existing dask.distributed scheduler instead (``dask scheduler`` + ``dask worker``), whose lost
-workers' tasks are rescheduled on the others.
+A stage that works region by region runs as *units* (execute.py): one Dask task per frame region of
+a group of partitions, the stages of one sequence x view (masks -> flow -> heatmaps -> reflectors2d)
+or of one sequence, each unit after the group's previous region. Other partitions (whole-sequence
+filters, training, the source stage) run as one task each. A unit waits for the units of other
+groups that write the frames it reads, and earlier frames go first, so the views' groups
+interleave on the workers region by region, downstream regions start while upstream ones run, and
+inputs pass between the members of a unit in memory. Only small work items travel in the graph
+(never arrays or models): workers read inputs from storage and write outputs there. Locally an
+in-process cluster with ``workers`` threads runs the graph; ``address`` attaches to an existing
+dask.distributed scheduler instead (``dask scheduler`` + ``dask worker``), whose lost workers'
+tasks are rescheduled on the others.
 """
 
 from __future__ import annotations
@@ -13,12 +19,14 @@ import logging
 import sys
 import uuid
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 from typing import Iterator
 
 from tqdm import tqdm
 
+from mocapflow.pipeline import registry
 from mocapflow.pipeline.errors import PlanError
-from mocapflow.pipeline.execute import Result, run_partition
+from mocapflow.pipeline.execute import Result, Unit, run_partition, run_unit, spans
 from mocapflow.pipeline.plan import WorkItem
 
 log = logging.getLogger(__name__)
@@ -47,42 +55,158 @@ def dask_client(workers: int, address: str | None) -> Iterator:
 
 
 def run_items(items: list[WorkItem], *, workers: int = 2, address: str | None = None,
-              keep_going: bool = False, progress: bool = True) -> list[Result]:
-    """Run ``items`` (topologically ordered) and return one Result per item, in order."""
+              keep_going: bool = False, progress: bool = True, units: bool = True) -> list[Result]:
+    """Run ``items`` (topologically ordered) and return one Result per item, in order. ``units``: run the
+    stages that work region by region as units (the default); False: every partition as one task."""
     if not items:
         return []
     from distributed import as_completed
 
-    run_id = uuid.uuid4().hex[:8]
     with dask_client(workers, address) as client:
-        futures, owner = {}, {}
-        for item in items:
-            ups = [futures[d] for d in item.depends_on if d in futures]
-            fut = client.submit(run_partition, item, *ups, key=f"{item.partition.id}-{item.key}-{run_id}", pure=False)
-            futures[item.partition.id] = fut
-            owner[fut.key] = item.partition.id
-        results: dict[str, Result] = {}
-        bar = tqdm(total=len(futures), unit="part", file=sys.stderr, disable=not progress, dynamic_ncols=True)
+        graph = _submit(client, plan_tasks(items, units=units), uuid.uuid4().hex[:8])
+        reports: dict[str, list[Result]] = {}
+        bar = tqdm(total=len(items), unit="part", file=sys.stderr, disable=not progress, dynamic_ncols=True)
         try:
-            for fut in as_completed(list(futures.values())):
-                pid = owner[fut.key]
-                results[pid] = _result(fut, pid)
-                bar.set_postfix_str(pid, refresh=False)
-                bar.update()
-                if results[pid].status == "failed" and not keep_going:
-                    client.cancel([f for f in futures.values() if not f.done()])
+            for fut in as_completed(graph.futures):
+                for r in _results(fut, graph.reports[fut.key]):
+                    reports.setdefault(r.partition, []).append(r)
+                finished = graph.finishes.get(fut.key, [])
+                if finished:
+                    bar.set_postfix_str(finished[-1], refresh=False)
+                    bar.update(len(finished))
+                if not keep_going and any(r.status == "failed" for p in graph.reports[fut.key]
+                                             for r in reports.get(p, [])):
+                    client.cancel([f for f in graph.futures if not f.done()])
                     break
         finally:
             bar.close()
-    return [results.get(i.partition.id) or Result(i.partition.id, "skipped", error="run stopped after a failure")
-            for i in items]
+    return [_summary(i.partition.id, reports.get(i.partition.id, []), graph.tasks_of[i.partition.id]) for i in items]
 
 
-def _result(fut, pid: str) -> Result:
+@dataclass
+class _Graph:
+    futures: list = field(default_factory=list)
+    reports: dict[str, list[str]] = field(default_factory=dict)  # future key -> the partitions it reports on
+    finishes: dict[str, list[str]] = field(default_factory=dict)  # future key -> the partitions it finishes
+    tasks_of: dict[str, int] = field(default_factory=dict)  # partition -> how many tasks report on it
+
+
+def _submit(client, tasks: list[WorkItem | Unit], run_id: str) -> _Graph:
+    """Submit ``tasks`` (each after the tasks it reads) with their dependencies."""
+    graph = _Graph()
+    last: dict[str, object] = {}  # partition -> the future of its latest task
+    by_region: dict[str, list[tuple[int, object]]] = {}  # partition run as units -> (region stop, its unit)
+    for task in tasks:
+        is_unit = isinstance(task, Unit)
+        members = list(task.items) if is_unit else [task]
+        own = {m.partition.id for m in members}
+        ups = {}
+        for dep in (d for m in members for d in m.depends_on if d not in own):
+            fut = (_unit_covering(by_region.get(dep, []), task.stop) if is_unit else None) or last.get(dep)
+            if fut is not None:
+                ups[fut.key] = fut
+        if is_unit:
+            if not task.first:
+                ups[last[members[0].partition.id].key] = last[members[0].partition.id]  # the group's previous region
+            fut = client.submit(run_unit, task, *ups.values(), key=f"{task.id}-{run_id}", pure=False,
+                                priority=-task.start)  # earlier frames first: downstream regions start early
+        else:
+            fut = client.submit(run_partition, task, *ups.values(), key=f"{task.partition.id}-{task.key}-{run_id}",
+                                pure=False)
+        graph.futures.append(fut)
+        graph.reports[fut.key] = sorted(own, key=[m.partition.id for m in members].index)
+        if not is_unit or task.last:
+            graph.finishes[fut.key] = graph.reports[fut.key]
+        for pid in own:
+            last[pid] = fut
+            graph.tasks_of[pid] = graph.tasks_of.get(pid, 0) + 1
+            if is_unit:
+                by_region.setdefault(pid, []).append((task.stop, fut))
+    return graph
+
+
+def _unit_covering(units: list[tuple[int, object]], stop: int):
+    """The unit (of a partition run region by region, in order) after which frames before ``stop`` are written:
+    a unit reads no frame at or after its own stop, and each unit runs after the previous one."""
+    return next((fut for end, fut in units if end >= stop), None)
+
+
+def plan_tasks(items: list[WorkItem], *, units: bool = True) -> list[WorkItem | Unit]:
+    """The tasks that run ``items``: the units of each group (``region_groups``) and the other items as they
+    are, each after every task it reads (otherwise in the order of ``items``)."""
+    groups = region_groups(items) if units else []
+    node_of = {m.partition.id: ("group", g) for g, members in enumerate(groups) for m in members}
+    node_of.update({i.partition.id: ("item", n) for n, i in enumerate(items) if i.partition.id not in node_of})
+    nodes = list(dict.fromkeys(node_of[i.partition.id] for i in items))
+    members = {node: [i for i in items if node_of[i.partition.id] == node] for node in nodes}
+    needs = {node: {node_of[d] for m in members[node] for d in m.depends_on if d in node_of} - {node} for node in nodes}
+    order, placed = [], set()
+    while len(placed) < len(nodes):
+        node = next(n for n in nodes if n not in placed and needs[n] <= placed)  # items are topological: one exists
+        placed.add(node)
+        order.extend(_units(groups[node[1]]) if node[0] == "group" else members[node])
+    return order
+
+
+def _units(members: list[WorkItem]) -> list[Unit]:
+    regions = spans(members[0])
+    return [Unit(tuple(members), a, b, first=k == 0, last=k == len(regions) - 1) for k, (a, b) in enumerate(regions)]
+
+
+def region_groups(items: list[WorkItem]) -> list[list[WorkItem]]:
+    """The items that work region by region (no look-ahead halo), grouped per sequence x view (per sequence for
+    per-sequence stages); in each group the items on its first item's regions, unless an item outside the
+    group both reads one of them and is read by one (it would have to run between them)."""
+    groups: dict[tuple, list[WorkItem]] = {}
+    for item in items:
+        spec = registry.get(item.stage.task)
+        if spec.partition in ("view", "sequence") and not spec.source and not spec.whole_sequence \
+                and spec.halo[1] == 0:
+            groups.setdefault((item.partition.sequence, item.partition.view), []).append(item)
+    ids = {i.partition.id: i for i in items}
+    out = []
+    for members in groups.values():
+        members = [m for m in members if spans(m) == spans(members[0])]
+        inside = {m.partition.id for m in members}
+        outside = {d for m in members for d in m.depends_on if d not in inside and d in ids}
+        if not any(_reads_any(ids[d], inside, ids) for d in outside):
+            out.append(members)
+    return out
+
+
+def _reads_any(item: WorkItem, targets: set[str], ids: dict, seen: set | None = None) -> bool:
+    """Whether ``item`` reads (directly or through other items of the run) one of ``targets``."""
+    seen = set() if seen is None else seen
+    for dep in item.depends_on:
+        if dep in targets:
+            return True
+        if dep in ids and dep not in seen:
+            seen.add(dep)
+            if _reads_any(ids[dep], targets, ids, seen):
+                return True
+    return False
+
+
+def _results(fut, partitions: list[str]) -> list[Result]:
     try:
-        return fut.result()
+        out = fut.result()
+        return list(out) if isinstance(out, (list, tuple)) else [out]
     except Exception as exc:  # a lost worker (KilledWorker), cancellation or unpickling failure
-        return Result(pid, "failed", error=f"{type(exc).__name__}: {exc}")
+        return [Result(pid, "failed", error=f"{type(exc).__name__}: {exc}") for pid in partitions]
+
+
+def _summary(pid: str, reports: list[Result], tasks: int) -> Result:
+    """One partition's Result from the reports of its ``tasks`` tasks (a partition run as units: one per region)."""
+    if len(reports) < tasks and not any(r.status in ("failed", "skipped") for r in reports):
+        return Result(pid, "skipped", error="run stopped after a failure")
+    if len(reports) == 1:
+        return reports[0]
+    for status in ("failed", "skipped"):
+        if any(r.status == status for r in reports):
+            return next(r for r in reports if r.status == status)
+    executed = any(r.status == "executed" for r in reports)
+    return Result(pid, "executed" if executed else "cached", seconds=sum(r.seconds for r in reports),
+                  regions=sum(r.regions for r in reports))
 
 
 def compute_missing(items, store, *, workers: int, what: str) -> list[WorkItem]:

@@ -109,8 +109,9 @@ class Store:
         self._put(self._marker(stage, key, "lineage.json"), json.dumps(lineage, indent=1).encode())
 
     def write_region(self, stage: str, key: str, schema: ArtifactSchema, ds: xr.Dataset,
-                     n_frames: int, start: int, stop: int) -> None:
-        """Write frames [start, stop) of ``ds`` (validated), initializing the store on first use."""
+                     n_frames: int, start: int, stop: int, seconds: float = 0.0) -> None:
+        """Write frames [start, stop) of ``ds`` (validated), initializing the store on first use; the region's
+        marker records the ``seconds`` it took."""
         check(schema, ds, f"output of stage {stage!r} frames {start}-{stop}")
         frames = ds["frame"].values if "frame" in ds.coords else None
         assert frames is None or np.array_equal(frames, np.arange(start, stop)), (stage, start, stop)
@@ -125,7 +126,24 @@ class Store:
                 write_zarr_region(target, ds, start, stop)
         else:
             write_zarr_region(target, ds, start, stop)
-        self._put(self._marker(stage, key, f"_regions/{start:08d}-{stop:08d}"), b"")
+        self._put(self._marker(stage, key, f"_regions/{start:08d}-{stop:08d}"), f"{seconds:.6f}".encode())
+
+    def region_seconds(self, stage: str, key: str) -> float:
+        """The seconds recorded by the written regions of a version (0 for markers without)."""
+        total = 0.0
+        for path in self.fs.glob(self._marker(stage, key, "_regions/*")):
+            try:
+                total += float(self.fs.cat_file(path) or 0.0)
+            except ValueError:
+                continue
+        return total
+
+    def pending_lineage(self, stage: str, key: str) -> dict:
+        """The lineage written by ``begin`` ({} if none)."""
+        try:
+            return json.loads(self.fs.cat_file(self._marker(stage, key, "lineage.json")))
+        except (OSError, ValueError):
+            return {}
 
     def commit(self, stage: str, key: str, lineage: dict) -> None:
         """Record lineage in the zarr attrs and mark the version complete (last write)."""
@@ -137,9 +155,10 @@ class Store:
         self._put(self._marker(stage, key, "_COMPLETE"), str(time.time()).encode())
 
     # ---- reading -------------------------------------------------------------------------
-    def open(self, stage: str, key: str, schema: ArtifactSchema) -> xr.Dataset:
-        """The complete artifact, lazily indexed and checked against ``schema``."""
-        if not self.is_complete(stage, key):
+    def open(self, stage: str, key: str, schema: ArtifactSchema, partial: bool = False) -> xr.Dataset:
+        """The complete artifact, lazily indexed and checked against ``schema``. ``partial``: also an artifact
+        still being written (only its written regions hold data; the caller reads no other frames)."""
+        if not (partial and self.fs.exists(self._marker(stage, key, "_init"))) and not self.is_complete(stage, key):
             raise StorageError(f"artifact {stage}/{key} is not complete in {self.root}; "
                                f"run `mocapflow run --until {stage}` to produce it")
         try:

@@ -4,10 +4,12 @@
 - ``diff``: per-view, depth[f] - depth[f-1] (halo of one frame before)
 - ``total``: per-sequence, sum over views
 - ``boom``: per-view, raises for one chosen view (tests --keep-going)
+- ``flaky``: per-view, value + 1; raises for one chosen view from the frame in $TOY_FLAKY_FROM on, if set
 """
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass
 
@@ -71,6 +73,18 @@ def boom(frames: xr.Dataset, *, bad_view: str) -> xr.Dataset:
 
 
 @dataclass(frozen=True)
+class FlakyParams:
+    bad_view: str = "cam1"
+
+
+def flaky(scaled: xr.Dataset, *, bad_view: str) -> xr.Dataset:
+    from_frame = os.environ.get("TOY_FLAKY_FROM")  # a failure that is not part of the cache key: resume tests
+    if from_frame and str(scaled["view"].values[0]) == bad_view and int(scaled["frame"].values[-1]) >= int(from_frame):
+        raise RuntimeError(f"flaky on {bad_view} from frame {from_frame}")
+    return xr.Dataset({"value": scaled["value"] + 1})
+
+
+@dataclass(frozen=True)
 class WeightedParams:
     weights: str = ""
 
@@ -87,6 +101,7 @@ register(TaskSpec("scale_plus", scale_plus, "1", ScaleParams, "toy_view", "view"
 register(TaskSpec("diff", diff, "1", NoParams, "toy_view", "view", {"scaled": "toy_view"}, halo=(1, 0)))
 register(TaskSpec("total", total, "1", NoParams, "toy_sequence", "sequence", {"scaled": "toy_view"}))
 register(TaskSpec("boom", boom, "1", BoomParams, "toy_view", "view", {"frames": "raw_sequence"}))
+register(TaskSpec("flaky", flaky, "1", FlakyParams, "toy_view", "view", {"scaled": "toy_view"}))
 
 
 def true_reflectors(frames: xr.Dataset) -> xr.Dataset:

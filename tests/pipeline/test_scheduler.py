@@ -1,0 +1,127 @@
+"""Units: the stages that work region by region run frame region by frame region, per sequence x view (or per
+sequence), members passing their outputs on in memory; the artifacts equal a partition-by-partition run."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from conftest import PLUGINS, assert_same_artifacts, last_json, mocapflow, read_artifacts
+from mocapflow.pipeline import execute, registry
+from mocapflow.pipeline.catalog import load_catalog
+from mocapflow.pipeline.execute import Unit, run_unit
+from mocapflow.pipeline.plan import build_plan
+from mocapflow.pipeline.scheduler import plan_tasks, region_groups, run_items
+from mocapflow.pipeline.storage import Store
+
+FLAKY_CATALOG = """\
+plugins: [toytasks]
+storage: {{root: storage/, region_frames: 4}}
+datasets:
+  rec: {{kind: zarr, path: data}}
+stages:
+  frames: {{task: ingest}}
+  scaled: {{task: scale, inputs: [frames], params: {{factor: 3}}}}
+  flaked: {{task: flaky, inputs: [scaled], params: {{bad_view: cam1}}}}
+  diffed: {{task: diff, inputs: [flaked]}}
+"""
+
+
+def toy_plan(project, monkeypatch):
+    monkeypatch.syspath_prepend(str(PLUGINS))
+    catalog = load_catalog(project / "catalog.yaml")
+    registry.import_plugins(catalog.plugins)
+    return catalog, build_plan(catalog)
+
+
+def test_groups_hold_a_views_stages_and_every_unit_follows_what_it_reads(toy_project, monkeypatch):
+    _, plan = toy_plan(toy_project(), monkeypatch)  # 2 sequences x 2 views, 20 frames, regions of 4
+    items = list(plan.items.values())
+    groups = {tuple(m.partition.id for m in g) for g in region_groups(items)}
+    assert groups == {("scaled/seqA/cam0", "diffed/seqA/cam0"), ("scaled/seqA/cam1", "diffed/seqA/cam1"),
+                      ("scaled/seqB/cam0", "diffed/seqB/cam0"), ("scaled/seqB/cam1", "diffed/seqB/cam1"),
+                      ("summed/seqA",), ("summed/seqB",)}  # the source stage `frames` runs as one task
+    tasks = plan_tasks(items)
+    units = [t for t in tasks if isinstance(t, Unit)]
+    assert len(units) == 6 * 5 and len(tasks) == 6 * 5 + 2
+    cam0 = [(u.start, u.stop, u.first, u.last) for u in units if u.items[0].partition.id == "scaled/seqA/cam0"]
+    assert cam0 == [(0, 4, True, False), (4, 8, False, False), (8, 12, False, False), (12, 16, False, False),
+                    (16, 20, False, True)]
+    written: dict[str, int] = {}  # partition -> frames written by the tasks so far
+    for task in tasks:
+        members = task.items if isinstance(task, Unit) else (task,)
+        stop = task.stop if isinstance(task, Unit) else task.sequence.n_frames
+        for m in members:
+            assert all(written.get(d, 0) >= stop for d in m.depends_on), (m.partition.id, task)
+            assert written.get(m.partition.id, 0) == (task.start if isinstance(task, Unit) else 0)
+            written[m.partition.id] = stop
+    assert plan_tasks(items, units=False) == items
+
+
+def test_units_write_what_partitions_write_with_the_right_values(toy_project, tmp_path_factory, monkeypatch):
+    project = toy_project()
+    projects = {True: project, False: _copy_inputs(project, tmp_path_factory.mktemp("partitions"))}
+    for units, project in projects.items():
+        _, plan = toy_plan(project, monkeypatch)
+        results = run_items(list(plan.items.values()), workers=2, units=units, progress=False)
+        assert all(r.status == "executed" for r in results), [r for r in results if not r.ok]
+        assert {r.partition: r.regions for r in results}["diffed/seqA/cam1"] == 5
+    by_units, by_partitions = (read_artifacts(projects[m] / "storage") for m in (True, False))
+    assert_same_artifacts(by_units, by_partitions)
+    values = {pid: a for (pid, _), a in by_units.items()}
+    depth = values["frames/seqB"]["depth"].astype(np.float32)  # (view, frame, y, x)
+    np.testing.assert_array_equal(values["scaled/seqB/cam1"]["value"][0], depth[1] * 3)
+    np.testing.assert_array_equal(values["diffed/seqB/cam1"]["value"][0, 1:], np.diff(depth[1] * 3, axis=0))
+    np.testing.assert_array_equal(values["diffed/seqB/cam1"]["value"][0, 0], depth[1, 0] * 3)
+    np.testing.assert_array_equal(values["summed/seqB"]["total"], depth.sum(axis=0) * 3)
+    lineage = json.loads(next((projects[True] / "storage" / "diffed").glob("*/lineage.json")).read_text())
+    assert lineage["compute_seconds"] > 0 and lineage["finished"] >= lineage["started"]
+
+
+def test_halo_frames_come_from_storage_when_the_previous_region_ran_elsewhere(toy_project, tmp_path_factory,
+                                                                              monkeypatch):
+    project = toy_project()
+    reference = _copy_inputs(project, tmp_path_factory.mktemp("reference"))
+    mocapflow("run", "--json", cwd=reference)
+    _, plan = toy_plan(project, monkeypatch)
+    items = list(plan.items.values())
+    results = []
+    for task in plan_tasks(items):  # one after the other, as if each region ran in a fresh worker process
+        execute._TAILS.clear()
+        results += run_unit(task) if isinstance(task, Unit) else [execute.run_partition(task)]
+    assert all(r.ok for r in results), [r for r in results if not r.ok]
+    assert_same_artifacts(read_artifacts(project / "storage"), read_artifacts(reference / "storage"))
+
+
+def test_a_member_failing_part_way_stops_only_itself_and_what_reads_it(toy_project, tmp_path_factory,
+                                                                      monkeypatch):
+    project = toy_project()
+    (project / "catalog.yaml").write_text(FLAKY_CATALOG.format())
+    reference = _copy_inputs(project, tmp_path_factory.mktemp("reference"))
+    mocapflow("run", "--json", cwd=reference)
+    monkeypatch.setenv("TOY_FLAKY_FROM", "8")
+    summary = last_json(mocapflow("run", "--json", "--keep-going", cwd=project, check=False))
+    assert set(summary["failed"]) == {"flaked/seqA/cam1", "flaked/seqB/cam1"}
+    assert set(summary["skipped"]) == {"diffed/seqA/cam1", "diffed/seqB/cam1"}
+    assert {"scaled/seqA/cam1", "flaked/seqA/cam0", "diffed/seqB/cam0"} <= set(summary["executed"])
+    assert "flaky on cam1 from frame 8" in summary["errors"]["flaked/seqA/cam1"]
+    store = Store(str(project / "storage"))
+    flaked = {v.partition: v.key for v in store.versions("flaked")}
+    assert store.region_done("flaked", flaked["flaked/seqA/cam1"], 4, 8)  # the regions before the failure stay
+    assert not store.region_done("flaked", flaked["flaked/seqA/cam1"], 8, 12)
+
+    monkeypatch.delenv("TOY_FLAKY_FROM")
+    summary = last_json(mocapflow("run", "--json", cwd=project))
+    assert sorted(summary["executed"]) == ["diffed/seqA/cam1", "diffed/seqB/cam1", "flaked/seqA/cam1",
+                                           "flaked/seqB/cam1"]
+    assert summary["regions"]["flaked/seqA/cam1"] == 3  # resumed where it failed
+    assert_same_artifacts(read_artifacts(project / "storage"), read_artifacts(reference / "storage"))
+
+
+def _copy_inputs(src, dst):
+    import shutil
+
+    shutil.copytree(src / "data", dst / "data")
+    shutil.copy(src / "catalog.yaml", dst / "catalog.yaml")
+    return dst
