@@ -80,21 +80,35 @@ def lift(flow2d: np.ndarray, z_ref: np.ndarray, z_other: np.ndarray, rays: np.nd
     there within ``consistency`` metres. Returns motion (y, x, 3), valid (y, x).
     """
     h, w = z_ref.shape
+    motion, valid = np.zeros((h, w, 3), np.float32), np.zeros((h, w), bool)
+    at = np.flatnonzero(z_ref > 0)  # only pixels with depth can move: the rest stay 0 / invalid
     xs, ys = _grid(h, w)
-    xo, yo = xs + flow2d[..., 0], ys + flow2d[..., 1]
+    xo = xs.ravel()[at] + flow2d[..., 0].ravel()[at]  # (n,) where each of those pixels went
+    yo = ys.ravel()[at] + flow2d[..., 1].ravel()[at]
     inside = (xo >= 0) & (xo <= w - 1) & (yo >= 0) & (yo <= h - 1)
-    z_near = cv2.remap(z_other.astype(np.float32), xo, yo, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
-    z_o = z_near if z_corr is None else z_corr.astype(np.float32)
-    valid = inside & (z_ref > 0) & (z_near > 0) & (z_o > 0) & (np.abs(z_o - z_ref) <= max_depth_jump)
+    z_near = _sample(z_other.astype(np.float32), xo, yo, cv2.INTER_NEAREST, cv2.BORDER_CONSTANT)
+    z_r = z_ref.ravel()[at].astype(np.float32)
+    z_o = z_near if z_corr is None else z_corr.ravel()[at].astype(np.float32)
+    ok = inside & (z_near > 0) & (z_o > 0) & (np.abs(z_o - z_r) <= max_depth_jump)
     if z_corr is not None:
-        valid &= np.abs(z_near - z_o) <= consistency
-    rays32 = rays.astype(np.float32)
-    rays_o = cv2.remap(rays32, xo, yo, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    x_ref = backproject(z_ref.astype(np.float32), rays32)
-    x_oth = backproject(z_o, rays_o)
-    motion = x_ref - x_oth
-    motion[~valid] = 0.0
+        ok &= np.abs(z_near - z_o) <= consistency
+    rays32 = rays.astype(np.float32, copy=False)
+    rays_o = _sample(rays32, xo, yo, cv2.INTER_LINEAR, cv2.BORDER_REPLICATE)  # (n, 3)
+    moved = backproject(z_r, rays32.reshape(-1, 3)[at]) - backproject(z_o, rays_o)
+    moved[~ok] = 0.0
+    motion.reshape(-1, 3)[at], valid.ravel()[at] = moved, ok
     return motion, valid
+
+
+def _sample(image: np.ndarray, x: np.ndarray, y: np.ndarray, interpolation: int, border: int) -> np.ndarray:
+    """``image`` at points (x, y) as cv2.remap samples it (remap maps are images: the points go in rows of
+    1024).  (h, w[, c]), (n,) x2 -> (n[, c])"""
+    n, side = len(x), 1024
+    rows = max(1, -(-n // side))
+    maps = [np.full(rows * side, -1.0, np.float32) for _ in range(2)]
+    maps[0][:n], maps[1][:n] = x, y
+    out = cv2.remap(image, maps[0].reshape(rows, side), maps[1].reshape(rows, side), interpolation, borderMode=border)
+    return out.reshape((rows * side,) + image.shape[2:])[:n]
 
 
 @functools.lru_cache(maxsize=4)
@@ -106,9 +120,8 @@ def _grid(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
 
 def colorize_flow(motion: np.ndarray, valid: np.ndarray, scale_m: float) -> np.ndarray:
     """``I_F``: each motion axis normalized into one channel, 128 = still, +-scale_m = 255/1.  -> (y, x, 3) uint8"""
-    scaled = np.clip(128.0 + 127.0 * motion / scale_m, 0, 255)
-    out = np.rint(scaled).astype(np.uint8)
-    out[~valid] = 128
+    out = np.full(motion.shape, 128, np.uint8)
+    out[valid] = np.rint(np.clip(128.0 + 127.0 * motion[valid] / scale_m, 0, 255))  # the valid pixels only
     return out
 
 
@@ -134,7 +147,9 @@ def flow_sequence(frames: xr.Dataset, estimate, *, color_scale_m: float, max_dep
         z = depth[v].astype(np.float32) / 1000.0  # (frame, y, x) metres
         for i in range(1, len(frame_ids)):
             m, ok = estimate(ir[v, i], ir[v, i - 1], z[i], z[i - 1], rays)
-            motion[v, i], valid[v, i] = m, ok
+            moved = np.flatnonzero(ok)  # motion is 0 elsewhere, as the output starts
+            motion[v, i].reshape(-1, 3)[moved] = m.reshape(-1, 3)[moved]
+            valid[v, i] = ok
             colored[v, i] = colorize_flow(m, ok, color_scale_m)
     dims = ("view", "frame", "y", "x")
     return xr.Dataset(
