@@ -136,7 +136,7 @@ def run_unit(unit: Unit, *upstream) -> list[Result]:
 
 def _unit_member(item: WorkItem, unit: Unit, store: Store, loader: "_UnitInputs") -> Result:
     """One member's region of a unit: computed and written under the member's lock, the partition committed
-    after the chain's last region."""
+    after the group's last region."""
     pid, stage, key = item.partition.id, item.partition.stage, item.key
     started = time.perf_counter()
     try:
@@ -167,7 +167,8 @@ def _unit_member(item: WorkItem, unit: Unit, store: Store, loader: "_UnitInputs"
 
 
 def _commit_if_whole(item: WorkItem, store: Store) -> bool:
-    """Commit ``item``'s partition if every region is written (lineage: the sum of the regions' seconds)."""
+    """Commit ``item``'s partition if every region is written (lineage: its start, and the sum of the regions'
+    seconds, earlier runs' included)."""
     stage, key = item.partition.stage, item.key
     if not all(store.region_done(stage, key, a, b) for a, b in spans(item)):
         return False
@@ -199,15 +200,15 @@ class _UnitInputs:
                 if up.stage in members:
                     self.halos[up.stage] = max(self.halos.get(up.stage, 0), spec.halo[0])
                     continue
-                names, a, b = self.wanted.get(_source(up), ((), lo, hi))
+                names, a, b = self.wanted.get(_upstream_id(up), ((), lo, hi))
                 reads = spec.reads.get(role)
                 names = None if names is None or reads is None else tuple(dict.fromkeys(names + tuple(reads)))
-                self.wanted[_source(up)] = (names, min(a, lo), max(b, hi))
+                self.wanted[_upstream_id(up)] = (names, min(a, lo), max(b, hi))
         with _TAILS_LOCK:  # the previous region's last frames, before this unit replaces them
             self.tails = {i.partition.stage: _TAILS.get((i.partition.stage, i.key)) for i in unit.items}
 
     def keep(self, item: WorkItem, out: xr.Dataset) -> None:
-        """``item``'s output of this region, for the members after it; its last frames also for the chain's next
+        """``item``'s output of this region, for the members after it; its last frames also for the group's next
         region (a halo), if that runs in this process."""
         self.memory[item.partition.stage] = out
         halo = self.halos.get(item.partition.stage, 0)
@@ -223,7 +224,7 @@ class _UnitInputs:
         def load(up, lo, hi, variables):
             if up.stage in self.memory:
                 return self._from_memory(up, view, lo, hi, variables)
-            source = _source(up)
+            source = _upstream_id(up)
             if source not in self.wanted:  # a member that found this region written: from storage
                 return _load_input(self.store, up, view, lo, hi, variables, partial=True)
             if source not in self.loaded:
@@ -237,7 +238,7 @@ class _UnitInputs:
     def _from_memory(self, up, view, lo: int, hi: int, variables) -> xr.Dataset:
         ds = self.memory[up.stage]
         ds = ds if variables is None else ds[list(variables)]
-        assert hi <= self.unit.stop, (up.stage, hi, self.unit.stop)  # chains hold no look-ahead halo
+        assert hi <= self.unit.stop, (up.stage, hi, self.unit.stop)  # groups hold no look-ahead halo
         if lo >= self.unit.start:
             return ds.sel(frame=slice(lo, hi - 1))
         tail = self.tails.get(up.stage)
@@ -255,7 +256,7 @@ _TAILS: dict[tuple[str, str], xr.Dataset] = {}  # (stage, key) -> the last frame
 _TAILS_LOCK = threading.Lock()
 
 
-def _source(up) -> tuple:
+def _upstream_id(up) -> tuple:
     return (up.stage, tuple(sorted((str(k), v) for k, v in up.keys.items())))
 
 
@@ -263,21 +264,19 @@ def _produce(item: WorkItem, store: Store) -> int:
     spec = registry.get(item.stage.task)
     schema = get_schema(spec.output)
     stage, key = item.partition.stage, item.key
-    started = now()
-    store.begin(stage, key, item.lineage(started=started, host=socket.gethostname()))
-    n = item.sequence.n_frames
+    store.begin(stage, key, item.lineage(started=now(), host=socket.gethostname()))
     written = 0
-    t0 = time.perf_counter()
     for start, stop in spans(item):
         if store.region_done(stage, key, start, stop):
             continue
+        t0 = time.perf_counter()
         out = _compute_region(item, spec, store, start, stop)
-        store.write_region(stage, key, schema, out, n, start, stop)
+        store.write_region(stage, key, schema, out, item.sequence.n_frames, start, stop,
+                           seconds=time.perf_counter() - t0)
         written += 1
         log.debug("%s: frames %d-%d written", item.partition.id, start, stop)
-    store.commit(stage, key, item.lineage(started=started, finished=now(), host=socket.gethostname(),
-                                          compute_seconds=round(time.perf_counter() - t0, 3),
-                                          code_version=spec.version, schema=item.components["schema"]))
+    committed = _commit_if_whole(item, store)
+    assert committed, item.partition.id  # every region was written above
     return written
 
 

@@ -99,7 +99,8 @@ def _submit(client, tasks: list[WorkItem | Unit], run_id: str) -> _Graph:
     for task in tasks:
         is_unit = isinstance(task, Unit)
         members = list(task.items) if is_unit else [task]
-        own = {m.partition.id for m in members}
+        ids = [m.partition.id for m in members]
+        own = set(ids)
         ups = {}
         for dep in (d for m in members for d in m.depends_on if d not in own):
             fut = (_unit_covering(by_region.get(dep, []), task.stop) if is_unit else None) or last.get(dep)
@@ -107,17 +108,18 @@ def _submit(client, tasks: list[WorkItem | Unit], run_id: str) -> _Graph:
                 ups[fut.key] = fut
         if is_unit:
             if not task.first:
-                ups[last[members[0].partition.id].key] = last[members[0].partition.id]  # the group's previous region
+                previous = last[ids[0]]  # the group's previous region
+                ups[previous.key] = previous
             fut = client.submit(run_unit, task, *ups.values(), key=f"{task.id}-{run_id}", pure=False,
                                 priority=-task.start)  # earlier frames first: downstream regions start early
         else:
             fut = client.submit(run_partition, task, *ups.values(), key=f"{task.partition.id}-{task.key}-{run_id}",
                                 pure=False)
         graph.futures.append(fut)
-        graph.reports[fut.key] = sorted(own, key=[m.partition.id for m in members].index)
+        graph.reports[fut.key] = ids
         if not is_unit or task.last:
             graph.finishes[fut.key] = graph.reports[fut.key]
-        for pid in own:
+        for pid in ids:
             last[pid] = fut
             graph.tasks_of[pid] = graph.tasks_of.get(pid, 0) + 1
             if is_unit:

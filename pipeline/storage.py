@@ -158,7 +158,8 @@ class Store:
     def open(self, stage: str, key: str, schema: ArtifactSchema, partial: bool = False) -> xr.Dataset:
         """The complete artifact, lazily indexed and checked against ``schema``. ``partial``: also an artifact
         still being written (only its written regions hold data; the caller reads no other frames)."""
-        if not (partial and self.fs.exists(self._marker(stage, key, "_init"))) and not self.is_complete(stage, key):
+        begun = partial and self.fs.exists(self._marker(stage, key, "_init"))
+        if not begun and not self.is_complete(stage, key):
             raise StorageError(f"artifact {stage}/{key} is not complete in {self.root}; "
                                f"run `mocapflow run --until {stage}` to produce it")
         try:
