@@ -24,7 +24,6 @@ import cv2
 import numpy as np
 import xarray as xr
 from scipy import ndimage
-from sklearn.cluster import KMeans
 
 from mocapflow.tasks.geometry import intrinsics
 from mocapflow.tasks.studio.reflectors import REFLECTOR_TABLE
@@ -91,6 +90,8 @@ def _surface_depth(z: np.ndarray, max_spread_mm: float) -> float:
 def split_region(pixels: np.ndarray, z: np.ndarray, estimates: np.ndarray) -> np.ndarray:
     """Assign contour pixels (m, 2) with depths (m,) of a region shared by n estimates (n, 2) to them.
     Clusters (x, y, depth in px-comparable units) with k-means seeded at the estimates.  -> (m,) index"""
+    from sklearn.cluster import KMeans  # here, not at the top: scikit-learn takes 0.7 s to import, every CLI call
+
     scale = 0.1  # 1 px ~ 10 mm of depth at Kinect range
     n = len(estimates)
     seeds = np.column_stack([estimates, np.full(n, np.median(z) * scale)])
