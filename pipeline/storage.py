@@ -226,17 +226,18 @@ def init_zarr(target: str, schema: ArtifactSchema, ds: xr.Dataset, n_frames: int
                     for name, var in ds.data_vars.items() if "frame" in var.dims}
         whole = xr.Dataset({n: _variable_strings(v.variable) for n, v in ds.data_vars.items()},
                            coords={n: _variable_strings(c.variable) for n, c in ds.coords.items()}, attrs=ds.attrs)
-        whole.to_zarr(target, mode="w", zarr_format=3, consolidated=False, encoding=encoding)
+        whole.to_zarr(target, mode="w", zarr_format=3, consolidated=False, encoding=encoding, write_empty_chunks=True)
     else:
         template, encoding = _template(schema, ds, n_frames)
-        template.to_zarr(target, mode="w", compute=False, zarr_format=3, consolidated=False, encoding=encoding)
+        template.to_zarr(target, mode="w", compute=False, zarr_format=3, consolidated=False, encoding=encoding,
+                         write_empty_chunks=True)
 
 
 def write_zarr_region(target: str, ds: xr.Dataset, start: int, stop: int) -> None:
     """Write the frame-dimensioned variables of ``ds`` into frames [start, stop) of an initialized group."""
     framed = ds.drop_vars([n for n, v in ds.variables.items() if "frame" not in v.dims])
     if framed.data_vars or "frame" in framed.coords:
-        framed.to_zarr(target, region={"frame": slice(start, stop)}, consolidated=False)
+        framed.to_zarr(target, region={"frame": slice(start, stop)}, consolidated=False, write_empty_chunks=True)
 
 
 def check(schema: ArtifactSchema, ds: xr.Dataset, what: str) -> None:
