@@ -90,7 +90,7 @@ def _surface_depth(z: np.ndarray, max_spread_mm: float) -> float:
 def split_region(pixels: np.ndarray, z: np.ndarray, estimates: np.ndarray) -> np.ndarray:
     """Assign contour pixels (m, 2) with depths (m,) of a region shared by n estimates (n, 2) to them.
     Clusters (x, y, depth in px-comparable units) with k-means seeded at the estimates.  -> (m,) index"""
-    from sklearn.cluster import KMeans  # here, not at the top: scikit-learn takes 0.7 s to import, every CLI call
+    from sklearn.cluster import KMeans  # here, not at the top: importing it cost every CLI call about 0.3 s
 
     scale = 0.1  # 1 px ~ 10 mm of depth at Kinect range
     n = len(estimates)
