@@ -120,12 +120,12 @@ def run_unit(unit: Unit, *upstream) -> list[Result]:
     member whose input failed (here or in an earlier region) is skipped; the others go on."""
     store = Store(unit.items[0].catalog.root)
     loader = _UnitInputs(store, unit)
+    before = _flat(upstream)  # the upstream units' reports, this group's previous region included
     done: list[Result] = []
     for item in unit.items:
         pid = item.partition.id
-        earlier = [r.partition for r in _flat(upstream) if r.partition == pid and not r.ok]
-        failed_up = failed_upstream(item, list(upstream) + done)
-        if earlier:
+        failed_up = failed_upstream(item, before + done)
+        if any(r.partition == pid and not r.ok for r in before):
             done.append(Result(pid, "skipped", error="an earlier region of this partition failed"))
         elif failed_up:
             done.append(Result(pid, "skipped", error=f"upstream failed: {', '.join(failed_up)}"))
@@ -200,10 +200,11 @@ class _UnitInputs:
                 if up.stage in members:
                     self.halos[up.stage] = max(self.halos.get(up.stage, 0), spec.halo[0])
                     continue
-                names, a, b = self.wanted.get(_upstream_id(up), ((), lo, hi))
+                source = _upstream_id(up)
+                names, a, b = self.wanted.get(source, ((), lo, hi))
                 reads = spec.reads.get(role)
                 names = None if names is None or reads is None else tuple(dict.fromkeys(names + tuple(reads)))
-                self.wanted[_upstream_id(up)] = (names, min(a, lo), max(b, hi))
+                self.wanted[source] = (names, min(a, lo), max(b, hi))
         with _TAILS_LOCK:  # the previous region's last frames, before this unit replaces them
             self.tails = {i.partition.stage: _TAILS.get((i.partition.stage, i.key)) for i in unit.items}
 
