@@ -126,9 +126,9 @@ def stage_losses(outputs, s_target: torch.Tensor, l_target: torch.Tensor | None,
     return total
 
 
-def to_input(image: np.ndarray) -> torch.Tensor:
+def to_input(image: np.ndarray | torch.Tensor) -> torch.Tensor:
     """uint8 (batch, y, x, 3) -> float (batch, 3, y, x) in [-0.5, 0.5]"""
-    return torch.from_numpy(np.ascontiguousarray(image.transpose(0, 3, 1, 2))).float().div_(255.0).sub_(0.5)
+    return torch.as_tensor(image).permute(0, 3, 1, 2).contiguous().float().div_(255.0).sub_(0.5)
 
 
 # Weights travel as plain tensors plus plain metadata (torch.load(weights_only=True) reads them back).

@@ -71,6 +71,14 @@ class TrainConfig:
     bfloat16: bool = True  # forward pass in bfloat16 where the processor supports it (~1.7x faster on a CPU)
     frame_step: int = 2  # every n-th frame of each view is a sample
     seed: int = 0
+    # processes that draw the augmented batches; 0: the training process draws them from one seeded
+    # stream. With n > 0, batch i comes from a generator seeded (seed, i), the same for every n >= 1: a
+    # GPU waits on the crops otherwise (one process draws ~600 crops/s).
+    workers: int = 0
+
+    def __post_init__(self):
+        if self.workers < 0:
+            raise ValueError(f"workers must be >= 0 (0 = draw batches in the training process), got {self.workers}")
 
 
 def to_sample_scale(points: np.ndarray, sample_scale: float) -> np.ndarray:
@@ -162,7 +170,6 @@ def train_fcn(samples: xr.Dataset, **params) -> xr.Dataset:
                       min_side=config.min_side)
     pool = _sample_pool(samples, config)
     torch.manual_seed(config.seed)
-    rng = np.random.default_rng(config.seed)
     device = "cuda" if torch.cuda.is_available() else "cpu"
     model = fcn.TwoStreamFCN(arch).to(device).train()
     mixed = config.bfloat16 and _bfloat16_ok(device)
@@ -170,15 +177,13 @@ def train_fcn(samples: xr.Dataset, **params) -> xr.Dataset:
     schedule = torch.optim.lr_scheduler.OneCycleLR(optimizer, max_lr=config.learning_rate,
                                                    total_steps=config.iterations, pct_start=0.1)
     losses, started = [], time.perf_counter()
-    for iteration in range(config.iterations):
-        batch = [augmented({k: v[i] for k, v in pool.items()}, rng, size=arch.input_size, stride=arch.stride,
-                           crop=crop, config=config) for i in rng.integers(0, len(pool["box"]), config.batch)]
-        depth, flow, s_target, l_target = (np.stack(column) for column in zip(*batch))
+    for iteration, batch in enumerate(_batches(pool, arch, crop, config)):
+        depth, flow, s_target, l_target = (torch.as_tensor(column) for column in batch)
         with torch.autocast(device, dtype=torch.bfloat16, enabled=mixed):
             outputs = model(fcn.to_input(depth).to(device), fcn.to_input(flow).to(device) if arch.flow_stream else None)
         outputs = [(s.float(), None if f is None else f.float()) for s, f in outputs]  # the loss in float32
-        l_target = torch.from_numpy(l_target.reshape(len(batch), -1, *l_target.shape[-2:])).to(device)
-        s_target = torch.from_numpy(s_target).to(device)
+        l_target = l_target.reshape(len(depth), -1, *l_target.shape[-2:]).to(device)  # (batch, 52, g, g)
+        s_target = s_target.to(device)
         weight = 1.0 + config.foreground_weight * s_target[:, :fcn.N_REFLECTORS].amax(dim=1, keepdim=True)
         loss = fcn.stage_losses(outputs, s_target, l_target, weight)
         optimizer.zero_grad()
@@ -191,6 +196,59 @@ def train_fcn(samples: xr.Dataset, **params) -> xr.Dataset:
                      np.mean(losses[-100:]), time.perf_counter() - started)
     return weights_dataset(model.cpu(), crop, config, losses, n_samples=len(pool["box"]),
                            seconds=time.perf_counter() - started, device=device + (" bfloat16" if mixed else ""))
+
+
+def _batch(pool: dict, rng: np.random.Generator, *, arch, crop: CropConfig, config: TrainConfig):
+    """One iteration's augmented crops, stacked: depth and flow (batch, size, size, 3) uint8,
+    S* (batch, 27, g, g) and L* (batch, 26, 2, g, g) float32."""
+    crops = [augmented({k: v[i] for k, v in pool.items()}, rng, size=arch.input_size, stride=arch.stride, crop=crop,
+                       config=config) for i in rng.integers(0, len(pool["box"]), config.batch)]
+    return tuple(np.stack(column) for column in zip(*crops))
+
+
+class _SeededBatches:
+    """Batch ``i`` drawn from its own generator seeded ``(seed, i)``, so any worker process draws it alike
+    (a map-style dataset of ``iterations`` batches for torch's DataLoader)."""
+
+    def __init__(self, pool: dict, arch, crop: CropConfig, config: TrainConfig):
+        self.pool, self.arch, self.crop, self.config = pool, arch, crop, config
+
+    def __len__(self) -> int:
+        return self.config.iterations
+
+    def __getitem__(self, i: int):
+        rng = np.random.default_rng([self.config.seed, i])
+        return _batch(self.pool, rng, arch=self.arch, crop=self.crop, config=self.config)
+
+
+def _one_thread(_worker: int) -> None:
+    """A batch-drawing process uses one core: the parallelism is across processes."""
+    import torch
+
+    cv2.setNumThreads(1)
+    torch.set_num_threads(1)
+
+
+def _batches(pool: dict, arch, crop: CropConfig, config: TrainConfig):
+    """The training batches in order: one seeded stream in this process, or ``workers`` processes."""
+    if not config.workers:
+        rng = np.random.default_rng(config.seed)
+        for _ in range(config.iterations):
+            yield _batch(pool, rng, arch=arch, crop=crop, config=config)
+        return
+    from torch.utils.data import DataLoader
+
+    # fork: the workers share the sample pool (up to a few GB) instead of each unpickling a copy. cv2's
+    # thread pool does not survive a fork (a worker's first warp would wait on it forever), so cv2 stays
+    # on one thread in this process while the workers run.
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield from DataLoader(_SeededBatches(pool, arch, crop, config), batch_size=None, shuffle=False,
+                              num_workers=config.workers, prefetch_factor=4, worker_init_fn=_one_thread,
+                              multiprocessing_context="fork")
+    finally:
+        cv2.setNumThreads(threads)
 
 
 def _bfloat16_ok(device: str) -> bool:
