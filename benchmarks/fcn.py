@@ -3,12 +3,13 @@ size (the `heatmaps` stage function whole: resize, crop, network, in float32 and
 greedy `reflectors2d` step),
 the training wall time and the weight file's size. Accuracy comes from the held-out split:
 
-    taskset -c 0 python benchmarks/fcn.py
+    taskset -c 0 python benchmarks/fcn.py [--weights FILE]   # default: the committed weights
     mocapflow evaluate --catalog benchmarks/catalog.yaml --json
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import statistics
@@ -35,14 +36,14 @@ ROOT = Path(__file__).resolve().parents[1]
 WEIGHTS = ROOT / "models" / "deepmocap_fcn.pt"
 
 
-def time_per_view_frame(frames: int = 16) -> dict[str, float]:
+def time_per_view_frame(weights_file: Path, frames: int = 16) -> dict[str, float]:
     """Median milliseconds per view-frame of the heatmaps stage function (batch of one) in each precision, the two
     interleaved, and of greedy inference."""
     torch.set_num_threads(1)
     raw = synthesize(build_rig(SequenceSpec("jumping_jack", frames=frames, seed=9100, random_layout=True)), 0, frames)
     m = masks(raw[["depth", "ir"]], **asdict(MaskConfig()))
     f = dis(raw, **asdict(DisConfig()))
-    weights = torch.load(WEIGHTS, weights_only=True)
+    weights = torch.load(weights_file, weights_only=True)
     heat_ms, greedy_ms = {"float32": [], "bfloat16": []}, []
     for view in raw["view"].values[:1]:
         for i in range(frames):
@@ -72,8 +73,15 @@ def training_figures() -> dict:
 
 
 def main() -> None:
-    figures = {"input_size": torch.load(WEIGHTS, weights_only=True)["architecture"]["input_size"],
-               "weights_mb": round(WEIGHTS.stat().st_size / 1e6, 2), **time_per_view_frame(), **training_figures()}
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--weights", type=Path, default=WEIGHTS,
+                        help="weights file to time (default: the committed one; training figures are the committed one's)")
+    weights = parser.parse_args().weights
+    arch = torch.load(weights, weights_only=True)["architecture"]
+    figures = {"input_size": arch["input_size"], "widths": [arch["stream_width"], arch["fused_width"], arch["stage_width"]],
+               "weights_mb": round(weights.stat().st_size / 1e6, 2), **time_per_view_frame(weights)}
+    if weights == WEIGHTS:
+        figures.update(training_figures())
     print(json.dumps(figures, indent=1))
 
 
