@@ -73,7 +73,7 @@ class TrainConfig:
     seed: int = 0
     # processes that draw the augmented batches; 0: the training process draws them from one seeded
     # stream. With n > 0, batch i comes from a generator seeded (seed, i), the same for every n >= 1: a
-    # GPU waits on the crops otherwise (one process draws ~600 crops/s).
+    # GPU waits on the crops otherwise (one process draws 300-500 crops/s).
     workers: int = 0
 
     def __post_init__(self):
