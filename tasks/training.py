@@ -5,7 +5,8 @@ streams at the sample scale, the subject box, ground-truth 2D at f and f-1); ``t
 augmented crops from every sample of a dataset — scale [0.6, 1.1], rotation ±40°, flips that swap
 left and right reflector labels, shifted crops around the subject (§5.1.1) — builds the targets of
 Eq. 4-6 and minimizes the loss of Eq. 2-3 with Adam, seeded, on a GPU when there is one (the forward
-pass in bfloat16 where the hardware has it; the loss and the weights stay float32).
+pass in bfloat16 where the hardware has it; the loss and the weights stay float32). With ``workers``
+> 0, worker processes draw the augmented batches, so a GPU is not left waiting on them.
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ def _pool(n: int = 5) -> dict:
             "gt_uv": uv, "gt_uv_prev": uv + 1.0, "gt_pixels": np.full((n, 26), 9, np.int32)}
 
 
-def test_a_seeded_batch_is_the_same_whenever_and_wherever_it_is_drawn():
+def test_a_seeded_batch_is_the_same_in_any_order_of_drawing():
     config = training.TrainConfig(input_size=32, batch=3, iterations=6, seed=4, workers=2)
     arch = fcn.FcnArchitecture(input_size=32)
     batches = training._SeededBatches(_pool(), arch, training.CropConfig(), config)
