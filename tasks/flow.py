@@ -23,7 +23,6 @@ whole image. Off by default: the 2D labels hold but the poses lose (docs/results
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import cv2
@@ -82,9 +81,8 @@ def lift(flow2d: np.ndarray, z_ref: np.ndarray, z_other: np.ndarray, rays: np.nd
     h, w = z_ref.shape
     motion, valid = np.zeros((h, w, 3), np.float32), np.zeros((h, w), bool)
     at = np.flatnonzero(z_ref > 0)  # only pixels with depth can move: the rest stay 0 / invalid
-    xs, ys = _grid(h, w)
-    xo = xs.ravel()[at] + flow2d[..., 0].ravel()[at]  # (n,) where each of those pixels went
-    yo = ys.ravel()[at] + flow2d[..., 1].ravel()[at]
+    xo = (at % w).astype(np.float32) + flow2d[..., 0].ravel()[at]  # (n,) where each of those pixels went
+    yo = (at // w).astype(np.float32) + flow2d[..., 1].ravel()[at]
     inside = (xo >= 0) & (xo <= w - 1) & (yo >= 0) & (yo <= h - 1)
     z_near = _sample(z_other.astype(np.float32), xo, yo, cv2.INTER_NEAREST, cv2.BORDER_CONSTANT)
     z_r = z_ref.ravel()[at].astype(np.float32)
@@ -109,13 +107,6 @@ def _sample(image: np.ndarray, x: np.ndarray, y: np.ndarray, interpolation: int,
     maps[0][:n], maps[1][:n] = x, y
     out = cv2.remap(image, maps[0].reshape(rows, side), maps[1].reshape(rows, side), interpolation, borderMode=border)
     return out.reshape((rows * side,) + image.shape[2:])[:n]
-
-
-@functools.lru_cache(maxsize=4)
-def _grid(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
-    xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-    xs.flags.writeable = ys.flags.writeable = False
-    return xs, ys
 
 
 def colorize_flow(motion: np.ndarray, valid: np.ndarray, scale_m: float) -> np.ndarray:
