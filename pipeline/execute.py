@@ -74,21 +74,29 @@ def _flat(upstream) -> list[Result]:
 
 def run_partition(item: WorkItem, *upstream) -> Result:
     """Produce ``item`` unless it is complete; failures come back as a Result, never raised."""
-    pid = item.partition.id
     failed_up = failed_upstream(item, upstream)
     if failed_up:
-        return Result(pid, "skipped", error=f"upstream failed: {', '.join(failed_up)}")
+        return Result(item.partition.id, "skipped", error=f"upstream failed: {', '.join(failed_up)}")
+    store = Store(item.catalog.root)
+    return _locked(item, store, lambda started: (_produce(item, store), True))
+
+
+def _locked(item: WorkItem, store: Store, produce) -> Result:
+    """Run ``produce(started) -> (regions written, changed)`` under ``item``'s lock unless its partition is
+    complete (before or once the lock is held): "cached", or "executed" when something changed; failures
+    come back as a Result, never raised."""
+    pid, stage, key = item.partition.id, item.partition.stage, item.key
     started = time.perf_counter()
     try:
         registry.import_plugins(item.catalog.plugins)
-        store = Store(item.catalog.root)
-        if store.is_complete(item.partition.stage, item.key):
+        if store.is_complete(stage, key):
             return Result(pid, "cached")
-        with store.lock(item.partition.stage, item.key, pid):
-            if store.is_complete(item.partition.stage, item.key):
+        with store.lock(stage, key, pid):
+            if store.is_complete(stage, key):
                 return Result(pid, "cached")
-            written = _produce(item, store)
-        return Result(pid, "executed", seconds=time.perf_counter() - started, regions=written)
+            written, changed = produce(started)
+        return Result(pid, "executed" if changed else "cached", seconds=time.perf_counter() - started,
+                      regions=written)
     except MocapflowError as exc:
         return Result(pid, "failed", error=str(exc), seconds=time.perf_counter() - started)
     except Exception as exc:  # a task's own bug: report it with its traceback, keep the run alive
@@ -137,33 +145,23 @@ def run_unit(unit: Unit, *upstream) -> list[Result]:
 def _unit_member(item: WorkItem, unit: Unit, store: Store, loader: "_UnitInputs") -> Result:
     """One member's region of a unit: computed and written under the member's lock, the partition committed
     after the group's last region."""
-    pid, stage, key = item.partition.id, item.partition.stage, item.key
-    started = time.perf_counter()
-    try:
-        registry.import_plugins(item.catalog.plugins)
-        if store.is_complete(stage, key):
-            return Result(pid, "cached")
-        with store.lock(stage, key, pid):
-            if store.is_complete(stage, key):
-                return Result(pid, "cached")
-            written = 0
-            if not store.region_done(stage, key, unit.start, unit.stop):
-                spec = registry.get(item.stage.task)
-                if unit.first or not store.pending_lineage(stage, key):
-                    store.begin(stage, key, item.lineage(started=now(), host=socket.gethostname()))
-                out = _compute_region(item, spec, store, unit.start, unit.stop, load=loader.for_member(item))
-                store.write_region(stage, key, get_schema(spec.output), out, item.sequence.n_frames, unit.start,
-                                   unit.stop, seconds=time.perf_counter() - started)
-                loader.keep(item, out)
-                written = 1
-            committed = unit.last and _commit_if_whole(item, store)
-        status = "executed" if written or committed else "cached"
-        return Result(pid, status, seconds=time.perf_counter() - started, regions=written)
-    except MocapflowError as exc:
-        return Result(pid, "failed", error=str(exc), seconds=time.perf_counter() - started)
-    except Exception as exc:  # a task's own bug: report it with its traceback, keep the run alive
-        return Result(pid, "failed", error=f"{type(exc).__name__}: {exc}", detail=traceback.format_exc(),
-                      seconds=time.perf_counter() - started)
+    stage, key = item.partition.stage, item.key
+
+    def produce(started: float) -> tuple[int, bool]:
+        written = 0
+        if not store.region_done(stage, key, unit.start, unit.stop):
+            spec = registry.get(item.stage.task)
+            if unit.first or not store.pending_lineage(stage, key):
+                store.begin(stage, key, item.lineage(started=now(), host=socket.gethostname()))
+            out = _compute_region(item, spec, store, unit.start, unit.stop, load=loader.for_member(item))
+            store.write_region(stage, key, get_schema(spec.output), out, item.sequence.n_frames, unit.start,
+                               unit.stop, seconds=time.perf_counter() - started)
+            loader.keep(item, out)
+            written = 1
+        committed = unit.last and _commit_if_whole(item, store)
+        return written, bool(written or committed)
+
+    return _locked(item, store, produce)
 
 
 def _commit_if_whole(item: WorkItem, store: Store) -> bool:
