@@ -71,16 +71,31 @@ def _span(first: int, last: int, margin: int, min_side: int, size: int) -> slice
 def lift(flow2d: np.ndarray, z_ref: np.ndarray, z_other: np.ndarray, rays: np.ndarray,
          max_depth_jump: float, z_corr: np.ndarray | None = None,
          consistency: float = 0.04) -> tuple[np.ndarray, np.ndarray]:
-    """3D motion from the other frame to the reference one, at reference pixels.
+    """3D motion from the other frame to the reference one, at reference pixels (``lift_points`` as images).
+
+    Returns motion (y, x, 3) float32, 0 where not valid, and valid (y, x).
+    """
+    h, w = z_ref.shape
+    at, moved, ok = lift_points(flow2d, z_ref, z_other, rays, max_depth_jump, z_corr, consistency)
+    motion, valid = np.zeros((h, w, 3), np.float32), np.zeros((h, w), bool)
+    motion.reshape(-1, 3)[at], valid.ravel()[at] = moved, ok
+    return motion, valid
+
+
+def lift_points(flow2d: np.ndarray, z_ref: np.ndarray, z_other: np.ndarray, rays: np.ndarray,
+                max_depth_jump: float, z_corr: np.ndarray | None = None,
+                consistency: float = 0.04) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """3D motion from the other frame to the reference one, at the reference pixels with depth (only
+    they can move: every other pixel has no motion and is not valid).
 
     flow2d (y, x, 2) pixels ref -> other; z_ref, z_other (y, x) metres, 0 invalid; rays (y, x, 3).
     z_corr: the other frame's depth at the correspondence if the estimator solved for it (else it
     is read from ``z_other`` at the nearest pixel); it must then agree with the measured depth
-    there within ``consistency`` metres. Returns motion (y, x, 3), valid (y, x).
+    there within ``consistency`` metres. Returns the pixels' flat indices at (n,), their motion
+    (n, 3) float32, 0 where not valid, and valid (n,).
     """
     h, w = z_ref.shape
-    motion, valid = np.zeros((h, w, 3), np.float32), np.zeros((h, w), bool)
-    at = np.flatnonzero(z_ref > 0)  # only pixels with depth can move: the rest stay 0 / invalid
+    at = np.flatnonzero(z_ref > 0)
     xo = (at % w).astype(np.float32) + flow2d[..., 0].ravel()[at]  # (n,) where each of those pixels went
     yo = (at // w).astype(np.float32) + flow2d[..., 1].ravel()[at]
     inside = (xo >= 0) & (xo <= w - 1) & (yo >= 0) & (yo <= h - 1)
@@ -94,8 +109,7 @@ def lift(flow2d: np.ndarray, z_ref: np.ndarray, z_other: np.ndarray, rays: np.nd
     rays_o = _sample(rays32, xo, yo, cv2.INTER_LINEAR, cv2.BORDER_REPLICATE)  # (n, 3)
     moved = backproject(z_r, rays32.reshape(-1, 3)[at]) - backproject(z_o, rays_o)
     moved[~ok] = 0.0
-    motion.reshape(-1, 3)[at], valid.ravel()[at] = moved, ok
-    return motion, valid
+    return at, moved, ok
 
 
 def _sample(image: np.ndarray, x: np.ndarray, y: np.ndarray, interpolation: int, border: int) -> np.ndarray:
@@ -112,8 +126,13 @@ def _sample(image: np.ndarray, x: np.ndarray, y: np.ndarray, interpolation: int,
 def colorize_flow(motion: np.ndarray, valid: np.ndarray, scale_m: float) -> np.ndarray:
     """``I_F``: each motion axis normalized into one channel, 128 = still, +-scale_m = 255/1.  -> (y, x, 3) uint8"""
     out = np.full(motion.shape, 128, np.uint8)
-    out[valid] = np.rint(np.clip(128.0 + 127.0 * motion[valid] / scale_m, 0, 255))  # the valid pixels only
+    out[valid] = flow_colors(motion[valid], scale_m)  # the valid pixels only
     return out
+
+
+def flow_colors(motion: np.ndarray, scale_m: float) -> np.ndarray:
+    """``I_F`` of motions (m): 128 + 127·motion/scale_m, rounded into [0, 255].  (..., 3) -> (..., 3) uint8"""
+    return np.rint(np.clip(128.0 + 127.0 * motion / scale_m, 0, 255)).astype(np.uint8)
 
 
 def rays_for(frames: xr.Dataset, view) -> np.ndarray:
@@ -124,8 +143,9 @@ def rays_for(frames: xr.Dataset, view) -> np.ndarray:
 
 
 def flow_sequence(frames: xr.Dataset, estimate, *, color_scale_m: float, max_depth_jump: float) -> xr.Dataset:
-    """Apply a pairwise estimator ``estimate(ir_ref, ir_prev, z_ref_m, z_prev_m, rays) -> (motion, valid)``
-    to every frame with its predecessor in ``frames`` (the first frame of a sequence gets no motion)."""
+    """Apply a pairwise estimator ``estimate(ir_ref, ir_prev, z_ref_m, z_prev_m, rays) -> (at, motion, valid)``
+    (``lift_points``' form: flat pixel indices and their motion and validity; every other pixel has no
+    motion) to every frame with its predecessor in ``frames`` (the first frame of a sequence gets no motion)."""
     depth = frames["depth"].values  # (view, frame, y, x) mm
     ir = frames["ir"].values
     frame_ids = frames["frame"].values
@@ -134,14 +154,14 @@ def flow_sequence(frames: xr.Dataset, estimate, *, color_scale_m: float, max_dep
     valid = np.zeros(depth.shape, bool)
     colored = np.full(depth.shape + (3,), 128, np.uint8)
     for v, view in enumerate(frames["view"].values):
-        rays = rays_for(frames, view)
+        rays = rays_for(frames, view).astype(np.float32)  # once per view, not per pair
         z = depth[v].astype(np.float32) / 1000.0  # (frame, y, x) metres
         for i in range(1, len(frame_ids)):
-            m, ok = estimate(ir[v, i], ir[v, i - 1], z[i], z[i - 1], rays)
-            moved = np.flatnonzero(ok)  # motion is 0 elsewhere, as the output starts
-            motion[v, i].reshape(-1, 3)[moved] = m.reshape(-1, 3)[moved]
-            valid[v, i] = ok
-            colored[v, i] = colorize_flow(m, ok, color_scale_m)
+            at, m, ok = estimate(ir[v, i], ir[v, i - 1], z[i], z[i - 1], rays)
+            moved, m = at[ok], m[ok]  # the outputs start as no motion, 128 and not valid
+            motion[v, i].reshape(-1, 3)[moved] = m
+            valid[v, i].ravel()[moved] = True
+            colored[v, i].reshape(-1, 3)[moved] = flow_colors(m, color_scale_m)
     dims = ("view", "frame", "y", "x")
     return xr.Dataset(
         {"flow": (dims + ("xyz",), motion), "valid": (dims, valid), "colorized_flow": (dims + ("rgb",), colored)},
@@ -205,11 +225,10 @@ def dis(frames: xr.Dataset, *, preset: str, refine_iterations: int, ir_max: floa
             box = subject_box(ir_ref, ir_prev, threshold=roi_ir, margin_px=roi_margin_px)
         flow2d = dis_flow(ir_to_8bit(ir_ref[box], ir_max), ir_to_8bit(ir_prev[box], ir_max), preset=preset,
                           refine_iterations=refine_iterations)  # (h', w', 2) inside the box
-        motion, valid = lift(flow2d, z_ref[box], z_prev[box], rays[box], max_depth_jump)
-        if roi_ir <= 0:
-            return motion, valid
-        full_motion, full_valid = np.zeros(z_ref.shape + (3,), np.float32), np.zeros(z_ref.shape, bool)
-        full_motion[box], full_valid[box] = motion, valid
-        return full_motion, full_valid
+        at, motion, valid = lift_points(flow2d, z_ref[box], z_prev[box], rays[box], max_depth_jump)
+        if roi_ir > 0:  # the box's flat indices -> the image's
+            rows, cols = np.divmod(at, flow2d.shape[1])
+            at = (rows + box[0].start) * z_ref.shape[1] + cols + box[1].start
+        return at, motion, valid
 
     return flow_sequence(frames, estimate, color_scale_m=color_scale_m, max_depth_jump=max_depth_jump)

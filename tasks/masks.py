@@ -9,6 +9,7 @@ subtracted (black) — invalid depth is black as well.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -45,11 +46,21 @@ def colorize_depth(depth: np.ndarray, mask: np.ndarray, *, near_mm: float, far_m
 
     depth (y, x) uint16 mm, mask (y, x) bool -> (y, x, 3) uint8 RGB
     """
-    scaled = np.clip((depth.astype(np.float32) - near_mm) / (far_mm - near_mm), 0.0, 1.0)
-    bgr = cv2.applyColorMap(np.rint(255 * (1.0 - scaled)).astype(np.uint8), cv2.COLORMAP_JET)
-    rgb = bgr[..., ::-1].copy()
-    rgb[(depth == 0) | mask] = 0
-    return rgb
+    levels, colors = _jet_tables(float(near_mm), float(far_mm))
+    rgb = cv2.applyColorMap(np.take(levels, depth), colors)  # each depth's JET level, then that level's colour
+    seen = ((depth > 0) & ~mask).view(np.uint8)
+    return cv2.bitwise_and(rgb, rgb, dst=np.zeros_like(rgb), mask=seen)  # black elsewhere
+
+
+@functools.lru_cache(maxsize=8)
+def _jet_tables(near_mm: float, far_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """The JET level (0 far .. 255 near) of every uint16 depth in mm, and JET's colours in RGB order, for
+    ``cv2.applyColorMap``.  -> (65536,) uint8, (256, 1, 3) uint8"""
+    depth = np.arange(65536, dtype=np.float32)
+    scaled = np.clip((depth - near_mm) / (far_mm - near_mm), 0.0, 1.0)
+    levels = np.rint(255 * (1.0 - scaled)).astype(np.uint8)
+    bgr = cv2.applyColorMap(np.arange(256, dtype=np.uint8)[:, None], cv2.COLORMAP_JET)  # (256, 1, 3)
+    return levels, np.ascontiguousarray(bgr[..., ::-1])
 
 
 def _disk(radius: int) -> np.ndarray:

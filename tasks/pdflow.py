@@ -26,7 +26,7 @@ import torch
 import torch.nn.functional as F
 import xarray as xr
 
-from mocapflow.tasks.flow import flow_sequence, lift
+from mocapflow.tasks.flow import flow_sequence, lift_points
 
 
 def _grad(f: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -195,7 +195,7 @@ def primal_dual(frames: xr.Dataset, *, lambda_uv: float, lambda_w: float, mu: fl
                           lambda_uv=lambda_uv, lambda_w=lambda_w, mu=mu, z_edge=z_edge, normalize_eps=normalize_eps,
                           iterations=iterations,
                           warps=warps, finest_level=finest_level, max_depth_jump=max_depth_jump, device=dev)
-        return lift(np.stack([u, v], axis=-1), z_ref, z_prev, rays, max_depth_jump, z_corr=z_ref + w,
-                    consistency=consistency)
+        return lift_points(np.stack([u, v], axis=-1), z_ref, z_prev, rays, max_depth_jump, z_corr=z_ref + w,
+                           consistency=consistency)
 
     return flow_sequence(frames, estimate, color_scale_m=color_scale_m, max_depth_jump=max_depth_jump)

@@ -62,18 +62,21 @@ def peak_sets(confidence: np.ndarray, threshold: float, max_n: int) -> list[tupl
     return out
 
 
-def bilinear(field: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Sample a (hy, hx, k) field at points (n, 2) (x, y cells), zero outside.  -> (n, k)"""
-    h, w = field.shape[:2]
+def bilinear(field: np.ndarray, points: np.ndarray, which: np.ndarray | None = None) -> np.ndarray:
+    """Sample a (hy, hx, k) field at points (n, 2) (x, y cells), zero outside; or, with ``which`` (n,), a stack
+    of fields (R, hy, hx, k), point i in field ``which[i]``.  -> (n, k)"""
+    if which is None:
+        field, which = field[None], np.zeros(len(points), int)
+    h, w = field.shape[1:3]
     x, y = points[:, 0], points[:, 1]
     x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
-    out = np.zeros((len(points), field.shape[2]))
+    out = np.zeros((len(points), field.shape[3]))
     for dx in (0, 1):
         for dy in (0, 1):
             xi, yi = x0 + dx, y0 + dy
             weight = (1 - np.abs(x - xi)) * (1 - np.abs(y - yi))
             inside = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
-            out[inside] += weight[inside, None] * field[yi[inside], xi[inside]]
+            out[inside] += weight[inside, None] * field[which[inside], yi[inside], xi[inside]]
     return out
 
 
@@ -88,18 +91,34 @@ def line_integral(field: np.ndarray, start: np.ndarray, end: np.ndarray, samples
 def line_integrals(field: np.ndarray, starts: np.ndarray, ends: np.ndarray, samples: int) -> np.ndarray:
     """``line_integral`` from every start to every end in one sampling pass; 0 where they coincide.
     field (hy, hx, 2), starts (m, 2), ends (n, 2) -> (m, n)"""
-    delta = ends[None] - starts[:, None]  # (m, n, 2)
+    return line_integral_sets(field[None], [starts], [ends], samples)[0]
+
+
+def line_integral_sets(fields: np.ndarray, starts: list, ends: list, samples: int) -> list[np.ndarray]:
+    """``line_integrals`` of every field of a stack in one sampling pass.
+    fields (R, hy, hx, 2), starts R x (m_r, 2), ends R x (n_r, 2) -> R x (m_r, n_r)"""
+    shapes = [(len(a), len(b)) for a, b in zip(starts, ends)]
+    if not shapes:
+        return []
+    pairs = [(np.repeat(np.asarray(a, float).reshape(-1, 2), n, axis=0), np.tile(np.asarray(b, float).reshape(-1, 2), (m, 1)))
+             for a, b, (m, n) in zip(starts, ends, shapes)]  # every (start, end) of each field, row-major
+    first = np.concatenate([a for a, _ in pairs])  # (P, 2)
+    last = np.concatenate([b for _, b in pairs])
+    which = np.repeat(np.arange(len(shapes)), [m * n for m, n in shapes])  # (P,) the field of each pair
+    delta = last - first
     length = np.linalg.norm(delta, axis=-1, keepdims=True)
     u = np.linspace(0.0, 1.0, samples)[:, None]  # (samples, 1)
-    points = (1 - u) * starts[:, None, None] + u * ends[None, :, None]  # (m, n, samples, 2)
-    values = bilinear(field, points.reshape(-1, 2)).reshape(points.shape)
+    points = (1 - u) * first[:, None] + u * last[:, None]  # (P, samples, 2)
+    values = bilinear(fields, points.reshape(-1, 2), np.repeat(which, samples)).reshape(points.shape)
     direction = np.divide(delta, length, out=np.zeros_like(delta), where=length >= 1e-9)
-    return (values @ direction[..., None])[..., 0].mean(axis=-1)  # Eq. (7)-(8), DeepMoCap
+    integral = (values @ direction[..., None])[..., 0].mean(axis=-1)  # Eq. (7)-(8), DeepMoCap
+    parts = np.split(integral, np.cumsum([m * n for m, n in shapes])[:-1])
+    return [part.reshape(shape) for part, shape in zip(parts, shapes)]
 
 
-def fuse(e_s: float, e_l: float) -> float:
-    """E = E^S + (1 - E^S)·E^L, with E^L clipped to [0, 1].   # Eq. (9), DeepMoCap"""
-    return e_s + (1.0 - e_s) * min(max(e_l, 0.0), 1.0)
+def fuse(e_s, e_l):
+    """E = E^S + (1 - E^S)·E^L, with E^L clipped to [0, 1]; floats or arrays.   # Eq. (9), DeepMoCap"""
+    return e_s + (1.0 - e_s) * np.clip(e_l, 0.0, 1.0)
 
 
 def reflector_region(xy: np.ndarray, blob_id: np.ndarray, blob_area: np.ndarray, *, snap_px: float,
@@ -173,17 +192,21 @@ def estimate_frame(confidence, off, affine, prev, *, stride: int, line_samples: 
     f-1 or None.  -> image xy (R, 2) NaN where no candidate, fused confidence E (R,), candidates
     """
     cands = _candidates(confidence, peak_threshold, max_candidates)
-    xy = np.full((len(cands), 2), np.nan)
+    earlier = [np.empty((0, 2))] * len(cands)
+    if prev is not None:  # f-1 candidates, moved into this frame's crop
+        moved = _to_cells(affine, _to_image(prev[1], np.concatenate([cells for cells, _ in prev[0]]), stride), stride)
+        earlier = np.split(moved, np.cumsum([len(cells) for cells, _ in prev[0]])[:-1])
+    links = line_integral_sets(off, earlier, [cells for cells, _ in cands], line_samples)  # R x (m_r, n_r)
+    chosen = np.full((len(cands), 2), np.nan)  # cells
     best = np.zeros(len(cands))
-    for r, (cells, e_s) in enumerate(cands):
-        earlier = np.empty((0, 2))
-        if prev is not None and len(prev[0][r][0]):  # f-1 candidates, moved into this frame's crop
-            earlier = _to_cells(affine, _to_image(prev[1], prev[0][r][0], stride), stride)
-        e_ls = line_integrals(off[r], earlier, cells, line_samples).max(axis=0, initial=0.0)  # best f-1 link, >= 0
-        for p, es, e_l in zip(cells, e_s, e_ls):
-            e = fuse(float(es), float(e_l))
-            if e > best[r]:
-                best[r], xy[r] = e, _to_image(affine, p[None], stride)[0]
+    for r, ((cells, e_s), link) in enumerate(zip(cands, links)):
+        if len(cells):
+            e = fuse(e_s, link.max(axis=0, initial=0.0))  # (n_r,) with each candidate's best f-1 link
+            k = int(np.argmax(e))
+            best[r], chosen[r] = e[k], cells[k]
+    xy = np.full_like(chosen, np.nan)
+    found = np.isfinite(chosen[:, 0])
+    xy[found] = _to_image(affine, chosen[found], stride)
     return xy, best, cands
 
 

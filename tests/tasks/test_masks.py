@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import asdict
 
+import cv2
 import numpy as np
 import xarray as xr
 
@@ -46,6 +47,18 @@ def test_colorized_depth_is_jet_with_reflectors_and_holes_black():
     near, far = rgb[0, 0].astype(int), rgb[0, 1].astype(int)
     assert near[0] > near[2] and far[2] > far[0]  # near is red, far is blue (RGB order)
     assert (rgb[0, 2] == 0).all() and (rgb[0, 3] == 0).all()
+
+
+def test_colorized_depth_is_opencvs_jet_of_the_linear_level_at_every_depth():
+    rng = np.random.default_rng(0)
+    depth = rng.integers(0, 6000, (24, 31)).astype(np.uint16)  # before, inside and beyond [near, far], and 0
+    depth[0, :4] = [0, 500, 500 + 1, 65535]
+    mask = rng.random((24, 31)) < 0.1
+    rgb = colorize_depth(depth, mask, near_mm=500, far_mm=3500)
+    level = np.rint(255 * (1 - np.clip((depth.astype(np.float32) - 500) / 3000, 0, 1))).astype(np.uint8)
+    expected = cv2.applyColorMap(level, cv2.COLORMAP_JET)[..., ::-1].copy()  # RGB
+    expected[(depth == 0) | mask] = 0
+    np.testing.assert_array_equal(rgb, expected)
 
 
 def test_stage_output_matches_its_schema():

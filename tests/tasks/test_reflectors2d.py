@@ -31,11 +31,24 @@ def test_line_integrals_of_every_pair_equal_the_single_integrals():
             assert table[i, j] == pytest.approx(r2d.line_integral(field, start, end, 10), abs=1e-12)
 
 
+def test_line_integrals_of_a_stack_equal_each_fields_own():
+    rng = np.random.default_rng(1)
+    fields = rng.normal(size=(3, 16, 20, 2))
+    starts = [rng.uniform(-2, 22, (2, 2)), np.empty((0, 2)), rng.uniform(0, 16, (3, 2))]
+    ends = [rng.uniform(-2, 22, (3, 2)), rng.uniform(0, 16, (2, 2)), rng.uniform(0, 16, (1, 2))]
+    tables = r2d.line_integral_sets(fields, starts, ends, 10)
+    assert [t.shape for t in tables] == [(2, 3), (0, 2), (3, 1)]
+    for field, a, b, table in zip(fields, starts, ends, tables):
+        np.testing.assert_array_equal(table, r2d.line_integrals(field, a, b, 10))  # same numbers, not just close
+    assert r2d.line_integral_sets(fields[:0], [], [], 10) == []
+
+
 def test_fused_confidence_of_eq9():
     assert r2d.fuse(0.5, 1.0) == pytest.approx(1.0)
     assert r2d.fuse(0.5, 0.0) == pytest.approx(0.5)
     assert r2d.fuse(0.6, 0.5) == pytest.approx(0.8)
     assert r2d.fuse(0.6, -0.7) == pytest.approx(0.6)  # against the motion: no bonus, no penalty
+    np.testing.assert_allclose(r2d.fuse(np.array([0.5, 0.6, 0.6]), np.array([1.0, 0.5, -0.7])), [1.0, 0.8, 0.6])
 
 
 def test_peaks_are_local_maxima_refined_to_sub_cell():
