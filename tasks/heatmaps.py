@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,6 +22,8 @@ from mocapflow.tasks.training import CropConfig, sample_inputs
 log = logging.getLogger(__name__)
 
 PRECISIONS = ("float32", "bfloat16")
+_MODELS: dict[int, tuple] = {}  # id(weights) -> (weights, model), see inference_model
+_MODELS_LOCK = threading.Lock()
 
 
 @dataclass(frozen=True)
@@ -76,8 +79,8 @@ def infer(model, depth_images: np.ndarray, flow_images: np.ndarray, batch: int,
     low = torch.autocast("cpu", dtype=torch.bfloat16, enabled=precision == "bfloat16")
     with torch.inference_mode(), low:
         for a in range(0, len(depth_images), batch):
-            depth = to_input(depth_images[a:a + batch])
-            flow = to_input(flow_images[a:a + batch]) if model.arch.flow_stream else None
+            depth = to_input(depth_images[a:a + batch], channels_last=True)
+            flow = to_input(flow_images[a:a + batch], channels_last=True) if model.arch.flow_stream else None
             s, fields = model(depth, flow)[-1]
             n, _, gh, gw = s.shape
             s_out.append(s[:, :N_REFLECTORS].clamp(0, 1).float().numpy())
@@ -86,11 +89,24 @@ def infer(model, depth_images: np.ndarray, flow_images: np.ndarray, batch: int,
     return np.concatenate(s_out), np.concatenate(l_out)
 
 
+def inference_model(weights: dict):
+    """The network of ``weights`` prepared for inference (``fcn.for_inference``), built once per process and
+    weights: a worker's regions share it (the weights dicts themselves are cached per process, pipeline/models.py)."""
+    from mocapflow.tasks.fcn import for_inference, unpack
+
+    with _MODELS_LOCK:
+        kept = _MODELS.get(id(weights))
+        if kept is None or kept[0] is not weights:
+            kept = (weights, for_inference(unpack(weights)))  # holding the dict keeps its id from being reused
+            while len(_MODELS) >= 4:
+                _MODELS.pop(next(iter(_MODELS)))
+            _MODELS[id(weights)] = kept
+    return kept[1]
+
+
 def fcn_heatmaps(masks: xr.Dataset, flow: xr.Dataset, *, weights: dict, batch: int, precision: str) -> xr.Dataset:
     """Confidence maps, OFFs and crop affines for every view and frame of ``masks``/``flow``."""
-    from mocapflow.tasks.fcn import unpack
-
-    model = unpack(weights)
+    model = inference_model(weights)
     crop = CropConfig(**weights.get("crop", {}))
     size = model.arch.input_size
     confidence, off, affines = [], [], []

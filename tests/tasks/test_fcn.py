@@ -74,6 +74,32 @@ def test_bfloat16_inference_gives_the_float32_maps_within_its_rounding():
         HeatmapConfig(precision="float16")
 
 
+def test_inference_copy_gives_the_models_maps_and_is_built_once_per_weights():
+    from mocapflow.tasks import heatmaps
+
+    arch = fcn.FcnArchitecture(input_size=32, stream_width=8, fused_width=8, stage_width=8, stages=2)
+    torch.manual_seed(3)
+    model = fcn.TwoStreamFCN(arch)
+    with torch.no_grad():  # batch norms that do something (eval-mode statistics away from 0 and 1), heads not zero
+        for bn in (m for m in model.modules() if isinstance(m, torch.nn.BatchNorm2d)):
+            bn.running_mean.uniform_(-0.5, 0.5), bn.running_var.uniform_(0.5, 2.0), bn.weight.uniform_(0.5, 1.5)
+        for stage in model.stages:
+            stage.confidence.weight.normal_(0.0, 0.3), stage.off.weight.normal_(0.0, 0.3)
+    weights = fcn.pack(model.eval())
+    fast = heatmaps.inference_model(weights)
+    assert heatmaps.inference_model(weights) is fast  # the regions of a worker share it
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in fast.modules())  # folded into the convolutions
+    rng = np.random.default_rng(4)
+    depth, flow = (rng.integers(0, 256, (3, 32, 32, 3), dtype=np.uint8) for _ in range(2))
+    s_ref, l_ref = heatmaps.infer(fcn.unpack(weights), depth, flow, 2, "float32")
+    s_fast, l_fast = heatmaps.infer(fast, depth, flow, 2, "float32")
+    assert np.abs(s_ref).max() > 0.01 and np.abs(l_ref).max() > 0.01  # maps worth comparing
+    np.testing.assert_allclose(s_fast, s_ref, atol=1e-5)
+    np.testing.assert_allclose(l_fast, l_ref, atol=1e-5)
+    x = fcn.to_input(depth, channels_last=True)
+    assert x.is_contiguous(memory_format=torch.channels_last) and torch.equal(x, fcn.to_input(depth))
+
+
 def test_bfloat16_without_native_support_is_named_in_a_warning(monkeypatch, caplog):
     from mocapflow.tasks import heatmaps
 
