@@ -19,8 +19,10 @@ from __future__ import annotations
 import json
 import os
 import socket
+import threading
 import time
 import uuid
+from collections import OrderedDict
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Iterator
@@ -34,6 +36,13 @@ import xarray as xr
 from mocapflow.pipeline.errors import LockError, SchemaError, StorageError
 from mocapflow.schemas import ArtifactSchema, SchemaViolation
 
+
+
+# Complete versions opened by this process (lazily, checked against their schema), for the many regions that read
+# them: opening one reads every array's metadata. Keyed by the completion stamp, so a version deleted and written
+# again is opened afresh; (zarr target, schema name, stamp) -> Dataset.
+_OPENED: OrderedDict[tuple[str, str, str], xr.Dataset] = OrderedDict()
+_OPENED_LOCK = threading.Lock()
 
 
 @dataclass(frozen=True)
@@ -158,17 +167,34 @@ class Store:
     def open(self, stage: str, key: str, schema: ArtifactSchema, partial: bool = False) -> xr.Dataset:
         """The complete artifact, lazily indexed and checked against ``schema``. ``partial``: also an artifact
         still being written (only its written regions hold data; the caller reads no other frames)."""
-        begun = partial and self.fs.exists(self._marker(stage, key, "_init"))
-        if not begun and not self.is_complete(stage, key):
+        stamp = self._completed(stage, key)
+        begun = partial and stamp is None and self.fs.exists(self._marker(stage, key, "_init"))
+        if stamp is None and not begun:
             raise StorageError(f"artifact {stage}/{key} is not complete in {self.root}; "
                                f"run `mocapflow run --until {stage}` to produce it")
+        target = self._zarr_target(stage, key)
+        with _OPENED_LOCK:
+            ds = _OPENED.get((target, schema.name, stamp)) if stamp is not None else None
+        if ds is None:
+            try:
+                ds = xr.open_zarr(target, consolidated=False, chunks=None, zarr_format=3)
+            except (OSError, ValueError, KeyError) as exc:
+                raise StorageError(f"artifact {stage}/{key} in {self.root} is unreadable ({exc}); "
+                                   f"delete {self.version_dir(stage, key)} and rerun") from exc
+            check(schema, ds, f"stored artifact {stage}/{key}")
+            if stamp is not None:
+                with _OPENED_LOCK:
+                    _OPENED[(target, schema.name, stamp)] = ds
+                    while len(_OPENED) > 64:
+                        _OPENED.popitem(last=False)
+        return ds.copy(deep=False)  # loading the caller's copy leaves the kept one lazy
+
+    def _completed(self, stage: str, key: str) -> str | None:
+        """The ``_COMPLETE`` marker's time stamp, None while the version is not complete."""
         try:
-            ds = xr.open_zarr(self._zarr_target(stage, key), consolidated=False, chunks=None, zarr_format=3)
-        except (OSError, ValueError, KeyError) as exc:
-            raise StorageError(f"artifact {stage}/{key} in {self.root} is unreadable ({exc}); "
-                               f"delete {self.version_dir(stage, key)} and rerun") from exc
-        check(schema, ds, f"stored artifact {stage}/{key}")
-        return ds
+            return self.fs.cat_file(self._marker(stage, key, "_COMPLETE")).decode()
+        except FileNotFoundError:
+            return None
 
     # ---- locking -------------------------------------------------------------------------
     @contextmanager
@@ -234,10 +260,35 @@ def init_zarr(target: str, schema: ArtifactSchema, ds: xr.Dataset, n_frames: int
 
 
 def write_zarr_region(target: str, ds: xr.Dataset, start: int, stop: int) -> None:
-    """Write the frame-dimensioned variables of ``ds`` into frames [start, stop) of an initialized group."""
-    framed = ds.drop_vars([n for n, v in ds.variables.items() if "frame" not in v.dims])
-    if framed.data_vars or "frame" in framed.coords:
-        framed.to_zarr(target, region={"frame": slice(start, stop)}, consolidated=False, write_empty_chunks=True)
+    """Write the frame-dimensioned variables of ``ds`` into frames [start, stop) of an initialized group.
+
+    Every array in one pass of zarr's event loop: their metadata read and their chunks written concurrently.
+    xarray's region write (which this replaces) takes a round trip through that loop per array and per
+    metadata file, and each round trip waits for the GIL while the other worker threads compute: 60 ms for
+    the few bytes of a reflectors2d region, against 14 ms alone. The stored chunks are the same bytes: the
+    schemas' dtypes are exact and xarray's encoding of them is the identity.
+    """
+    from zarr.core.sync import sync
+
+    framed = {name: var for name, var in ds.variables.items() if "frame" in var.dims}
+    if framed:
+        sync(_write_arrays(target, framed, start, stop))
+
+
+async def _write_arrays(target: str, framed: dict, start: int, stop: int) -> None:
+    """Frames [start, stop) of each of ``framed``'s variables into its zarr array (named dims, stored order)."""
+    import asyncio
+
+    import zarr.api.asynchronous as zarr_async
+
+    group = await zarr_async.open_group(target, mode="r+", zarr_format=3)
+
+    async def one(name: str, var: xr.Variable) -> None:
+        array = (await group.getitem(name)).with_config({"write_empty_chunks": True})
+        assert tuple(array.metadata.dimension_names or ()) == var.dims, (name, array.metadata.dimension_names)
+        await array.setitem(tuple(slice(start, stop) if d == "frame" else slice(None) for d in var.dims), var.values)
+
+    await asyncio.gather(*(one(n, v) for n, v in framed.items()))
 
 
 def check(schema: ArtifactSchema, ds: xr.Dataset, what: str) -> None:
