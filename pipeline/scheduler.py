@@ -15,13 +15,16 @@ tasks are rescheduled on the others.
 
 from __future__ import annotations
 
+import importlib
 import logging
 import sys
+import threading
 import uuid
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Iterator
 
+import dask
 from tqdm import tqdm
 
 from mocapflow.pipeline import registry
@@ -49,9 +52,33 @@ def dask_client(workers: int, address: str | None) -> Iterator:
         with client:
             yield client
         return
-    with LocalCluster(n_workers=1, threads_per_worker=max(1, workers), processes=False,
-                      dashboard_address=None, silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+    # The in-process worker's statistical profiler (a stack sample of every thread each 10 ms) and memory monitor
+    # (every 100 ms) take the GIL from the task threads; nothing here reads their figures, and tasks hand their
+    # data over through storage, so there is nothing to spill.
+    with dask.config.set({"distributed.worker.profile.enabled": False}), \
+            LocalCluster(n_workers=1, threads_per_worker=max(1, workers), processes=False, memory_limit=0,
+                         dashboard_address=None, silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
         yield client
+
+
+def _warm_imports(items: list[WorkItem]) -> None:
+    """Import, in a background thread, what the planned tasks import on their first call: the modules of lazily
+    registered tasks, and torch where a task takes weights. The first region to need torch would otherwise import
+    it (about 1.5 s) while the other worker threads wait on the import lock; this way it loads while the cluster
+    starts and the first regions' other stages run."""
+    modules = {item.stage.task for item in items}
+    modules = sorted({spec.fn.module for spec in map(registry.get, modules) if isinstance(spec.fn, registry.Lazy)}
+                     | ({"torch"} if any(item.weights for item in items) else set()))
+
+    def load() -> None:
+        for name in modules:
+            try:
+                importlib.import_module(name)
+            except (ImportError, OSError, RuntimeError) as exc:  # the task's own import reports it
+                log.debug("warm-up import of %s failed: %s", name, exc)
+
+    if modules:
+        threading.Thread(target=load, name="warm-imports", daemon=True).start()
 
 
 def run_items(items: list[WorkItem], *, workers: int = 2, address: str | None = None,
@@ -62,6 +89,8 @@ def run_items(items: list[WorkItem], *, workers: int = 2, address: str | None = 
         return []
     from distributed import as_completed
 
+    if not address:  # remote workers import for themselves
+        _warm_imports(items)
     with dask_client(workers, address) as client:
         graph = _submit(client, plan_tasks(items, units=units), uuid.uuid4().hex[:8])
         reports: dict[str, list[Result]] = {}

@@ -125,3 +125,26 @@ def _copy_inputs(src, dst):
     shutil.copytree(src / "data", dst / "data")
     shutil.copy(src / "catalog.yaml", dst / "catalog.yaml")
     return dst
+
+
+def test_lazily_registered_task_modules_are_imported_in_the_background(tmp_path, monkeypatch):
+    import sys
+    import threading
+    from types import SimpleNamespace
+
+    from mocapflow.pipeline import scheduler
+
+    (tmp_path / "warm_me.py").write_text("LOADED = True\n")
+    (tmp_path / "warm_broken.py").write_text("raise ImportError('a missing dependency')\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delitem(sys.modules, "warm_me", raising=False)
+    for name, module in (("warm_task", "warm_me"), ("warm_broken_task", "warm_broken")):
+        monkeypatch.setitem(registry._REGISTRY, name, registry.TaskSpec(
+            name=name, fn=registry.Lazy(module, "f"), version="1", params=registry.NoParams, output="x",
+            partition="view"))
+    items = [SimpleNamespace(stage=SimpleNamespace(task=t), weights={}) for t in ("warm_broken_task", "warm_task")]
+    scheduler._warm_imports(items)
+    for thread in [t for t in threading.enumerate() if t.name == "warm-imports"]:
+        thread.join(timeout=30)
+    assert sys.modules["warm_me"].LOADED  # imported before any task ran, past the module that failed
+    assert "warm_broken" not in sys.modules
