@@ -68,20 +68,6 @@ def _span(first: int, last: int, margin: int, min_side: int, size: int) -> slice
     return slice(lo, hi)
 
 
-def lift(flow2d: np.ndarray, z_ref: np.ndarray, z_other: np.ndarray, rays: np.ndarray,
-         max_depth_jump: float, z_corr: np.ndarray | None = None,
-         consistency: float = 0.04) -> tuple[np.ndarray, np.ndarray]:
-    """3D motion from the other frame to the reference one, at reference pixels (``lift_points`` as images).
-
-    Returns motion (y, x, 3) float32, 0 where not valid, and valid (y, x).
-    """
-    h, w = z_ref.shape
-    at, moved, ok = lift_points(flow2d, z_ref, z_other, rays, max_depth_jump, z_corr, consistency)
-    motion, valid = np.zeros((h, w, 3), np.float32), np.zeros((h, w), bool)
-    motion.reshape(-1, 3)[at], valid.ravel()[at] = moved, ok
-    return motion, valid
-
-
 def lift_points(flow2d: np.ndarray, z_ref: np.ndarray, z_other: np.ndarray, rays: np.ndarray,
                 max_depth_jump: float, z_corr: np.ndarray | None = None,
                 consistency: float = 0.04) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -121,13 +107,6 @@ def _sample(image: np.ndarray, x: np.ndarray, y: np.ndarray, interpolation: int,
     maps[0][:n], maps[1][:n] = x, y
     out = cv2.remap(image, maps[0].reshape(rows, side), maps[1].reshape(rows, side), interpolation, borderMode=border)
     return out.reshape((rows * side,) + image.shape[2:])[:n]
-
-
-def colorize_flow(motion: np.ndarray, valid: np.ndarray, scale_m: float) -> np.ndarray:
-    """``I_F``: each motion axis normalized into one channel, 128 = still, +-scale_m = 255/1.  -> (y, x, 3) uint8"""
-    out = np.full(motion.shape, 128, np.uint8)
-    out[valid] = flow_colors(motion[valid], scale_m)  # the valid pixels only
-    return out
 
 
 def flow_colors(motion: np.ndarray, scale_m: float) -> np.ndarray:
