@@ -248,7 +248,7 @@ def init_zarr(target: str, schema: ArtifactSchema, ds: xr.Dataset, n_frames: int
     ``with_data``: ``ds`` already holds all ``n_frames`` frames; write everything in one pass.
     """
     if with_data:
-        encoding = {name: {"chunks": schema.chunks(name, var.shape, var.dims)}
+        encoding = {name: {"chunks": schema.chunks(name, var.shape, var.dims), **_codec()}
                     for name, var in ds.data_vars.items() if "frame" in var.dims}
         whole = xr.Dataset({n: _variable_strings(v.variable) for n, v in ds.data_vars.items()},
                            coords={n: _variable_strings(c.variable) for n, c in ds.coords.items()}, attrs=ds.attrs)
@@ -291,6 +291,14 @@ async def _write_arrays(target: str, framed: dict, start: int, stop: int) -> Non
     await asyncio.gather(*(one(n, v) for n, v in framed.items()))
 
 
+def _codec() -> dict:
+    """zstd at level 1 rather than zarr's default 3: the flow of a 300-frame take takes 2 % more disk (537 against
+    526 MB) and the whole run 5 % less time (docs/results.md, throughput)."""
+    from zarr.codecs import ZstdCodec
+
+    return {"compressors": ZstdCodec(level=1)}
+
+
 def check(schema: ArtifactSchema, ds: xr.Dataset, what: str) -> None:
     try:
         schema.validate(ds)
@@ -306,7 +314,7 @@ def _template(schema: ArtifactSchema, ds: xr.Dataset, n_frames: int) -> tuple[xr
             shape = tuple(n_frames if d == "frame" else s for d, s in zip(var.dims, var.shape))
             chunks = schema.chunks(name, shape, var.dims)
             variables[name] = xr.Variable(var.dims, da.zeros(shape, dtype=var.dtype, chunks=chunks), var.attrs)
-            encoding[name] = {"chunks": chunks}
+            encoding[name] = {"chunks": chunks, **_codec()}
         else:
             variables[name] = _variable_strings(var.variable)
     coords = {name: _variable_strings(c.variable) for name, c in ds.coords.items() if "frame" not in c.dims}
