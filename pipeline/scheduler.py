@@ -66,9 +66,11 @@ def _warm_imports(items: list[WorkItem]) -> None:
     registered tasks, and torch where a task takes weights. The first region to need torch would otherwise import
     it (about 1.5 s) while the other worker threads wait on the import lock; this way it loads while the cluster
     starts and the first regions' other stages run."""
-    modules = {item.stage.task for item in items}
-    modules = sorted({spec.fn.module for spec in map(registry.get, modules) if isinstance(spec.fn, registry.Lazy)}
-                     | ({"torch"} if any(item.weights for item in items) else set()))
+    specs = [registry.get(task) for task in {item.stage.task for item in items}]
+    modules = {spec.fn.module for spec in specs if isinstance(spec.fn, registry.Lazy)}
+    if any(item.weights for item in items):
+        modules.add("torch")
+    modules = sorted(modules)
 
     def load() -> None:
         for name in modules:

@@ -78,7 +78,7 @@ def lift_points(flow2d: np.ndarray, z_ref: np.ndarray, z_other: np.ndarray, rays
     z_corr: the other frame's depth at the correspondence if the estimator solved for it (else it
     is read from ``z_other`` at the nearest pixel); it must then agree with the measured depth
     there within ``consistency`` metres. Returns the pixels' flat indices at (n,), their motion
-    (n, 3) float32, 0 where not valid, and valid (n,).
+    (n, 3) float32 (meaningful where valid only) and valid (n,).
     """
     h, w = z_ref.shape
     at = np.flatnonzero(z_ref > 0)
@@ -94,7 +94,6 @@ def lift_points(flow2d: np.ndarray, z_ref: np.ndarray, z_other: np.ndarray, rays
     rays32 = rays.astype(np.float32, copy=False)
     rays_o = _sample(rays32, xo, yo, cv2.INTER_LINEAR, cv2.BORDER_REPLICATE)  # (n, 3)
     moved = backproject(z_r, rays32.reshape(-1, 3)[at]) - backproject(z_o, rays_o)
-    moved[~ok] = 0.0
     return at, moved, ok
 
 
