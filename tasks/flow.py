@@ -23,6 +23,7 @@ whole image. Off by default: the 2D labels hold but the poses lose (docs/results
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -37,7 +38,18 @@ DIS_PRESETS = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DI
 
 def ir_to_8bit(ir: np.ndarray, ir_max: float) -> np.ndarray:
     """IR counts to 8 bits with a square-root curve (more levels for the dim body than for reflectors)."""
+    if ir.dtype == np.uint16:  # the sensors' counts: a table of the same formula, three times faster
+        return np.take(_ir_table(float(ir_max)), ir)
     return np.rint(255.0 * np.sqrt(np.clip(ir.astype(np.float32) / ir_max, 0.0, 1.0))).astype(np.uint8)
+
+
+@functools.lru_cache(maxsize=8)
+def _ir_table(ir_max: float) -> np.ndarray:
+    """``ir_to_8bit`` of every 16-bit count.  -> (65536,) uint8"""
+    counts = np.arange(65536, dtype=np.float32)
+    table = np.rint(255.0 * np.sqrt(np.clip(counts / ir_max, 0.0, 1.0))).astype(np.uint8)
+    table.flags.writeable = False
+    return table
 
 
 def dis_flow(ir_ref: np.ndarray, ir_other: np.ndarray, *, preset: str, refine_iterations: int) -> np.ndarray:
@@ -82,19 +94,39 @@ def lift_points(flow2d: np.ndarray, z_ref: np.ndarray, z_other: np.ndarray, rays
     """
     h, w = z_ref.shape
     at = np.flatnonzero(z_ref > 0)
-    xo = (at % w).astype(np.float32) + flow2d[..., 0].ravel()[at]  # (n,) where each of those pixels went
-    yo = (at // w).astype(np.float32) + flow2d[..., 1].ravel()[at]
+    rows, cols = np.divmod(at, w)
+    step = gather_rows(flow2d, at)  # (n, 2)
+    xo = cols.astype(np.float32) + step[:, 0]  # (n,) where each of those pixels went
+    yo = rows.astype(np.float32) + step[:, 1]
     inside = (xo >= 0) & (xo <= w - 1) & (yo >= 0) & (yo <= h - 1)
-    z_near = _sample(z_other.astype(np.float32), xo, yo, cv2.INTER_NEAREST, cv2.BORDER_CONSTANT)
-    z_r = z_ref.ravel()[at].astype(np.float32)
-    z_o = z_near if z_corr is None else z_corr.ravel()[at].astype(np.float32)
+    z_near = _sample(z_other.astype(np.float32, copy=False), xo, yo, cv2.INTER_NEAREST, cv2.BORDER_CONSTANT)
+    z_r = z_ref.ravel()[at].astype(np.float32, copy=False)
+    z_o = z_near if z_corr is None else z_corr.ravel()[at].astype(np.float32, copy=False)
     ok = inside & (z_near > 0) & (z_o > 0) & (np.abs(z_o - z_r) <= max_depth_jump)
     if z_corr is not None:
         ok &= np.abs(z_near - z_o) <= consistency
     rays32 = rays.astype(np.float32, copy=False)
     rays_o = _sample(rays32, xo, yo, cv2.INTER_LINEAR, cv2.BORDER_REPLICATE)  # (n, 3)
-    moved = backproject(z_r, rays32.reshape(-1, 3)[at]) - backproject(z_o, rays_o)
+    moved = backproject(z_r, gather_rows(rays32, at)) - backproject(z_o, rays_o)
     return at, moved, ok
+
+
+def _as_rows(a: np.ndarray) -> np.ndarray:
+    """A C-contiguous (..., k) array seen as (...,) items of k values each: fancy indexing then moves one item
+    per row instead of k values (several times faster; the same bytes).  (..., k) -> (...,) void"""
+    assert a.flags.c_contiguous, "row view needs a C-contiguous array"
+    return a.view(np.dtype((np.void, a.dtype.itemsize * a.shape[-1]))).reshape(a.shape[:-1])
+
+
+def gather_rows(image: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """The pixels ``at`` (flat indices) of a multi-channel image.  (y, x, c), (n,) -> (n, c)"""
+    image = np.ascontiguousarray(image)  # a crop's view is copied
+    return _as_rows(image).ravel()[at].view(image.dtype).reshape(-1, image.shape[-1])
+
+
+def scatter_rows(image: np.ndarray, at: np.ndarray, values: np.ndarray) -> None:
+    """image's pixels ``at`` (flat indices) := values, in place.  (..., c) C-contiguous, (n,), (n, c)"""
+    _as_rows(image).reshape(-1)[at] = _as_rows(np.ascontiguousarray(values, dtype=image.dtype))
 
 
 def _sample(image: np.ndarray, x: np.ndarray, y: np.ndarray, interpolation: int, border: int) -> np.ndarray:
@@ -120,10 +152,13 @@ def rays_for(frames: xr.Dataset, view) -> np.ndarray:
     return pixel_rays(K, cam["dist"].values, int(cam["width"]), int(cam["height"]))  # memoized per calibration
 
 
-def flow_sequence(frames: xr.Dataset, estimate, *, color_scale_m: float, max_depth_jump: float) -> xr.Dataset:
+def flow_sequence(frames: xr.Dataset, estimate, *, color_scale_m: float, max_depth_jump: float,
+                  prepare=None) -> xr.Dataset:
     """Apply a pairwise estimator ``estimate(ir_ref, ir_prev, z_ref_m, z_prev_m, rays) -> (at, motion, valid)``
     (``lift_points``' form: flat pixel indices and their motion and validity; every other pixel has no
-    motion) to every frame with its predecessor in ``frames`` (the first frame of a sequence gets no motion)."""
+    motion) to every frame with its predecessor in ``frames`` (the first frame of a sequence gets no motion).
+    ``prepare``: what the estimator receives of each frame's IR instead of the IR itself, made once per frame
+    (a frame is the reference of one pair and the predecessor of the next)."""
     depth = frames["depth"].values  # (view, frame, y, x) mm
     ir = frames["ir"].values
     frame_ids = frames["frame"].values
@@ -134,12 +169,13 @@ def flow_sequence(frames: xr.Dataset, estimate, *, color_scale_m: float, max_dep
     for v, view in enumerate(frames["view"].values):
         rays = rays_for(frames, view).astype(np.float32)  # once per view, not per pair
         z = depth[v].astype(np.float32) / 1000.0  # (frame, y, x) metres
+        images = [ir[v, i] if prepare is None else prepare(ir[v, i]) for i in range(len(frame_ids))]
         for i in range(1, len(frame_ids)):
-            at, m, ok = estimate(ir[v, i], ir[v, i - 1], z[i], z[i - 1], rays)
-            moved, m = at[ok], m[ok]  # the outputs start as no motion, 128 and not valid
-            motion[v, i].reshape(-1, 3)[moved] = m
-            valid[v, i].ravel()[moved] = True
-            colored[v, i].reshape(-1, 3)[moved] = flow_colors(m, color_scale_m)
+            at, m, ok = estimate(images[i], images[i - 1], z[i], z[i - 1], rays)
+            m[~ok] = 0.0  # the outputs start as no motion, 128 and not valid, as these pixels stay
+            scatter_rows(motion[v, i], at, m)
+            valid[v, i].ravel()[at] = ok
+            scatter_rows(colored[v, i], at, flow_colors(m, color_scale_m))
     dims = ("view", "frame", "y", "x")
     return xr.Dataset(
         {"flow": (dims + ("xyz",), motion), "valid": (dims, valid), "colorized_flow": (dims + ("rgb",), colored)},
@@ -197,11 +233,14 @@ def dis(frames: xr.Dataset, *, preset: str, refine_iterations: int, ir_max: floa
     if preset not in DIS_PRESETS:
         raise ValueError(f"unknown DIS preset {preset!r}; use one of {sorted(DIS_PRESETS)}")
 
-    def estimate(ir_ref, ir_prev, z_ref, z_prev, rays):
+    def eight_bit(ir):
+        return ir, ir_to_8bit(ir, ir_max)
+
+    def estimate(ref, prev, z_ref, z_prev, rays):  # ref, prev: (IR, its 8 bits) of the two frames
         box = (slice(None), slice(None))
         if roi_ir > 0:
-            box = subject_box(ir_ref, ir_prev, threshold=roi_ir, margin_px=roi_margin_px)
-        flow2d = dis_flow(ir_to_8bit(ir_ref[box], ir_max), ir_to_8bit(ir_prev[box], ir_max), preset=preset,
+            box = subject_box(ref[0], prev[0], threshold=roi_ir, margin_px=roi_margin_px)
+        flow2d = dis_flow(np.ascontiguousarray(ref[1][box]), np.ascontiguousarray(prev[1][box]), preset=preset,
                           refine_iterations=refine_iterations)  # (h', w', 2) inside the box
         at, motion, valid = lift_points(flow2d, z_ref[box], z_prev[box], rays[box], max_depth_jump)
         if roi_ir > 0:  # the box's flat indices -> the image's
@@ -209,4 +248,5 @@ def dis(frames: xr.Dataset, *, preset: str, refine_iterations: int, ir_max: floa
             at = (rows + box[0].start) * z_ref.shape[1] + cols + box[1].start
         return at, motion, valid
 
-    return flow_sequence(frames, estimate, color_scale_m=color_scale_m, max_depth_jump=max_depth_jump)
+    return flow_sequence(frames, estimate, color_scale_m=color_scale_m, max_depth_jump=max_depth_jump,
+                         prepare=eight_bit)

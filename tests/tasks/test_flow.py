@@ -10,7 +10,7 @@ import xarray as xr
 
 from conftest import plane_sequence
 from mocapflow.schemas import get_schema
-from mocapflow.tasks.flow import DisConfig, PrimalDualConfig, dis, subject_box
+from mocapflow.tasks.flow import DisConfig, PrimalDualConfig, dis, gather_rows, ir_to_8bit, scatter_rows, subject_box
 from mocapflow.tasks.pdflow import primal_dual
 
 VARIANTS = {"dis": lambda ds: dis(ds, **asdict(DisConfig())),
@@ -110,3 +110,24 @@ def test_flow_around_the_subject_only_matches_the_whole_image_there_and_is_empty
     np.testing.assert_allclose(np.median(flow[ring], axis=0), np.median(whole.flow.values[0, 1][ring], axis=0), atol=5e-4)
     with pytest.raises(ValueError, match="roi_ir"):
         DisConfig(roi_ir=-1.0)
+
+
+def test_ir_to_8bit_table_is_the_formula_for_every_16bit_count():
+    counts = np.arange(65536, dtype=np.uint16).reshape(256, 256)
+    formula = np.rint(255.0 * np.sqrt(np.clip(counts.astype(np.float32) / 9000.0, 0.0, 1.0))).astype(np.uint8)
+    assert np.array_equal(ir_to_8bit(counts, 9000.0), formula)
+    assert np.array_equal(ir_to_8bit(counts.astype(np.float32), 9000.0), formula)  # other dtypes: the formula itself
+
+
+def test_row_gather_and_scatter_match_fancy_indexing():
+    rng = np.random.default_rng(3)
+    image = rng.normal(size=(7, 9, 3)).astype(np.float32)
+    at = np.array([0, 5, 17, 62])
+    assert np.array_equal(gather_rows(image, at), image.reshape(-1, 3)[at])
+    crop = image[2:6, 1:8]  # a view, not contiguous
+    assert np.array_equal(gather_rows(crop, np.array([1, 27])), crop.reshape(-1, 3)[[1, 27]])
+    out, expected = np.zeros((7, 9, 3), np.float16), np.zeros((7, 9, 3), np.float16)
+    values = rng.normal(size=(4, 3)).astype(np.float32)
+    scatter_rows(out, at, values)
+    expected.reshape(-1, 3)[at] = values
+    assert np.array_equal(out.view(np.uint16), expected.view(np.uint16))
