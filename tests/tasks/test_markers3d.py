@@ -54,6 +54,15 @@ def test_a_regions_contour_is_its_ring_in_the_whole_image():
         np.testing.assert_array_equal(np.stack([ys, xs]), np.nonzero(ring))
 
 
+def test_surface_depth_is_the_median_of_the_depths_near_the_nearest_quartile():
+    rng = np.random.default_rng(4)
+    for n in [1, 2, 3, 4, 5, 8, 13, 40, 41]:
+        for _ in range(20):  # a body at about 1.5 m, some background pixels far behind it, repeated values
+            z = np.where(rng.random(n) < 0.3, 4000.0, 1500.0) + rng.integers(0, 60, n).astype(float)
+            expected = np.median(z[z <= np.percentile(z, 25) + 150.0])
+            assert m3d._surface_depth(z, 150.0) == expected
+
+
 def test_normal_lines_of_a_cylinder_meet_on_its_axis():
     """Points on a vertical cylinder (radius 4 cm, axis through (0.3, -0.2)) facing two sensors; the
     lines along each sensor's ray through its surface point meet on the axis (Eq. A1)."""
