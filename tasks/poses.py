@@ -6,7 +6,7 @@ rotation-vector components it may use: 3 for ball joints (spine, neck, shoulders
 head (nod, turn) and for elbows, wrists and ankles (swing of the child bone), 1 for the knees
 (flexion), none for the end joints (hands, feet). Bone lengths are fixed by the skeleton.
 
-Each frame is a nonlinear least-squares problem (scipy ``least_squares``, Levenberg-Marquardt):
+Each frame is a nonlinear least-squares problem (MINPACK's Levenberg-Marquardt through scipy ``leastsq``):
 residuals are the confidence-weighted reflector errors of the reflectors seen in that frame, plus
 a small pull towards the previous frame's parameters, so a joint whose reflectors are all missing
 keeps its last rotation instead of drifting. Frames are warm-started from the previous solution.
