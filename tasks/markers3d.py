@@ -31,6 +31,7 @@ from mocapflow.tasks.studio.reflectors import REFLECTOR_TABLE
 KINDS = {name: kind for name, kind, *_ in REFLECTOR_TABLE}
 # Nominal limb radius (m) under each strap: forearm and shin of a 1.75 m adult.
 NOMINAL_RADIUS = {"ELBOW": 0.040, "WRIST": 0.033, "CALF": 0.052, "ANKLE": 0.042}
+_CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))  # one 4-connected dilation step
 
 
 def nominal_radius(name: str) -> float:
@@ -81,9 +82,6 @@ def _contour(blob_id: np.ndarray, depth: np.ndarray, label: int, box: tuple[slic
     ring = grown & ~region & (depth[window] > 0)
     ry, rx = np.nonzero(ring)
     return ry + top, rx + left
-
-
-_CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
 
 
 def _surface_depth(z: np.ndarray, max_spread_mm: float) -> float:
