@@ -45,9 +45,8 @@ def ir_to_8bit(ir: np.ndarray, ir_max: float) -> np.ndarray:
 
 @functools.lru_cache(maxsize=8)
 def _ir_table(ir_max: float) -> np.ndarray:
-    """``ir_to_8bit`` of every 16-bit count.  -> (65536,) uint8"""
-    counts = np.arange(65536, dtype=np.float32)
-    table = np.rint(255.0 * np.sqrt(np.clip(counts / ir_max, 0.0, 1.0))).astype(np.uint8)
+    """``ir_to_8bit`` of every 16-bit count (the formula, on the counts as floats).  -> (65536,) uint8"""
+    table = ir_to_8bit(np.arange(65536, dtype=np.float32), ir_max)
     table.flags.writeable = False
     return table
 
