@@ -20,6 +20,11 @@ catalog_option = click.option("--catalog", "catalog_path", default="catalog.yaml
 set_option = click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
                           help="override a catalog value, e.g. --set stages.flow.task=dis (repeatable)")
 sequences_option = click.option("--sequences", default=None, metavar="GLOB", help="only sequences whose id matches")
+workers_option = click.option("--workers", default=2, show_default=True,
+                              help="local worker processes, one task at a time each")
+threads_option = click.option("--threads", is_flag=True,
+                              help="run the local workers as threads of this process: they start sooner, but the "
+                                   "Python-heavy stages then wait on each other (one GIL)")
 
 
 class _Group(click.Group):
@@ -46,13 +51,15 @@ def main(verbose: int) -> None:
 @click.option("--only", default=None, metavar="STAGE", help="run this stage only (its inputs must exist)")
 @click.option("--until", default=None, metavar="STAGE", help="run this stage and everything it needs")
 @click.option("--dry-run", is_flag=True, help="print the plan (stage x partition) and exit")
-@click.option("--workers", default=2, show_default=True, help="local worker threads")
+@workers_option
+@threads_option
 @click.option("--scheduler", "address", default=None, metavar="ADDRESS",
               help="run on an existing dask.distributed scheduler, e.g. tcp://10.0.0.5:8786")
 @click.option("--keep-going", is_flag=True, help="continue past failed partitions")
 @click.option("--json", "as_json", is_flag=True, help="print a JSON summary as the last line of stdout")
 @click.option("--no-progress", is_flag=True, help="hide the progress bar")
-def run(catalog_path, overrides, sequences, only, until, dry_run, workers, address, keep_going, as_json, no_progress):
+def run(catalog_path, overrides, sequences, only, until, dry_run, workers, threads, address, keep_going, as_json,
+        no_progress):
     """Run the catalog's stages, reusing every cached partition."""
     from mocapflow.pipeline.scheduler import run_items
 
@@ -70,7 +77,7 @@ def run(catalog_path, overrides, sequences, only, until, dry_run, workers, addre
         if as_json:
             click.echo(json.dumps({"planned": [i.partition.id for i in todo], "cached": [i.partition.id for i in cached]}))
         return
-    results = run_items(todo, workers=workers, address=address, keep_going=keep_going,
+    results = run_items(todo, workers=workers, processes=not threads, address=address, keep_going=keep_going,
                         progress=not no_progress and sys.stderr.isatty())
     by_status = {s: [r for r in results if r.status == s] for s in ("executed", "failed", "skipped")}
     elapsed = time.perf_counter() - started
@@ -202,9 +209,10 @@ def init(folder, force):
 @click.option("--stage", default=None, help="the training stage [the catalog's train_fcn stage]")
 @click.option("--out", default="models/deepmocap_fcn.pt", show_default=True, type=click.Path(dir_okay=False),
               help="weights file to write")
-@click.option("--workers", default=2, show_default=True, help="local worker threads")
+@workers_option
+@threads_option
 @click.option("--json", "as_json", is_flag=True, help="print a JSON summary as the last line of stdout")
-def train(catalog_path, overrides, sequences, stage, out, workers, as_json):
+def train(catalog_path, overrides, sequences, stage, out, workers, threads, as_json):
     """Train the two-stream FCN (seeded) and write its weights; every step is a cached stage."""
     import hashlib
 
@@ -217,7 +225,7 @@ def train(catalog_path, overrides, sequences, stage, out, workers, as_json):
     plan = build_plan(catalog, sequences)
     item = training_item(plan, catalog, stage)
     compute_missing(select(plan, catalog, store, only=None, until=item.partition.stage), store, workers=workers,
-                    what="training failed")
+                    processes=not threads, what="training failed")
     data = export_weights(store, item, Path(out))
     sha = hashlib.sha256(data).hexdigest()
     click.echo(f"wrote {out} ({len(data) / 1e6:.2f} MB, sha256 {sha[:16]}) from {item.partition.id} "
@@ -236,12 +244,14 @@ def train(catalog_path, overrides, sequences, stage, out, workers, as_json):
 @click.option("--stage", default=None,
               help="the stage to export [c3d/trc: the last smoothed stage, else markers3d; bvh: the poses stage]")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="folder for <sequence>.<format>")
-@click.option("--workers", default=2, show_default=True, help="local worker threads for missing partitions")
-def export(catalog_path, overrides, sequences, fmt, stage, out_dir, workers):
+@workers_option
+@threads_option
+def export(catalog_path, overrides, sequences, fmt, stage, out_dir, workers, threads):
     """Write markers as C3D or TRC, or poses as BVH, one file per sequence (computes missing partitions first)."""
     from mocapflow.pipeline.export import export_files
 
-    for path in export_files(load_catalog(catalog_path, overrides), sequences, fmt, stage, Path(out_dir), workers):
+    for path in export_files(load_catalog(catalog_path, overrides), sequences, fmt, stage, Path(out_dir), workers,
+                             not threads):
         click.echo(f"wrote {path}")
 
 
@@ -251,14 +261,16 @@ def export(catalog_path, overrides, sequences, fmt, stage, out_dir, workers):
 @click.option("--motion", "motions", multiple=True, metavar="EXERCISE",
               help="a studio exercise (repeatable) [jumping_jack, classic_squat, elbow_flexion]")
 @click.option("--frames", default=90, show_default=True, help="frames per sequence (30 fps)")
-@click.option("--workers", default=2, show_default=True, help="local worker threads")
+@workers_option
+@threads_option
 @click.option("--json", "as_json", is_flag=True, help="print the figures as one JSON object, the last line of stdout")
-def demo(out_dir, motions, frames, workers, as_json):
+def demo(out_dir, motions, frames, workers, threads, as_json):
     """Run the whole system on a small studio dataset: accuracy table, BVH + C3D, and an HTML report."""
     from mocapflow.pipeline.demo import DEFAULT_MOTIONS, DemoOptions, run_demo
 
     text, summary, written = run_demo(Path(out_dir), DemoOptions(motions=tuple(motions) or DEFAULT_MOTIONS,
-                                                                  frames=frames), workers=workers)
+                                                                  frames=frames), workers=workers,
+                                       processes=not threads)
     click.echo(text)
     for path in written:
         click.echo(f"wrote {path}")
@@ -270,9 +282,10 @@ def demo(out_dir, motions, frames, workers, as_json):
 @catalog_option
 @set_option
 @sequences_option
-@click.option("--workers", default=2, show_default=True, help="local worker threads for missing partitions")
+@workers_option
+@threads_option
 @click.option("--json", "as_json", is_flag=True, help="print the figures as one JSON object, the last line of stdout")
-def evaluate(catalog_path, overrides, sequences, workers, as_json):
+def evaluate(catalog_path, overrides, sequences, workers, threads, as_json):
     """Accuracy of the catalog's stages on its evaluation split (computes missing partitions first)."""
     from mocapflow.pipeline.evaluate import evaluate as run_evaluation
     from mocapflow.pipeline.evaluate import evaluation_plan, headline, table
@@ -281,7 +294,7 @@ def evaluate(catalog_path, overrides, sequences, workers, as_json):
     catalog = load_catalog(catalog_path, overrides)
     store = Store(catalog.root)
     plan = evaluation_plan(catalog, sequences)
-    compute_missing(plan.items.values(), store, workers=workers, what="cannot evaluate")
+    compute_missing(plan.items.values(), store, workers=workers, processes=not threads, what="cannot evaluate")
     result = run_evaluation(catalog, plan, store)
     click.echo(table(result))
     if as_json:

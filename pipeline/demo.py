@@ -66,17 +66,19 @@ def prepare(out: Path, options: DemoOptions):
     return load_catalog(str(path), ())
 
 
-def run_demo(out: Path, options: DemoOptions, *, workers: int) -> tuple[str, dict, list[Path]]:
+def run_demo(out: Path, options: DemoOptions, *, workers: int, processes: bool = True) -> tuple[str, dict, list[Path]]:
     """Run, evaluate, export and report the demo; return the accuracy table, the summary figures and
     the files written."""
     started = time.perf_counter()
     catalog = prepare(out, options)
     store = Store(catalog.root)
     plan = build_plan(catalog, None)
-    computed = compute_missing(plan.items.values(), store, workers=workers, what="the demo failed")
+    computed = compute_missing(plan.items.values(), store, workers=workers, processes=processes,
+                               what="the demo failed")
     result = evaluate(catalog, plan, store)
     text = table(result)
-    files = [path for fmt in ("bvh", "c3d") for path in export_files(catalog, None, fmt, None, out / "export", workers)]
+    files = [path for fmt in ("bvh", "c3d") for path in export_files(catalog, None, fmt, None, out / "export",
+                                                                            workers, processes)]
     seq = plan.sequences[0]
     raw = store.open("frames", plan.items[f"frames/{seq.id}"].key, get_schema("raw_sequence"))
     poses = store.open("poses", plan.items[f"poses/{seq.id}"].key, get_schema("poses")).load()

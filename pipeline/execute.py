@@ -15,11 +15,14 @@ frames) is loaded once. The artifacts are the same as partition by partition.
 from __future__ import annotations
 
 import logging
+import os
 import socket
 import threading
 import time
 import traceback
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, fields
+from typing import Iterator
 
 import numpy as np
 import xarray as xr
@@ -298,12 +301,32 @@ def _compute_region(item: WorkItem, spec: registry.TaskSpec, store: Store, start
     params = {f.name: getattr(item.stage.params, f.name) for f in fields(item.stage.params)}
     for name, (path, sha) in item.weights.items():  # weight files arrive as tensors, loaded once per worker
         params[name] = load_weights(path, sha)
-    out = spec.fn(**inputs, **params)
+    with every_core() if spec.partition == "dataset" else nullcontext():
+        out = spec.fn(**inputs, **params)
     if not isinstance(out, xr.Dataset):
         raise TypeError(f"task {spec.name!r} returned {type(out).__name__}, expected an xarray Dataset")
     if "frame" in out.dims:
         out = out.sel(frame=slice(start, stop - 1))
     return out
+
+
+@contextmanager
+def every_core() -> Iterator[None]:
+    """torch and OpenCV on every core of the machine for the duration. A per-dataset task (training) reads every
+    partition of its inputs, so it runs after them, alone; a worker process's thread pools otherwise hold its
+    share of the cores (scheduler.thread_limits)."""
+    import cv2
+    import torch
+
+    before = torch.get_num_threads(), cv2.getNumThreads()
+    cores = os.cpu_count() or 1
+    torch.set_num_threads(cores)
+    cv2.setNumThreads(cores)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before[0])
+        cv2.setNumThreads(before[1])
 
 
 def _load_samples(store: Store, up, variables=None) -> xr.Dataset:

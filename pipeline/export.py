@@ -182,8 +182,9 @@ SCHEMAS = {"c3d": ("smoothed_markers", "markers3d"), "trc": ("smoothed_markers",
 
 
 def export_files(catalog, sequences: str | None, fmt: str, stage: str | None, out_dir: Path,
-                 workers: int) -> list[Path]:
-    """Write ``<out_dir>/<sequence>.<fmt>`` for every sequence of ``stage`` (computing missing partitions first)."""
+                 workers: int, processes: bool = True) -> list[Path]:
+    """Write ``<out_dir>/<sequence>.<fmt>`` for every sequence of ``stage`` (computing missing partitions first
+    on ``workers`` local worker processes, or threads)."""
     from mocapflow.pipeline.scheduler import compute_missing
 
     stage = stage or next((s for schema in SCHEMAS[fmt] if (s := stage_writing(catalog, schema))), None)
@@ -196,7 +197,8 @@ def export_files(catalog, sequences: str | None, fmt: str, stage: str | None, ou
                         "pick another --stage")
     store = Store(catalog.root)
     plan = build_plan(catalog, sequences)
-    compute_missing(select(plan, catalog, store, only=None, until=stage), store, workers=workers, what="cannot export")
+    compute_missing(select(plan, catalog, store, only=None, until=stage), store, workers=workers, processes=processes,
+                    what="cannot export")
     written = []
     for item in plan.for_stages([stage]):
         path = out_dir / f"{item.partition.sequence}.{fmt}"

@@ -4,19 +4,22 @@ A stage that works region by region runs as *units* (execute.py): one Dask task 
 a group of partitions, the stages of one sequence x view (masks -> flow -> heatmaps -> reflectors2d)
 or of one sequence, each unit after the group's previous region. Other partitions (whole-sequence
 filters, training, the source stage) run as one task each. A unit waits for the units of other
-groups that write the frames it reads, and earlier frames go first, so the views' groups
-interleave on the workers region by region, downstream regions start while upstream ones run, and
-inputs pass between the members of a unit in memory. Only small work items travel in the graph
-(never arrays or models): workers read inputs from storage and write outputs there. Locally an
-in-process cluster with ``workers`` threads runs the graph; ``address`` attaches to an existing
-dask.distributed scheduler instead (``dask scheduler`` + ``dask worker``), whose lost workers'
-tasks are rescheduled on the others.
+groups that write the frames it reads. Tasks are handed to Dask as they become ready, one per free
+worker thread, earlier frames first, so the views' groups interleave on the workers region by region,
+downstream regions start while upstream ones run, and inputs pass between the members of a unit in
+memory. Only small work items and reports travel (never arrays or models): workers read inputs from
+storage and write outputs there. Locally a cluster of ``workers`` one-thread worker processes runs them
+(or, with ``processes=False``, threads of this process: these start faster, but the Python-heavy
+stages then wait on each other's GIL); ``address`` attaches to an existing dask.distributed scheduler
+instead (``dask scheduler`` + ``dask worker``), whose lost workers' tasks are rescheduled on the others.
 """
 
 from __future__ import annotations
 
+import heapq
 import importlib
 import logging
+import os
 import sys
 import threading
 import uuid
@@ -35,8 +38,13 @@ from mocapflow.pipeline.plan import WorkItem
 log = logging.getLogger(__name__)
 
 
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "OPENCV_FOR_THREADS_NUM")
+
+
 @contextmanager
-def dask_client(workers: int, address: str | None) -> Iterator:
+def dask_client(workers: int, address: str | None, *, processes: bool = True) -> Iterator:
+    """A client of the scheduler at ``address``, or of a local cluster of ``workers`` one-thread worker processes
+    (``processes``) or worker threads of this process."""
     from distributed import Client, LocalCluster
 
     quiet = logging.getLogger().getEffectiveLevel() > logging.DEBUG
@@ -52,13 +60,30 @@ def dask_client(workers: int, address: str | None) -> Iterator:
         with client:
             yield client
         return
-    # The in-process worker's statistical profiler (a stack sample of every thread each 10 ms) and memory monitor
-    # (every 100 ms) take the GIL from the task threads; nothing here reads their figures, and tasks hand their
-    # data over through storage, so there is nothing to spill.
-    with dask.config.set({"distributed.worker.profile.enabled": False}), \
-            LocalCluster(n_workers=1, threads_per_worker=max(1, workers), processes=False, memory_limit=0,
-                         dashboard_address=None, silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+    # A worker's statistical profiler (a stack sample of every thread each 10 ms) and memory monitor (every 100 ms)
+    # take the GIL from the task threads; nothing here reads their figures, and tasks hand their data over through
+    # storage, so there is nothing to spill.
+    config = {"distributed.worker.profile.enabled": False}
+    if processes:
+        # Each worker process gets its share of the cores for its OpenMP, BLAS and OpenCV thread pools (Dask's
+        # default, one, would leave cores idle with fewer workers than cores; the libraries' default, every core,
+        # runs 4 threads on 2 cores with 2 workers: 41 s instead of 27 s for the benchmark take). Dask's
+        # MALLOC_TRIM_THRESHOLD_ is left out: it hands each freed frame array back to the system, and the tasks
+        # took half as long again. Non-daemonic, so that a task may start processes (training's data loaders).
+        config.update({"distributed.worker.daemon": False,
+                       "distributed.nanny.pre-spawn-environ": thread_limits(workers)})
+    with dask.config.set(config), \
+            LocalCluster(n_workers=max(1, workers) if processes else 1, threads_per_worker=1 if processes else
+                         max(1, workers), processes=processes, memory_limit=0, dashboard_address=None,
+                         silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
         yield client
+
+
+def thread_limits(workers: int) -> dict[str, str]:
+    """The thread pool sizes of a worker process, one of ``workers`` on this machine: its share of the cores,
+    unless this process's environment sets them."""
+    share = str(max(1, (os.cpu_count() or 1) // max(1, workers)))
+    return {name: os.environ.get(name, share) for name in THREAD_VARIABLES}
 
 
 def _warm_imports(items: list[WorkItem]) -> None:
@@ -83,85 +108,121 @@ def _warm_imports(items: list[WorkItem]) -> None:
         threading.Thread(target=load, name="warm-imports", daemon=True).start()
 
 
-def run_items(items: list[WorkItem], *, workers: int = 2, address: str | None = None,
+def run_items(items: list[WorkItem], *, workers: int = 2, address: str | None = None, processes: bool = True,
               keep_going: bool = False, progress: bool = True, units: bool = True) -> list[Result]:
-    """Run ``items`` (topologically ordered) and return one Result per item, in order. ``units``: run the
-    stages that work region by region as units (the default); False: every partition as one task."""
+    """Run ``items`` (topologically ordered) and return one Result per item, in order. ``processes``: local
+    workers are processes (else threads of this process); ``units``: run the stages that work region by region
+    as units (the default); False: every partition as one task."""
     if not items:
         return []
-    from distributed import as_completed
-
-    if not address:  # remote workers import for themselves
+    if not address and not processes:  # worker processes, local or remote, import for themselves
         _warm_imports(items)
-    with dask_client(workers, address) as client:
-        graph = _submit(client, plan_tasks(items, units=units), uuid.uuid4().hex[:8])
-        reports: dict[str, list[Result]] = {}
-        bar = tqdm(total=len(items), unit="part", file=sys.stderr, disable=not progress, dynamic_ncols=True)
-        try:
-            for fut in as_completed(graph.futures):
-                for r in _results(fut, graph.reports[fut.key]):
+    graph = _graph(plan_tasks(items, units=units))
+    reports: dict[str, list[Result]] = {}
+    bar = tqdm(total=len(items), unit="part", file=sys.stderr, disable=not progress, dynamic_ncols=True)
+    try:
+        with dask_client(workers, address, processes=processes) as client:
+            for task, results in _dispatch(client, graph, uuid.uuid4().hex[:8]):
+                for r in results:
                     reports.setdefault(r.partition, []).append(r)
-                finished = graph.finishes.get(fut.key, [])
-                if finished:
-                    bar.set_postfix_str(finished[-1], refresh=False)
-                    bar.update(len(finished))
-                if not keep_going and any(r.status == "failed" for p in graph.reports[fut.key]
-                                             for r in reports.get(p, [])):
-                    client.cancel([f for f in graph.futures if not f.done()])
+                if task.finishes:
+                    bar.set_postfix_str(task.ids[-1], refresh=False)
+                    bar.update(len(task.ids))
+                if not keep_going and any(r.status == "failed" for r in results):
                     break
-        finally:
-            bar.close()
-    return [_summary(i.partition.id, reports.get(i.partition.id, []), graph.tasks_of[i.partition.id]) for i in items]
+    finally:
+        bar.close()
+    tasks_of: dict[str, int] = {}
+    for task in graph:
+        for pid in task.ids:
+            tasks_of[pid] = tasks_of.get(pid, 0) + 1
+    return [_summary(i.partition.id, reports.get(i.partition.id, []), tasks_of[i.partition.id]) for i in items]
 
 
 @dataclass
-class _Graph:
-    futures: list = field(default_factory=list)
-    reports: dict[str, list[str]] = field(default_factory=dict)  # future key -> the partitions it reports on
-    finishes: dict[str, list[str]] = field(default_factory=dict)  # future key -> the partitions it finishes
-    tasks_of: dict[str, int] = field(default_factory=dict)  # partition -> how many tasks report on it
+class _Task:
+    work: WorkItem | Unit
+    after: list[int]  # the tasks (indices) whose partitions' frames it reads, or whose region precedes it
+    order: tuple[int, int]  # dispatch order among ready tasks: earlier frames first, then plan order
+    ids: list[str]  # the partitions it reports on
+    finishes: bool  # whether it is the last task of its partitions
+    dependents: list[int] = field(default_factory=list)
 
 
-def _submit(client, tasks: list[WorkItem | Unit], run_id: str) -> _Graph:
-    """Submit ``tasks`` (each after the tasks it reads) with their dependencies."""
-    graph = _Graph()
-    last: dict[str, object] = {}  # partition -> the future of its latest task
-    by_region: dict[str, list[tuple[int, object]]] = {}  # partition run as units -> (region stop, its unit)
-    for task in tasks:
+def _graph(tasks: list[WorkItem | Unit]) -> list[_Task]:
+    """Each task with the tasks it runs after."""
+    graph: list[_Task] = []
+    last: dict[str, int] = {}  # partition -> its latest task
+    by_region: dict[str, list[tuple[int, int]]] = {}  # partition run as units -> (region stop, its unit)
+    for n, task in enumerate(tasks):
         is_unit = isinstance(task, Unit)
         members = list(task.items) if is_unit else [task]
         ids = [m.partition.id for m in members]
         own = set(ids)
-        ups = {}
+        after = set()
         for dep in (d for m in members for d in m.depends_on if d not in own):
-            fut = (_unit_covering(by_region.get(dep, []), task.stop) if is_unit else None) or last.get(dep)
-            if fut is not None:
-                ups[fut.key] = fut
-        if is_unit:
-            if not task.first:
-                previous = last[ids[0]]  # the group's previous region
-                ups[previous.key] = previous
-            fut = client.submit(run_unit, task, *ups.values(), key=f"{task.id}-{run_id}", pure=False,
-                                priority=-task.start)  # earlier frames first: downstream regions start early
-        else:
-            fut = client.submit(run_partition, task, *ups.values(), key=f"{task.partition.id}-{task.key}-{run_id}",
-                                pure=False)
-        graph.futures.append(fut)
-        graph.reports[fut.key] = ids
-        if not is_unit or task.last:
-            graph.finishes[fut.key] = graph.reports[fut.key]
+            up = (_unit_covering(by_region.get(dep, []), task.stop) if is_unit else None)
+            up = last.get(dep) if up is None else up
+            if up is not None:
+                after.add(up)
+        if is_unit and not task.first:
+            after.add(last[ids[0]])  # the group's previous region
+        graph.append(_Task(task, sorted(after), (task.start if is_unit else 0, n), ids, not is_unit or task.last))
+        for up in after:
+            graph[up].dependents.append(n)
         for pid in ids:
-            last[pid] = fut
-            graph.tasks_of[pid] = graph.tasks_of.get(pid, 0) + 1
+            last[pid] = n
             if is_unit:
-                by_region.setdefault(pid, []).append((task.stop, fut))
+                by_region.setdefault(pid, []).append((task.stop, n))
     return graph
 
 
-def _unit_covering(units: list[tuple[int, object]], stop: int):
+def _dispatch(client, graph: list[_Task], run_id: str) -> Iterator[tuple[_Task, list[Result]]]:
+    """Run ``graph`` on ``client``'s workers, yielding each task with its Results as it finishes.
+
+    The tasks are handed to Dask one per free worker thread, the ready task with the earliest frames first, its
+    upstream tasks' Results passed as plain values: each task goes to the worker that is free, where Dask would
+    otherwise queue it behind the worker that ran its upstream task (a view's chain of regions sticking to one
+    worker and finishing alone at the end)."""
+    from distributed import as_completed
+
+    waiting = [len(t.after) for t in graph]
+    ready = [(t.order, n) for n, t in enumerate(graph) if not t.after]
+    heapq.heapify(ready)
+    done: dict[int, list[Result]] = {}
+    running: dict = {}  # future -> its task
+    finished = as_completed()
+    try:
+        while ready or running:
+            slots = max(1, sum(client.nthreads().values()))  # the workers' threads, as they come and go
+            while ready and len(running) < slots:
+                n = heapq.heappop(ready)[1]
+                task = graph[n]
+                upstream = [done[u] for u in task.after]
+                if isinstance(task.work, Unit):
+                    fut = client.submit(run_unit, task.work, *upstream, key=f"{task.work.id}-{run_id}", pure=False)
+                else:
+                    fut = client.submit(run_partition, task.work, *upstream,
+                                        key=f"{task.work.partition.id}-{task.work.key}-{run_id}", pure=False)
+                running[fut] = n
+                finished.add(fut)
+            fut = next(finished)
+            n = running.pop(fut)
+            done[n] = _results(fut, graph[n].ids)
+            for d in graph[n].dependents:
+                waiting[d] -= 1
+                if not waiting[d]:
+                    heapq.heappush(ready, (graph[d].order, d))
+            yield graph[n], done[n]
+    finally:
+        if running:
+            client.cancel(list(running))
+
+
+def _unit_covering(units: list[tuple[int, int]], stop: int) -> int | None:
     """The unit (of a partition run region by region, in order) after which frames before ``stop`` are written:
     a unit reads no frame at or after its own stop, and each unit runs after the previous one."""
-    return next((fut for end, fut in units if end >= stop), None)
+    return next((n for end, n in units if end >= stop), None)
 
 
 def plan_tasks(items: list[WorkItem], *, units: bool = True) -> list[WorkItem | Unit]:
@@ -242,11 +303,12 @@ def _summary(pid: str, reports: list[Result], tasks: int) -> Result:
                   regions=sum(r.regions for r in reports))
 
 
-def compute_missing(items, store, *, workers: int, what: str) -> list[WorkItem]:
+def compute_missing(items, store, *, workers: int, what: str, processes: bool = True) -> list[WorkItem]:
     """Run the ``items`` not yet complete in ``store`` and return them; raise PlanError naming the first
     failures (``what``: the purpose, e.g. "cannot export")."""
     todo = [i for i in items if not store.is_complete(i.partition.stage, i.key)]
-    failed = [r for r in run_items(todo, workers=workers, progress=sys.stderr.isatty()) if not r.ok]
+    failed = [r for r in run_items(todo, workers=workers, processes=processes, progress=sys.stderr.isatty())
+              if not r.ok]
     if failed:
         raise PlanError(f"{what}: " + "; ".join(f"{r.partition}: {r.error}" for r in failed[:5]))
     return todo

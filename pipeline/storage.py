@@ -17,6 +17,7 @@ region as done. Several versions of a partition live side by side (swap A -> B -
 from __future__ import annotations
 
 import json
+import multiprocessing
 import os
 import socket
 import threading
@@ -208,8 +209,8 @@ class Store:
             if holder is not None and _alive(holder):
                 raise LockError(
                     f"partition {label} is being written by another run ({holder.get('run', '?')}: host "
-                    f"{holder.get('host')} pid {holder.get('pid')} since {holder.get('since')}); wait for it to "
-                    f"finish, or if that process is gone delete {path}")
+                    f"{holder.get('host')} pid {holder.get('run_pid', holder.get('pid'))} since {holder.get('since')}); "
+                    f"wait for it to finish, or if that process is gone delete {path}")
             self.fs.rm_file(path)
             if not self._try_create(path, me):
                 raise LockError(f"partition {label}: lost the race for {path} to another run; retry")
@@ -334,8 +335,12 @@ def _protocols(fs) -> tuple[str, ...]:
 
 
 def _holder(label: str) -> dict:
+    """Who takes a lock: this process (``pid``, ``started``: whether it still runs), and the run it works for
+    (``run_pid``: the process that started this one when this is a worker process, else this one)."""
     me = psutil.Process()
+    parent = multiprocessing.parent_process()
     return {"host": socket.gethostname(), "pid": os.getpid(), "started": me.create_time(),
+            "run_pid": parent.pid if parent is not None else os.getpid(),
             "since": time.strftime("%Y-%m-%dT%H:%M:%S"), "run": label, "token": uuid.uuid4().hex}
 
 

@@ -8,7 +8,7 @@ import json
 import numpy as np
 
 from conftest import PLUGINS, assert_same_artifacts, last_json, mocapflow, read_artifacts
-from mocapflow.pipeline import execute, registry
+from mocapflow.pipeline import execute, registry, scheduler
 from mocapflow.pipeline.catalog import load_catalog
 from mocapflow.pipeline.execute import Unit, run_unit
 from mocapflow.pipeline.plan import build_plan
@@ -132,8 +132,6 @@ def test_lazily_registered_task_modules_are_imported_in_the_background(tmp_path,
     import threading
     from types import SimpleNamespace
 
-    from mocapflow.pipeline import scheduler
-
     (tmp_path / "warm_me.py").write_text("LOADED = True\n")
     (tmp_path / "warm_broken.py").write_text("raise ImportError('a missing dependency')\n")
     monkeypatch.syspath_prepend(str(tmp_path))
@@ -148,3 +146,45 @@ def test_lazily_registered_task_modules_are_imported_in_the_background(tmp_path,
         thread.join(timeout=30)
     assert sys.modules["warm_me"].LOADED  # imported before any task ran, past the module that failed
     assert "warm_broken" not in sys.modules
+
+
+def test_one_worker_runs_the_ready_task_with_the_earliest_frames_first(toy_project, monkeypatch):
+    _, plan = toy_plan(toy_project(), monkeypatch)  # 2 sequences x 2 views, 20 frames, regions of 4
+    items = list(plan.items.values())
+    graph = scheduler._graph(plan_tasks(items))
+    with scheduler.dask_client(1, None, processes=False) as client:
+        ran = [task.work for task, results in scheduler._dispatch(client, graph, "order")
+               if all(r.status == "executed" for r in results)]
+    assert len(ran) == len(graph)  # every task, each once, all executed
+    units = [(u.start, u.items[0].partition.id) for u in ran if isinstance(u, Unit)]
+    assert [start for start, _ in units] == sorted(start for start, _ in units)  # region by region, every group
+    assert units[:6] == [(0, "scaled/seqA/cam0"), (0, "scaled/seqA/cam1"), (0, "summed/seqA"),
+                         (0, "scaled/seqB/cam0"), (0, "scaled/seqB/cam1"), (0, "summed/seqB")]
+
+
+def test_local_workers_are_processes_with_their_share_of_the_cores(monkeypatch):
+    import os
+
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "3")  # set by the user: kept
+    with scheduler.dask_client(2, None) as client:
+        pids = client.run(os.getpid)
+        env = client.run(lambda: {name: os.environ.get(name) for name in scheduler.THREAD_VARIABLES})
+        daemonic = client.run(lambda: __import__("multiprocessing").current_process().daemon)
+    assert len(set(pids.values())) == 2 and os.getpid() not in pids.values()
+    share = str(max(1, (os.cpu_count() or 1) // 2))
+    assert all(e == {"OMP_NUM_THREADS": share, "MKL_NUM_THREADS": share, "OPENBLAS_NUM_THREADS": "3",
+                     "OPENCV_FOR_THREADS_NUM": share} for e in env.values()), env
+    assert not any(daemonic.values())  # a task may start processes of its own (training's data loaders)
+
+
+def test_thread_limits_share_the_cores_between_the_workers(monkeypatch):
+    for name in scheduler.THREAD_VARIABLES:
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setattr(scheduler.os, "cpu_count", lambda: 8)
+    assert set(scheduler.thread_limits(2).values()) == {"4"}
+    assert set(scheduler.thread_limits(3).values()) == {"2"}
+    assert set(scheduler.thread_limits(16).values()) == {"1"}
+    monkeypatch.setenv("MKL_NUM_THREADS", "5")
+    assert scheduler.thread_limits(2) == {"OMP_NUM_THREADS": "4", "MKL_NUM_THREADS": "5", "OPENBLAS_NUM_THREADS": "4",
+                                          "OPENCV_FOR_THREADS_NUM": "4"}
