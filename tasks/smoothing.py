@@ -18,14 +18,15 @@ tracks"). Three swappable implementations of the `smoothed` stage:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import xarray as xr
-from filterpy.common import Q_discrete_white_noise
-from filterpy.kalman import KalmanFilter, rts_smoother
-from scipy import signal
 
 from mocapflow.tasks import labels
+
+if TYPE_CHECKING:
+    from filterpy.kalman import KalmanFilter
 
 
 @dataclass(frozen=True)
@@ -74,6 +75,11 @@ class NoSmoothing:
 
 
 def _filter(order: int, dt: float, process_noise: float) -> KalmanFilter:
+    # filterpy (and scipy.signal below) here, not at the top: they import scipy.stats, about 0.3 s of every CLI call
+    # and of every worker's start
+    from filterpy.common import Q_discrete_white_noise
+    from filterpy.kalman import KalmanFilter
+
     n = order + 1
     kf = KalmanFilter(dim_x=3 * n, dim_z=3)
     step = np.eye(n)
@@ -171,6 +177,8 @@ def kalman_track(z: np.ndarray, confidence: np.ndarray, *, dt: float, order: int
         frames = [k for k, *_ in segment]
         xs, ps = np.array([x for _, x, _, _ in segment]), np.array([p for _, _, p, _ in segment])
         if rts and len(segment) > 1:
+            from filterpy.kalman import rts_smoother
+
             template = _filter(order, dt, process_noise)
             xs, *_ = rts_smoother(xs, ps, Fs=[template.F] * len(segment), Qs=[template.Q] * len(segment))
         out[frames] = xs[:, ::order + 1]
@@ -180,6 +188,8 @@ def kalman_track(z: np.ndarray, confidence: np.ndarray, *, dt: float, order: int
 
 def butterworth_track(z: np.ndarray, *, fps: float, cutoff_hz: float, order: int) -> np.ndarray:
     """Zero-phase low-pass of each run of observed frames (runs too short to pad are kept).  (frame, 3)"""
+    from scipy import signal  # here, not at the top, as filterpy above
+
     b, a = signal.butter(order, cutoff_hz / (fps / 2.0))
     out = z.copy()
     seen = np.isfinite(z).all(axis=1)
