@@ -251,7 +251,7 @@ def export(catalog_path, overrides, sequences, fmt, stage, out_dir, workers, thr
     from mocapflow.pipeline.export import export_files
 
     for path in export_files(load_catalog(catalog_path, overrides), sequences, fmt, stage, Path(out_dir), workers,
-                             not threads):
+                             processes=not threads):
         click.echo(f"wrote {path}")
 
 

@@ -77,8 +77,8 @@ def run_demo(out: Path, options: DemoOptions, *, workers: int, processes: bool =
                                what="the demo failed")
     result = evaluate(catalog, plan, store)
     text = table(result)
-    files = [path for fmt in ("bvh", "c3d") for path in export_files(catalog, None, fmt, None, out / "export",
-                                                                            workers, processes)]
+    files = [path for fmt in ("bvh", "c3d")
+             for path in export_files(catalog, None, fmt, None, out / "export", workers, processes=processes)]
     seq = plan.sequences[0]
     raw = store.open("frames", plan.items[f"frames/{seq.id}"].key, get_schema("raw_sequence"))
     poses = store.open("poses", plan.items[f"poses/{seq.id}"].key, get_schema("poses")).load()

@@ -23,6 +23,7 @@ import os
 import sys
 import threading
 import uuid
+from collections import Counter
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Iterator
@@ -132,10 +133,7 @@ def run_items(items: list[WorkItem], *, workers: int = 2, address: str | None = 
                     break
     finally:
         bar.close()
-    tasks_of: dict[str, int] = {}
-    for task in graph:
-        for pid in task.ids:
-            tasks_of[pid] = tasks_of.get(pid, 0) + 1
+    tasks_of = Counter(pid for task in graph for pid in task.ids)
     return [_summary(i.partition.id, reports.get(i.partition.id, []), tasks_of[i.partition.id]) for i in items]
 
 
