@@ -73,10 +73,10 @@ def dask_client(workers: int, address: str | None, *, processes: bool = True) ->
         # took half as long again. Non-daemonic, so that a task may start processes (training's data loaders).
         config.update({"distributed.worker.daemon": False,
                        "distributed.nanny.pre-spawn-environ": thread_limits(workers)})
+    n_workers, threads = (max(1, workers), 1) if processes else (1, max(1, workers))
     with dask.config.set(config), \
-            LocalCluster(n_workers=max(1, workers) if processes else 1, threads_per_worker=1 if processes else
-                         max(1, workers), processes=processes, memory_limit=0, dashboard_address=None,
-                         silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+            LocalCluster(n_workers=n_workers, threads_per_worker=threads, processes=processes, memory_limit=0,
+                         dashboard_address=None, silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
         yield client
 
 
@@ -159,7 +159,7 @@ def _graph(tasks: list[WorkItem | Unit]) -> list[_Task]:
         own = set(ids)
         after = set()
         for dep in (d for m in members for d in m.depends_on if d not in own):
-            up = (_unit_covering(by_region.get(dep, []), task.stop) if is_unit else None)
+            up = _unit_covering(by_region.get(dep, []), task.stop) if is_unit else None
             up = last.get(dep) if up is None else up
             if up is not None:
                 after.add(up)
