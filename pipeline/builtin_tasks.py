@@ -63,7 +63,7 @@ register(TaskSpec(
     description="two-stream FCN inference: confidence maps S and optical flow fields L",
 ))
 register(TaskSpec(
-    name="greedy_reflectors", fn=reflectors2d.greedy_reflectors, version="3", params=reflectors2d.GreedyConfig,
+    name="greedy_reflectors", fn=reflectors2d.greedy_reflectors, version="5", params=reflectors2d.GreedyConfig,
     output="reflectors2d", partition="view", inputs={"heatmaps": "heatmaps", "masks": "reflector_masks"},
     reads={"masks": ("blob_id", "blob_area")}, halo=(1, 0),
     description="NMS peaks, OFF line integral (Eq. 7-9), region filtering: labelled 2D reflectors",
@@ -73,7 +73,7 @@ register(TaskSpec(
 register(TaskSpec(
     name="fuse_views", fn=markers3d.markers3d, version="2", params=markers3d.Markers3DConfig, output="markers3d",
     partition="sequence", inputs={"reflectors": "reflectors2d", "masks": "reflector_masks", "frames": "raw_sequence"},
-    reads={"reflectors": ("x", "y", "confidence"), "masks": ("blob_id",), "frames": ("depth",) + CALIBRATION
+    reads={"reflectors": ("x", "y", "confidence", "recovered"), "masks": ("blob_id",), "frames": ("depth",) + CALIBRATION
            + ("cam_to_world",)},
     description="region-contour depth, back-projection, patch mean / strap normal-line fusion (Eq. 10, A1)",
 ))

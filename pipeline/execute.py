@@ -233,20 +233,19 @@ class _UnitInputs:
                 names, a, b = self.wanted[source]
                 self.loaded[source] = _load_input(self.store, up, view, a, b, names, partial=True)
             ds = self.loaded[source]
-            return (ds if variables is None else ds[list(variables)]).sel(frame=slice(lo, hi - 1))
+            return _select(ds, variables, up).sel(frame=slice(lo, hi - 1))
 
         return load
 
     def _from_memory(self, up, view, lo: int, hi: int, variables) -> xr.Dataset:
-        ds = self.memory[up.stage]
-        ds = ds if variables is None else ds[list(variables)]
+        ds = _select(self.memory[up.stage], variables, up)
         assert hi <= self.unit.stop, (up.stage, hi, self.unit.stop)  # groups hold no look-ahead halo
         if lo >= self.unit.start:
             return ds.sel(frame=slice(lo, hi - 1))
         tail = self.tails.get(up.stage)
         if tail is not None and tail["frame"].size and int(tail["frame"][0]) <= lo and \
                 int(tail["frame"][-1]) == self.unit.start - 1:
-            earlier = tail if variables is None else tail[list(variables)]
+            earlier = _select(tail, variables, up)
             earlier = earlier.sel(frame=slice(lo, self.unit.start - 1))
         else:
             earlier = _load_input(self.store, up, view, lo, self.unit.start, variables, partial=True)
@@ -329,6 +328,14 @@ def every_core() -> Iterator[None]:
         cv2.setNumThreads(before[1])
 
 
+def _select(ds: xr.Dataset, variables, up) -> xr.Dataset:
+    """``ds`` with only ``variables`` (None: all), less those that ``up``'s schema marks optional and ``ds`` lacks."""
+    if variables is None:
+        return ds
+    optional = {name for name, spec in get_schema(up.schema).variables.items() if not spec.required}
+    return ds[[v for v in variables if v in ds.variables or v not in optional]]
+
+
 def _load_samples(store: Store, up, variables=None) -> xr.Dataset:
     """A per-dataset stage's input: every (sequence, view, frame) of the upstream as one ``sample`` dim.
 
@@ -339,7 +346,7 @@ def _load_samples(store: Store, up, variables=None) -> xr.Dataset:
     for sequence, keys in up.by_sequence.items():
         for key in keys.values():
             ds = store.open(up.stage, key, get_schema(up.schema))
-            ds = ds[list(variables)] if variables is not None else ds
+            ds = _select(ds, variables, up)
             ds = ds.drop_vars([n for n, v in ds.data_vars.items() if "frame" not in v.dims])
             stacked = ds.stack(sample=[d for d in ("view", "frame") if d in ds.dims]).transpose("sample", ...).load()
             stacked = stacked.reset_index("sample").assign_coords(
@@ -355,8 +362,7 @@ def _load_input(store: Store, up, view: str | None, lo: int, hi: int, variables=
     parts = []
     for key in up.keys.values():
         ds = store.open(up.stage, key, get_schema(up.schema), partial=partial)
-        if variables is not None:
-            ds = ds[list(variables)]
+        ds = _select(ds, variables, up)
         if up.partition == "sequence" and view is not None:  # a slice, not a list: zarr reads it 3x faster
             at = [str(v) for v in ds["view"].values].index(str(view))
             ds = ds.isel(view=slice(at, at + 1))

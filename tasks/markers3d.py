@@ -1,11 +1,13 @@
 """From labelled 2D reflectors to labelled 3D optical data (DeepMoCap §3.4): 2D→3D mapping (§3.4.1)
 and multi-view fusion (§3.4.2, Appendix A).
 
-2D→3D: a reflector returns no depth (its region is a hole in the depth map), so its distance d_R is
-the median depth of the valid pixels on the contour of its region; when n > 1 estimates share one
-region, the contour pixels (image position + depth) are clustered into n groups (k-means) and each
-estimate takes the group nearest to it. The region centre is back-projected through the undistorted
-intrinsics at that depth and taken to the world frame by the extrinsics.
+2D→3D: only the plain 2D estimates are lifted; a ``recovered`` one (tasks/reflectors2d.py), with
+``lift_recovered``, only where no view has a plain one. A reflector returns no depth (its region is a
+hole in the depth map), so its distance d_R is the median depth of the valid pixels on the contour of
+its region; when n > 1 estimates share one region, the contour pixels (image position + depth) are
+clustered into n groups (k-means) and each estimate takes the group nearest to it. The region centre
+is back-projected through the undistorted intrinsics at that depth and taken to the world frame by
+the extrinsics.
 
 Fusion: a patch is seen from one side, so its views agree on one surface point: the
 confidence-weighted mean over views (Eq. 10), after rejecting a view farther than a tolerance from
@@ -45,6 +47,7 @@ class Markers3DConfig:
     patch_tolerance_m: float = 0.05  # a patch view farther than this from the views' median is rejected
     strap_tolerance_m: float = 0.08
     min_confidence: float = 0.0  # 2D estimates below this are not lifted
+    lift_recovered: bool = False  # True: a recovered 2D estimate (reflectors2d) is lifted where no view has a plain one
 
 
 def region_depths(xy: np.ndarray, region_of: np.ndarray, blob_id: np.ndarray, depth: np.ndarray, *,
@@ -240,15 +243,27 @@ def view_centres(points: np.ndarray, rays: np.ndarray, names: list[str]) -> np.n
     return points + rays * radius[:, None]
 
 
+def last_resort(found: np.ndarray, recovered: np.ndarray) -> np.ndarray:
+    """Which 2D estimates to lift: every plain one, and a recovered one (``reflectors2d``'s recovery rules) only
+    where no view has a plain estimate of that reflector in that frame.  (view, frame, R) bool x2 -> (view, frame, R)"""
+    plain = found & ~recovered
+    return plain | (found & ~plain.any(axis=0, keepdims=True))
+
+
 def markers3d(reflectors: xr.Dataset, masks: xr.Dataset, frames: xr.Dataset, *, contour_px: int,
               max_depth_spread_mm: float, patch_tolerance_m: float, strap_tolerance_m: float,
-              min_confidence: float) -> xr.Dataset:
+              min_confidence: float, lift_recovered: bool = False) -> xr.Dataset:
     """Labelled 3D reflectors of a sequence from every view's 2D estimates, region masks, depth and calibration."""
     views, names = list(reflectors["view"].values), [str(n) for n in reflectors["reflector"].values]
     n_frames, n_refl = reflectors.sizes["frame"], len(names)
     points = np.full((len(views), n_frames, n_refl, 3), np.nan)
     rays = np.full_like(points, np.nan)
     confidence = reflectors["confidence"].transpose("view", "frame", "reflector").values.astype(np.float64)
+    lifted = np.ones(confidence.shape, bool)  # (view, frame, reflector)
+    if "recovered" in reflectors:
+        found = np.isfinite(reflectors["x"].transpose("view", "frame", "reflector").values)
+        recovered = reflectors["recovered"].transpose("view", "frame", "reflector").values.astype(bool)
+        lifted = last_resort(found, recovered) if lift_recovered else ~recovered
     for v, view in enumerate(views):
         cam, est, m = frames.sel(view=view), reflectors.sel(view=view), masks.sel(view=view)
         K = intrinsics(*(float(cam[k]) for k in ("fx", "fy", "cx", "cy")))
@@ -257,6 +272,7 @@ def markers3d(reflectors: xr.Dataset, masks: xr.Dataset, frames: xr.Dataset, *, 
             raise ValueError(f"view {str(view)!r} has a non-finite calibration (intrinsics, distortion or extrinsics); "
                              "fix the recording's calibration or drop the view")
         x, y, blob_id, depth = est["x"].values, est["y"].values, m["blob_id"].values, cam["depth"].values  # (frame, …)
+        x = np.where(lifted[v], x, np.nan)  # (frame, reflector)
         for i in range(n_frames):
             points[v, i], rays[v, i] = lift_view(
                 x[i], y[i], confidence[v, i], blob_id[i], depth[i], *calib, contour_px=contour_px,

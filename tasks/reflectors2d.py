@@ -9,7 +9,10 @@ position is that region's centre at full resolution (sub-pixel; a long region is
 near the estimate, and with ``split_px`` > 0 a region shared by estimates that far apart is split
 among them by k-means, when their reflectors are neighbours on the body (``split_neighbours_m``));
 of estimates closer than 3 px the more confident stays; one estimate per reflector and image; an
-estimate below c_min is dropped.
+estimate below c_min is dropped. A second pass (``recover_dropped``) gives the dropped estimates a wider
+reach (a region up to ``recover_snap_px`` away, a part of a region held by a reflector within
+``recover_neighbours_m``) without moving a kept one; what it keeps is flagged ``recovered``, a right label
+more often than not but from a less certain region, so 3D (tasks/markers3d.py) leaves it out by default.
 """
 
 from __future__ import annotations
@@ -36,6 +39,9 @@ class GreedyConfig:
     split_px: float = 4.0  # > 0: estimates this far apart on one region split it (k-means); 0: off (see docs)
     split_neighbours_m: float = 0.10  # > 0: only reflectors this close on the rest-pose body split a region; 0: any
     c_min: float = 0.1  # smallest accepted fused confidence E
+    # Recovery (see ``recover_dropped``): estimates the rules above dropped, kept in 2D and flagged ``recovered``.
+    recover_snap_px: float = 9.0  # > 0: a dropped estimate's region may start this far from it; 0: no recovery
+    recover_neighbours_m: float = 0.12  # a dropped estimate may take a part of a region held by reflectors this close
 
 
 def peaks(confidence: np.ndarray, threshold: float, max_n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -211,10 +217,14 @@ def estimate_frame(confidence, off, affine, prev, *, stride: int, line_samples: 
 
 
 def filter_frame(xy, confidence, blob_id, blob_area, *, b_min: int, min_distance_px: float, snap_px: float,
-                 region_radius_px: float, split_px: float, c_min: float, may_split: np.ndarray | None = None):
-    """§5.1.3 filtering of one image's estimates.  -> region centres (R, 2) NaN if rejected, E (R,), sizes (R,)
+                 region_radius_px: float, split_px: float, c_min: float, may_split: np.ndarray | None = None,
+                 recover_snap_px: float = 0.0, may_recover: np.ndarray | None = None):
+    """§5.1.3 filtering of one image's estimates.
+    -> region centres (R, 2) NaN if rejected, E (R,), sizes (R,), recovered (R,) bool
 
     ``may_split`` (R, R) bool: which reflectors may split a region they share (see ``neighbours``; None: any).
+    With ``recover_snap_px`` > 0, ``recover_dropped`` gives the dropped estimates a second chance (``may_recover``:
+    its ``may_share``); those it keeps are ``recovered``.
     """
     out = np.full_like(xy, np.nan)
     size = np.zeros(len(xy), np.int32)
@@ -233,20 +243,62 @@ def filter_frame(xy, confidence, blob_id, blob_area, *, b_min: int, min_distance
     keep = suppress_close(out, confidence, min_distance_px)
     out[~keep] = np.nan
     size[~keep] = 0
-    return out, np.where(keep, confidence, 0.0), size
+    label[~keep] = 0
+    recovered = np.zeros(len(xy), bool)
+    if recover_snap_px > 0:
+        found = recover_dropped(xy, confidence, out, label, blob_id, blob_area, b_min=b_min,
+                                min_distance_px=min_distance_px, snap_px=recover_snap_px,
+                                region_radius_px=region_radius_px, split_px=split_px, c_min=c_min, may_share=may_recover)
+        for r, (centre, area, region) in found.items():
+            out[r], size[r], label[r], keep[r], recovered[r] = centre, area, region, True, True
+    return out, np.where(keep, confidence, 0.0), size, recovered
+
+
+def recover_dropped(xy, confidence, out, label, blob_id, blob_area, *, b_min: int, min_distance_px: float,
+                    snap_px: float, region_radius_px: float, split_px: float, c_min: float,
+                    may_share: np.ndarray | None) -> dict[int, tuple[np.ndarray, int, int]]:
+    """A second chance for the estimates that ``filter_frame`` dropped, strongest first, which never moves or
+    removes a kept one: a region within ``snap_px`` of the estimate, of at least ``b_min`` pixels, either
+    free, or held only by reflectors that ``may_share`` it (R, R) and at least ``split_px`` from the estimate,
+    whose part of it (k-means, seeded at the holders' and its own estimates) it takes; its centre at least
+    ``min_distance_px`` from every kept estimate.  -> {reflector: (centre (2,), area, region label)}
+    """
+    found = {}
+    held_xy, held_label = out.copy(), label.copy()  # (R, 2), (R,): kept, then recovered too
+    dropped = np.flatnonzero(np.isfinite(xy[:, 0]) & ~np.isfinite(out[:, 0]) & (confidence >= c_min))
+    for r in dropped[np.argsort(-confidence[dropped], kind="stable")]:
+        region = reflector_region(xy[r], blob_id, blob_area, snap_px=snap_px, radius_px=region_radius_px)
+        if region is None or region[1] < b_min:
+            continue
+        centre, area, region_label = region
+        holders = np.flatnonzero(held_label == region_label)
+        if len(holders):
+            if may_share is None or not may_share[r, holders].all() \
+                    or np.linalg.norm(xy[holders] - xy[r], axis=1).min() < split_px:
+                continue
+            centre = split_region(np.vstack([xy[holders], xy[r]]), blob_id, region_label)[-1]
+        if np.nanmin(np.linalg.norm(held_xy - centre, axis=1), initial=np.inf) < min_distance_px:
+            continue
+        found[r] = (centre, area, region_label)
+        held_xy[r], held_label[r] = centre, region_label
+    return found
 
 
 def greedy_reflectors(heatmaps: xr.Dataset, masks: xr.Dataset, *, peak_threshold: float, max_candidates: int,
                       line_samples: int, b_min: int, min_distance_px: float, snap_px: float, region_radius_px: float,
-                      split_px: float, c_min: float, split_neighbours_m: float) -> xr.Dataset:
+                      split_px: float, c_min: float, split_neighbours_m: float, recover_snap_px: float = 0.0,
+                      recover_neighbours_m: float = 0.0) -> xr.Dataset:
     """Labelled 2D reflectors of every view and frame (``heatmaps`` starts one frame early, for f-1)."""
     stride = int(heatmaps.attrs["stride"])
     shape = (heatmaps.sizes["view"], heatmaps.sizes["frame"], heatmaps.sizes["reflector"])
     out = {k: np.full(shape + (2,), np.nan) for k in ("xy", "candidate")}
     out.update({k: np.zeros(shape) for k in ("confidence", "candidate_confidence")})
     out["size"] = np.zeros(shape, np.int32)
+    out["recovered"] = np.zeros(shape, bool)
     frames = heatmaps["frame"].values
-    may_split = neighbours([str(n) for n in heatmaps["reflector"].values], split_neighbours_m)
+    names = [str(n) for n in heatmaps["reflector"].values]
+    may_split = neighbours(names, split_neighbours_m)
+    may_recover = neighbours(names, recover_neighbours_m) if recover_neighbours_m > 0 else np.zeros((len(names),) * 2, bool)
     for v, view in enumerate(heatmaps["view"].values):
         h, m = heatmaps.sel(view=view), masks.sel(view=view)
         conf, off, crop = h["confidence"].values.astype(np.float32), h["off"].values.astype(np.float32), h["crop"].values
@@ -258,15 +310,17 @@ def greedy_reflectors(heatmaps: xr.Dataset, masks: xr.Dataset, *, peak_threshold
             prev = (cands, crop[i])
             out["candidate"][v, i], out["candidate_confidence"][v, i] = xy, e
             j = int(np.nonzero(m["frame"].values == frame)[0][0])
-            out["xy"][v, i], out["confidence"][v, i], out["size"][v, i] = filter_frame(
+            out["xy"][v, i], out["confidence"][v, i], out["size"][v, i], out["recovered"][v, i] = filter_frame(
                 xy, e, m["blob_id"].values[j], m["blob_area"].values[j], b_min=b_min, min_distance_px=min_distance_px,
-                snap_px=snap_px, region_radius_px=region_radius_px, split_px=split_px, c_min=c_min, may_split=may_split)
+                snap_px=snap_px, region_radius_px=region_radius_px, split_px=split_px, c_min=c_min, may_split=may_split,
+                recover_snap_px=recover_snap_px, may_recover=may_recover)
     dims = ("view", "frame", "reflector")
     f32 = lambda a: (dims, a.astype(np.float32))  # noqa: E731
     return xr.Dataset(
         {"x": f32(out["xy"][..., 0]), "y": f32(out["xy"][..., 1]), "confidence": f32(out["confidence"]),
-         "region_size": (dims, out["size"]), "candidate_x": f32(out["candidate"][..., 0]),
-         "candidate_y": f32(out["candidate"][..., 1]), "candidate_confidence": f32(out["candidate_confidence"])},
+         "region_size": (dims, out["size"]), "recovered": (dims, out["recovered"]),
+         "candidate_x": f32(out["candidate"][..., 0]), "candidate_y": f32(out["candidate"][..., 1]),
+         "candidate_confidence": f32(out["candidate_confidence"])},
         coords={"view": heatmaps["view"].values, "frame": frames, "reflector": heatmaps["reflector"].values},
         attrs={"b_min": int(b_min), "c_min": float(c_min)},
     )

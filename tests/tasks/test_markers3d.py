@@ -155,3 +155,41 @@ def test_missing_frames_of_a_view_are_skipped_not_fused():
     np.testing.assert_allclose(own.sel(view="a").values, [world, world], atol=0.01)
     assert np.isnan(own.sel(view="b").values).all()
     np.testing.assert_allclose(out["view_confidence"].sel(reflector="F_SPINEMID").values, [[0.9, 0.0], [0.9, 0.0]])
+
+
+def test_last_resort_lifts_a_recovered_estimate_only_where_no_view_has_a_plain_one():
+    found = np.array([[[True, True, False]], [[True, True, True]]])  # (view, frame, reflector)
+    recovered = np.array([[[False, True, False]], [[True, True, False]]])
+    np.testing.assert_array_equal(m3d.last_resort(found, recovered),
+                                  [[[True, True, False]], [[False, True, True]]])
+
+
+def test_recovered_estimates_are_not_lifted_unless_asked_and_then_only_as_a_last_resort():
+    """Both views see the point; view b's estimates are recovered ones, view a loses frame 1."""
+    world = np.array([0.1, 0.05, 1.2])
+    cams = [_camera([2.5, -1.0, 1.2]), _camera([-2.0, -2.0, 1.4])]
+    depth, blob, xy = map(list, zip(*[_view_frame(c, world) for c in cams]))
+    coords = {"view": ["a", "b"], "frame": [0, 1]}
+    x = np.array([[[xy[0][0]], [np.nan]], [[xy[1][0]], [xy[1][0]]]], np.float32)  # (view, frame, reflector)
+    y = np.array([[[xy[0][1]], [np.nan]], [[xy[1][1]], [xy[1][1]]]], np.float32)
+    per = ("view", "frame", "reflector")
+    reflectors = xr.Dataset({"x": (per, x), "y": (per, y), "confidence": (per, np.where(np.isfinite(x), 0.9, 0.0)),
+                             "recovered": (per, np.array([[[False], [False]], [[True], [True]]]))},
+                            coords={**coords, "reflector": ["F_SPINEMID"]})
+    masks = xr.Dataset({"blob_id": (("view", "frame", "y", "x"), np.stack([np.stack([b, b]) for b in blob]))},
+                       coords=coords)
+    frames = xr.Dataset({"depth": (("view", "frame", "y", "x"), np.stack([np.stack([d, d]) for d in depth])),
+                         **{k: (("view",), [float(c.K[i]) for c in cams])
+                            for k, i in (("fx", (0, 0)), ("fy", (1, 1)), ("cx", (0, 2)), ("cy", (1, 2)))},
+                         "dist": (("view", "dist_coef"), np.stack([np.asarray(c.dist, float) for c in cams])),
+                         "cam_to_world": (("view", "row", "col"), np.stack([c.cam_to_world for c in cams]))},
+                        coords=coords, attrs={"fps": 30.0})
+    plain = m3d.markers3d(reflectors, masks, frames, **vars(m3d.Markers3DConfig()))
+    np.testing.assert_array_equal(plain["views"].values[:, 0], [1, 0])  # view a alone; frame 1: nothing
+    np.testing.assert_allclose(plain["position"].values[0, 0], world, atol=0.01)
+    assert np.isnan(plain["position"].values[1, 0]).all()
+    assert np.isnan(plain["residual"].sel(view="b").values).all()
+    last = m3d.markers3d(reflectors, masks, frames, **{**vars(m3d.Markers3DConfig()), "lift_recovered": True})
+    np.testing.assert_array_equal(last["views"].values[:, 0], [1, 1])  # frame 1 from view b's recovered estimate
+    np.testing.assert_allclose(last["position"].values[:, 0], [world, world], atol=0.01)
+    assert np.isnan(last["residual"].sel(view="b").values[0]).all()  # frame 0: view a's plain estimate alone

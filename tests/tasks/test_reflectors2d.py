@@ -96,7 +96,7 @@ def test_filtering_rules():
                    [41.5, 31.5],  # within 3 px of estimate 1 but less confident
                    [41.0, 31.0]])  # ... and one below c_min
     conf = np.array([0.9, 0.8, 0.9, 0.7, 0.7, 0.6, 0.1])
-    out, kept_conf, size = r2d.filter_frame(xy, conf, blob_id, area, **RULES)
+    out, kept_conf, size, _ = r2d.filter_frame(xy, conf, blob_id, area, **RULES)
     assert np.isnan(out[0]).all() and size[0] == 0  # b_min
     np.testing.assert_allclose(out[1], [41.0, 31.0])  # the region's centre, sub-pixel
     assert size[1] == 9 and kept_conf[1] == pytest.approx(0.8)
@@ -115,17 +115,55 @@ def test_split_gives_touching_reflectors_their_own_centres():
     rules = dict(RULES, region_radius_px=10.0)  # the whole region is reflector-sized: one centre for all
     xy = np.array([[20.5, 21.0], [27.0, 22.5], [21.0, 22.0]])  # two distinct peaks, and a third near the first
     conf = np.array([0.9, 0.8, 0.5])
-    merged, _, _ = r2d.filter_frame(xy, conf, blob_id, area, **rules)
+    merged, _, _, _ = r2d.filter_frame(xy, conf, blob_id, area, **rules)
     np.testing.assert_allclose(merged[0], [23.5, 21.5])  # off: the region's centre, the others suppressed
     assert np.isnan(merged[1:]).all()
-    split, kept, size = r2d.filter_frame(xy, conf, blob_id, area, **dict(rules, split_px=4.0))
+    split, kept, size, _ = r2d.filter_frame(xy, conf, blob_id, area, **dict(rules, split_px=4.0))
     np.testing.assert_allclose(split[0], [21.5, 21.5])  # each patch's own centre
     np.testing.assert_allclose(split[1], [25.5, 21.5])
     assert np.isnan(split[2]).all() and kept[2] == 0  # within split_px of a stronger estimate: that one's reflector
     assert size[0] == size[1] == 32
     apart = np.array([[True, False, True], [False, True, True], [True, True, True]])  # 0 and 1 are not neighbours
-    kept_one, _, _ = r2d.filter_frame(xy, conf, blob_id, area, **dict(rules, split_px=4.0), may_split=apart)
+    kept_one, _, _, _ = r2d.filter_frame(xy, conf, blob_id, area, **dict(rules, split_px=4.0), may_split=apart)
     np.testing.assert_allclose(kept_one, merged)  # not neighbours on the body: no split, the weaker suppressed
+
+
+def test_recovery_gives_dropped_estimates_a_second_chance_and_never_moves_a_kept_one():
+    blob_id = np.zeros((40, 80), np.uint16)
+    blob_id[20:24, 20:32] = 1  # wrist strap and hand patch touching: one 48 px region, centre (25.5, 21.5)
+    blob_id[10:13, 60:63] = 2  # a 9 px region, centre (61, 11)
+    area = np.array([48, 9])
+    rules = dict(RULES, region_radius_px=10.0, split_px=4.0)
+    xy = np.array([[20.5, 21.0],  # 0 wrist: the stronger estimate on region 1
+                   [30.0, 22.5],  # 1 hand, not a wrist neighbour under may_split: suppressed on the plain pass
+                   [53.0, 11.0],  # 2: 7 px left of region 2, beyond snap_px 6
+                   [41.0, 30.0]])  # 3: no region within 9 px
+    conf = np.array([0.9, 0.8, 0.7, 0.9])
+    apart = np.eye(4, dtype=bool)
+    plain, plain_conf, _, recovered = r2d.filter_frame(xy, conf, blob_id, area, **rules, may_split=apart)
+    np.testing.assert_allclose(plain[0], [25.5, 21.5])  # the whole region's centre
+    assert np.isnan(plain[1:]).all() and not recovered.any()
+
+    share = apart.copy()
+    share[0, 1] = share[1, 0] = True  # wrist and hand may share a region on the second chance
+    out, kept, size, recovered = r2d.filter_frame(xy, conf, blob_id, area, **rules, may_split=apart,
+                                                  recover_snap_px=9.0, may_recover=share)
+    np.testing.assert_array_equal(recovered, [False, True, True, False])
+    np.testing.assert_allclose(out[0], plain[0])  # the kept estimate stays where it was
+    np.testing.assert_allclose(out[1], [28.5, 21.5])  # the hand's own half of the region (k-means): x 26-31
+    np.testing.assert_allclose(out[2], [61.0, 11.0])  # the region 8 px away
+    assert np.isnan(out[3]).all() and kept[3] == 0
+    np.testing.assert_allclose(kept[:3], conf[:3])
+    assert list(size) == [48, 48, 9, 0]
+
+    alone, _, _, recovered = r2d.filter_frame(xy, conf, blob_id, area, **rules, may_split=apart,
+                                              recover_snap_px=9.0, may_recover=apart)
+    assert np.isnan(alone[1]).all() and not recovered[1]  # not neighbours: the wrist's region stays its own
+    near = xy.copy()
+    near[1] = [22.0, 22.0]  # closer than split_px to the wrist's estimate: the same reflector, not recovered
+    out, _, _, recovered = r2d.filter_frame(near, conf, blob_id, area, **rules, may_split=apart,
+                                            recover_snap_px=9.0, may_recover=share)
+    assert np.isnan(out[1]).all() and not recovered[1]
 
 
 def _heatmaps(points_per_frame, off=None, grid=20, stride=4):
