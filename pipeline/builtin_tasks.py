@@ -63,7 +63,7 @@ register(TaskSpec(
     description="two-stream FCN inference: confidence maps S and optical flow fields L",
 ))
 register(TaskSpec(
-    name="greedy_reflectors", fn=reflectors2d.greedy_reflectors, version="5", params=reflectors2d.GreedyConfig,
+    name="greedy_reflectors", fn=reflectors2d.greedy_reflectors, version="6", params=reflectors2d.GreedyConfig,
     output="reflectors2d", partition="view", inputs={"heatmaps": "heatmaps", "masks": "reflector_masks"},
     reads={"masks": ("blob_id", "blob_area")}, halo=(1, 0),
     description="NMS peaks, OFF line integral (Eq. 7-9), region filtering: labelled 2D reflectors",

@@ -272,12 +272,14 @@ def recover_dropped(xy, confidence, out, label, blob_id, blob_area, *, b_min: in
             continue
         centre, area, region_label = region
         holders = np.flatnonzero(held_label == region_label)
+        others = held_xy.copy()
         if len(holders):
             if may_share is None or not may_share[r, holders].all() \
                     or np.linalg.norm(xy[holders] - xy[r], axis=1).min() < split_px:
                 continue
-            centre = split_region(np.vstack([xy[holders], xy[r]]), blob_id, region_label)[-1]
-        if np.nanmin(np.linalg.norm(held_xy - centre, axis=1), initial=np.inf) < min_distance_px:
+            parts = split_region(np.vstack([xy[holders], xy[r]]), blob_id, region_label)
+            centre, others[holders] = parts[-1], parts[:-1]  # apart from the holders' parts, not their whole-region centres
+        if np.nanmin(np.linalg.norm(others - centre, axis=1), initial=np.inf) < min_distance_px:
             continue
         found[r] = (centre, area, region_label)
         held_xy[r], held_label[r] = centre, region_label
