@@ -27,8 +27,10 @@ def _colour(i: int, n: int) -> tuple[int, int, int]:
     return tuple(int(c) for c in cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)[0, 0])
 
 
-def overlay(ir: np.ndarray, xy: np.ndarray, gt_uv: np.ndarray, names: list[str], title: str) -> np.ndarray:
-    """IR image with estimated reflectors (filled, labelled) and the true ones (rings).  (y, x), (reflector, 2) x2"""
+def overlay(ir: np.ndarray, xy: np.ndarray, gt_uv: np.ndarray, names: list[str], title: str,
+            recovered: np.ndarray | None = None) -> np.ndarray:
+    """IR image with estimated reflectors (filled, labelled; a ``recovered`` one a hollow dot) and the true ones
+    (rings).  (y, x), (reflector, 2) x2, (reflector,) bool"""
     ir = ir.astype(np.float64)
     top = max(float(np.percentile(ir, 99.0)), 1.0)  # the body's IR, not the saturated reflectors, sets the gain
     img = cv2.cvtColor(np.clip(ir / top * 255.0, 0, 255).astype(np.uint8), cv2.COLOR_GRAY2BGR)
@@ -37,7 +39,8 @@ def overlay(ir: np.ndarray, xy: np.ndarray, gt_uv: np.ndarray, names: list[str],
             cv2.circle(img, tuple(int(v) for v in gt_uv[r]), 6, WHITE, 1, cv2.LINE_AA)
         if np.isfinite(xy[r]).all():
             p = tuple(int(v) for v in xy[r])
-            cv2.circle(img, p, 3, _colour(r, len(names)), -1, cv2.LINE_AA)
+            hollow = recovered is not None and recovered[r]
+            cv2.circle(img, p, 3, _colour(r, len(names)), 1 if hollow else -1, cv2.LINE_AA)
             cv2.putText(img, name, (p[0] + 4, p[1] - 4), FONT, 0.3, _colour(r, len(names)), 1, cv2.LINE_AA)
     cv2.putText(img, title, (8, 20), FONT, 0.55, WHITE, 1, cv2.LINE_AA)
     return img
@@ -126,7 +129,7 @@ def figures(folder: Path, raw: xr.Dataset, reflectors: xr.Dataset, poses: xr.Dat
         gt = raw.sel(view=view).isel(frame=frame)
         uv = np.where(gt["gt_visible"].values[:, None], gt["gt_reflectors2d"].values, np.nan)
         views.append(overlay(gt["ir"].values, np.stack([est["x"].values, est["y"].values], 1), uv, names,
-                             f"{view}, frame {frame}"))
+                             f"{view}, frame {frame}", est["recovered"].values if "recovered" in est else None))
     out = [folder / "reflectors.png", folder / "skeleton.png", folder / "pck.png", folder / "joint_errors.png"]
     write_png(out[0], np.hstack(views))
     picks = np.linspace(0, poses.sizes["frame"] - 1, 4).round().astype(int)
