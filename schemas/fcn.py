@@ -62,8 +62,9 @@ REFLECTORS2D = register_schema(ArtifactSchema(
         "y": VarSpec(_PER_REFLECTOR, "float32", "px"),
         "confidence": VarSpec(_PER_REFLECTOR, "float32", description="fused confidence E (Eq. 9); 0 if none"),
         "region_size": VarSpec(_PER_REFLECTOR, "int32", "px", description="pixels of the reflector region; 0 if none"),
-        "recovered": VarSpec(_PER_REFLECTOR, "bool", required=False, description="kept by the recovery rules (GreedyConfig): "
-                             "3D uses it only where no view has a plain estimate"),
+        "recovered": VarSpec(_PER_REFLECTOR, "bool", required=False,
+                             description="kept by the second filtering pass (GreedyConfig recover_*); markers3d "
+                                         "lifts it only with lift_recovered, where no view has a plain estimate"),
         "candidate_x": VarSpec(_PER_REFLECTOR, "float32", "px", description="best candidate before filtering"),
         "candidate_y": VarSpec(_PER_REFLECTOR, "float32", "px"),
         "candidate_confidence": VarSpec(_PER_REFLECTOR, "float32"),

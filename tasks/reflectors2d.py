@@ -259,9 +259,10 @@ def recover_dropped(xy, confidence, out, label, blob_id, blob_area, *, b_min: in
                     may_share: np.ndarray | None) -> dict[int, tuple[np.ndarray, int, int]]:
     """A second chance for the estimates that ``filter_frame`` dropped, strongest first, which never moves or
     removes a kept one: a region within ``snap_px`` of the estimate, of at least ``b_min`` pixels, either
-    free, or held only by reflectors that ``may_share`` it (R, R) and at least ``split_px`` from the estimate,
-    whose part of it (k-means, seeded at the holders' and its own estimates) it takes; its centre at least
-    ``min_distance_px`` from every kept estimate.  -> {reflector: (centre (2,), area, region label)}
+    free, or held only by reflectors that ``may_share`` it (R, R; None: by none) and at least ``split_px`` from
+    the estimate, whose part of it (k-means, seeded at the holders' and its own estimates) it takes; its centre
+    at least ``min_distance_px`` from every other estimate kept (from a holder's part, for the holders).
+    -> {reflector: (centre (2,), area, region label)}
     """
     found = {}
     held_xy, held_label = out.copy(), label.copy()  # (R, 2), (R,): kept, then recovered too
