@@ -301,7 +301,7 @@ def greedy_reflectors(heatmaps: xr.Dataset, masks: xr.Dataset, *, peak_threshold
     frames = heatmaps["frame"].values
     names = [str(n) for n in heatmaps["reflector"].values]
     may_split = neighbours(names, split_neighbours_m)
-    may_recover = neighbours(names, recover_neighbours_m) if recover_neighbours_m > 0 else np.zeros((len(names),) * 2, bool)
+    may_recover = neighbours(names, recover_neighbours_m)  # None (0 m): no region is shared on the second pass
     for v, view in enumerate(heatmaps["view"].values):
         h, m = heatmaps.sel(view=view), masks.sel(view=view)
         conf, off, crop = h["confidence"].values.astype(np.float32), h["off"].values.astype(np.float32), h["crop"].values
