@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from mocapflow.pipeline.registry import Lazy, NoParams, TaskSpec, register
-from mocapflow.tasks import flow, markers3d, masks, poses, reflectors2d, skeleton, smoothing, training
+from mocapflow.tasks import flow, markers3d, masks, poses, refine2d, reflectors2d, skeleton, smoothing, training
 from mocapflow.tasks.heatmaps import HeatmapConfig
 
 CALIBRATION = ("fx", "fy", "cx", "cy", "dist", "width", "height")
@@ -100,4 +100,15 @@ register(TaskSpec(
     reads={"views": ("view_position", "view_confidence")}, whole_sequence=True,
     description="40-DoF least squares per frame against the calibrated reflector offsets, warm-started from an "
                 "anchor frame; wrong labels gated out, lost limbs taken back, outvoted single views used",
+))
+
+# Beyond the paper: each view's 2D reflectors made consistent with the solved poses (tasks/refine2d.py).
+register(TaskSpec(
+    name="refine_reflectors", fn=refine2d.refine_reflectors, version="1", params=refine2d.Refine2DConfig,
+    output="reflectors2d", partition="view",
+    inputs={"reflectors": "reflectors2d", "poses": "poses", "skeleton": "skeleton", "masks": "reflector_masks",
+            "frames": "raw_sequence"},
+    reads={"poses": ("position", "rotation"), "skeleton": ("parent", "bone", "reflector_offset"),
+           "masks": ("blob_id", "blob_area"), "frames": ("depth",) + CALIBRATION + ("cam_to_world",)},
+    description="mirrored labels exchanged and missing reflectors added where the solved poses project",
 ))

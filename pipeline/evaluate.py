@@ -27,9 +27,14 @@ def evaluation_plan(catalog, sequences: str | None) -> Plan:
     return build_plan(catalog, pattern)
 
 
-def stage_writing(catalog, schema: str) -> str | None:
-    """The last stage of the catalog whose implementation writes ``schema``."""
-    found = [s.name for s in catalog.stages.values() if registry.get(s.task).output == schema]
+REFINING_TASKS = ("refine_reflectors",)  # write reflectors2d from the solved poses: scored apart from the views' own
+
+
+def stage_writing(catalog, schema: str, *, refined: bool = False) -> str | None:
+    """The last stage of the catalog whose implementation writes ``schema`` (for reflectors2d: ``refined``
+    picks a stage that refines them from the poses, otherwise one that does not)."""
+    found = [s.name for s in catalog.stages.values() if registry.get(s.task).output == schema
+             and (s.task in REFINING_TASKS) == refined]
     return found[-1] if found else None
 
 
@@ -56,6 +61,10 @@ def evaluate(catalog, plan: Plan, store: Store) -> dict:
         result["task"] = catalog.stages["flow"].task
     if stage_2d is not None:
         result["reflectors2d"] = _evaluate_2d(plan, store, raws, stage_2d, result["sequences"])
+    stage_refined = stage_writing(catalog, "reflectors2d", refined=True)
+    if stage_refined is not None:
+        result["reflectors2d_refined"] = _evaluate_2d(plan, store, raws, stage_refined, result["sequences"],
+                                                      key="reflectors2d_refined")
     for (kind, schema), stage in stages_3d.items():
         if stage is not None:
             result[f"markers_{kind}"] = _evaluate_markers(plan, store, raws, stage, schema, kind, result["sequences"])
@@ -130,7 +139,7 @@ def _evaluate_flow(plan: Plan, store: Store, raws: dict, per_sequence: dict) -> 
     return summarize_flow(np.concatenate(all_errors), all_eligible)
 
 
-def _evaluate_2d(plan: Plan, store: Store, raws: dict, stage: str, per_sequence: dict) -> dict:
+def _evaluate_2d(plan: Plan, store: Store, raws: dict, stage: str, per_sequence: dict, key: str = "reflectors2d") -> dict:
     """AP per reflector and mAP at PCK 0.05, before (best candidate) and after filtering, and the c_min sweep."""
     names = None
     n_reflectors = raws[plan.sequences[0].id].sizes["reflector"]
@@ -152,7 +161,7 @@ def _evaluate_2d(plan: Plan, store: Store, raws: dict, stage: str, per_sequence:
                     xy = np.stack([est[x].values[i], est[y].values[i]], axis=1)
                     for matches in (seq_matches[kind], total[kind]):
                         match_2d(matches, xy, est[c].values[i], uv[i], pixels[i], radius)
-        per_sequence[seq.id]["reflectors2d"] = {k: summarize_2d(m, names) for k, m in seq_matches.items()}
+        per_sequence[seq.id][key] = {k: summarize_2d(m, names) for k, m in seq_matches.items()}
     out = {k: summarize_2d(m, names) for k, m in total.items()}
     out["sweep"] = {c: summarize_2d(total["filtered"], names, c_min=c) for c in C_MIN_SWEEP}
     out["stage"] = stage
@@ -171,6 +180,10 @@ def headline(result: dict) -> dict:
         out.update({"map2d": r["filtered"]["map"], "map2d_unfiltered": r["unfiltered"]["map"],
                     "map2d_no_end": r["filtered"]["map_no_end"], "map2d_unfiltered_no_end": r["unfiltered"]["map_no_end"],
                     "precision2d": r["filtered"]["precision"], "recall2d": r["filtered"]["recall"]})
+    if "reflectors2d_refined" in result:
+        r = result["reflectors2d_refined"]["filtered"]
+        out.update({"map2d_refined": r["map"], "map2d_refined_no_end": r["map_no_end"],
+                    "precision2d_refined": r["precision"], "recall2d_refined": r["recall"]})
     for kind, prefix in (("fused", "marker_fused_"), ("smoothed", "marker_")):
         if f"markers_{kind}" in result:
             m = result[f"markers_{kind}"]
@@ -195,6 +208,8 @@ def table(result: dict) -> str:
         lines += _flow_table(result)
     if "reflectors2d" in result:
         lines += ([""] if lines else []) + _reflectors_table(result)
+    if "reflectors2d_refined" in result:
+        lines += ([""] if lines else []) + _refined_table(result)
     if "markers_fused" in result or "markers_smoothed" in result:
         lines += ([""] if lines else []) + _markers_table(result)
     if "poses" in result:
@@ -264,4 +279,24 @@ def _reflectors_table(result: dict) -> list[str]:
     rows = [("c_min", "mAP", "precision", "recall", "estimates")]
     rows += [(f"{c:.1f}", _pct(s["map"]), _pct(s["precision"]), _pct(s["recall"]), str(s["estimates"]))
              for c, s in r["sweep"].items()]
+    return lines + _format(rows)
+
+
+def _refined_table(result: dict) -> list[str]:
+    """AP of each view's own estimates (after filtering) against the same estimates refined from the poses."""
+    own, refined = result.get("reflectors2d"), result["reflectors2d_refined"]
+    lines = [f"2D reflectors refined from the solved poses ({refined['stage']}): AP % at PCK 0.05"]
+    rows = [("reflector", "AP filtered", "AP refined")]
+    names = list(refined["filtered"]["ap"])
+    base = own["filtered"] if own else {"ap": dict.fromkeys(names, float("nan")), "map": float("nan"),
+                                        "map_no_end": float("nan"), "precision": float("nan"), "recall": float("nan")}
+    rows += [(n, _pct(base["ap"][n]), _pct(refined["filtered"]["ap"][n])) for n in names]
+    rows += [(label, _pct(base[k]), _pct(refined["filtered"][k])) for label, k in (
+        ("mAP", "map"), ("mAP without end-reflectors", "map_no_end"), ("precision", "precision"), ("recall", "recall"))]
+    lines += _format(rows) + ["", "per sequence"]
+    rows = [("sequence", "motion", "mAP filtered", "mAP refined", "precision", "recall")]
+    for name, s in result["sequences"].items():
+        f = s["reflectors2d_refined"]["filtered"]
+        rows.append((name, s["exercise"], _pct(s["reflectors2d"]["filtered"]["map"]) if "reflectors2d" in s else "-",
+                     _pct(f["map"]), _pct(f["precision"]), _pct(f["recall"])))
     return lines + _format(rows)

@@ -232,8 +232,8 @@ class _UnitInputs:
             if source not in self.loaded:
                 names, a, b = self.wanted[source]
                 self.loaded[source] = _load_input(self.store, up, view, a, b, names, partial=True)
-            ds = self.loaded[source]
-            return _select(ds, variables, up).sel(frame=slice(lo, hi - 1))
+            ds = _select(self.loaded[source], variables, up)
+            return ds.sel(frame=slice(lo, hi - 1)) if "frame" in ds.dims else ds
 
         return load
 
@@ -363,7 +363,7 @@ def _load_input(store: Store, up, view: str | None, lo: int, hi: int, variables=
     for key in up.keys.values():
         ds = store.open(up.stage, key, get_schema(up.schema), partial=partial)
         ds = _select(ds, variables, up)
-        if up.partition == "sequence" and view is not None:  # a slice, not a list: zarr reads it 3x faster
+        if up.partition == "sequence" and view is not None and "view" in ds.dims:  # a slice: zarr reads it 3x faster
             at = [str(v) for v in ds["view"].values].index(str(view))
             ds = ds.isel(view=slice(at, at + 1))
         if "frame" in ds.dims:

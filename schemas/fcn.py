@@ -65,6 +65,10 @@ REFLECTORS2D = register_schema(ArtifactSchema(
         "recovered": VarSpec(_PER_REFLECTOR, "bool", required=False,
                              description="kept by the second filtering pass (GreedyConfig recover_*); markers3d "
                                          "lifts it only with lift_recovered, where no view has a plain estimate"),
+        "exchanged": VarSpec(_PER_REFLECTOR, "bool", required=False,
+                             description="label taken from the mirrored reflector's estimate (refine_reflectors)"),
+        "reprojected": VarSpec(_PER_REFLECTOR, "bool", required=False,
+                               description="added where the solved poses project onto a free region (refine_reflectors)"),
         "candidate_x": VarSpec(_PER_REFLECTOR, "float32", "px", description="best candidate before filtering"),
         "candidate_y": VarSpec(_PER_REFLECTOR, "float32", "px"),
         "candidate_confidence": VarSpec(_PER_REFLECTOR, "float32"),

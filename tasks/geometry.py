@@ -42,3 +42,17 @@ def _pixel_rays(K: tuple, dist: tuple, width: int, height: int) -> np.ndarray:
 def backproject(z: np.ndarray, rays: np.ndarray) -> np.ndarray:
     """Camera-frame points of depth ``z`` (metres, any shape S) along ``rays`` (S + (3,))."""
     return rays * (z / rays[..., 2])[..., None]
+
+
+def project(points: np.ndarray, K: np.ndarray, dist, cam_to_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels and camera-frame depth z (metres) of world points; NaN where a point is not finite or lies
+    behind the camera.  (n, 3) -> (n, 2), (n,)"""
+    world_to_cam = np.linalg.inv(cam_to_world)
+    cam = points @ world_to_cam[:3, :3].T + world_to_cam[:3, 3]  # (n, 3)
+    ok = np.isfinite(cam).all(axis=1) & (cam[:, 2] > 0)
+    uv = np.full((len(points), 2), np.nan)
+    if ok.any():
+        found, _ = cv2.projectPoints(cam[ok].reshape(-1, 1, 3), np.zeros(3), np.zeros(3), np.asarray(K, float),
+                                     np.asarray(dist, float))
+        uv[ok] = found.reshape(-1, 2)
+    return uv, np.where(ok, cam[:, 2], np.nan)

@@ -118,6 +118,16 @@ def template(names: list[str]) -> Template:
                     np.stack([placements[n].centre for n in names]))
 
 
+def patch_normals(names: list[str]) -> np.ndarray:
+    """Outward surface normal of each named patch in its bone's frame (the template's placement); zero for a
+    strap, which is seen from every side.  -> (reflector, 3)"""
+    placements = {p.name: p for p in place(surface(Subject(height=TEMPLATE_HEIGHT)))}
+    unknown = sorted(set(names) - set(placements))
+    if unknown:
+        raise ValueError(f"reflectors {unknown} are not on the template; expected names from {sorted(placements)}")
+    return np.stack([placements[n].normal if placements[n].kind == "patch" else np.zeros(3) for n in names])
+
+
 def rest_reflector_positions(names: list[str]) -> np.ndarray:
     """World positions of the named reflectors on the template body in its rest pose.  -> (reflector, 3) m"""
     tmpl = template(names)

@@ -121,3 +121,26 @@ def true_reflectors(frames: xr.Dataset) -> xr.Dataset:
 
 register(TaskSpec("true_reflectors", true_reflectors, "1", NoParams, "reflectors2d", "view", {"frames": "raw_sequence"},
                   reads={"frames": ("gt_pixels", "gt_reflectors2d")}))
+
+
+def exchanged_reflectors(frames: xr.Dataset) -> xr.Dataset:
+    """`true_reflectors` with a side view's mistakes: view kinect0's legs (calf, ankle, foot) under the
+    other side's labels, and view kinect1 missing R_ELBOW."""
+    out = true_reflectors(frames)
+    names = [str(n) for n in out["reflector"].values]
+    order = np.arange(len(names))
+    for part in ("CALF", "ANKLE", "FOOT"):
+        left, right = names.index("L_" + part), names.index("R_" + part)
+        order[left], order[right] = right, left
+    views = [str(v) for v in out["view"].values]
+    if "kinect0" in views:
+        for k in ("x", "y", "confidence", "region_size"):
+            out[k].loc[{"view": "kinect0"}] = out[k].sel(view="kinect0").values[:, order]
+    if "kinect1" in views:
+        for k, value in (("x", np.nan), ("y", np.nan), ("confidence", 0.0), ("region_size", 0)):
+            out[k].loc[{"view": "kinect1", "reflector": "R_ELBOW"}] = value
+    return out
+
+
+register(TaskSpec("exchanged_reflectors", exchanged_reflectors, "1", NoParams, "reflectors2d", "view",
+                  {"frames": "raw_sequence"}, reads={"frames": ("gt_pixels", "gt_reflectors2d")}))
