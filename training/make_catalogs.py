@@ -73,6 +73,9 @@ VALIDATION_STAGES = """  heatmaps: {task: fcn_heatmaps, inputs: {masks: masks, f
   smoothed: {task: kalman, inputs: {markers: markers3d}}
   skeleton: {task: calibrate_skeleton, inputs: {markers: smoothed}}
   poses: {task: solve_poses, inputs: {skeleton: skeleton, markers: smoothed, views: markers3d}}
+  reflectors2d_refined:         # each view's labels made consistent with the poses (not a stage of the paper)
+    task: refine_reflectors
+    inputs: {reflectors: reflectors2d, poses: poses, skeleton: skeleton, masks: masks, frames: frames}
 
 evaluation:
   sequences: "*"
