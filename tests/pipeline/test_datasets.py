@@ -31,7 +31,7 @@ def test_image_folder_is_imported_exactly(tmp_path):
     data = write_png_sequence(tmp_path / "recs" / "take1")
     mocapflow("init", tmp_path / "recs", cwd=tmp_path)
     summary = last_json(mocapflow("run", "--json", "--catalog", tmp_path / "recs" / "catalog.yaml", cwd=tmp_path))
-    per_view = ("masks", "flow", "heatmaps", "reflectors2d")  # the scaffold's whole chain runs, even on noise
+    per_view = ("masks", "flow", "heatmaps", "reflectors2d", "reflectors2d_refined")  # the whole chain runs, even on noise
     assert sorted(summary["executed"]) == sorted([f"{s}/take1/{v}" for s in per_view for v in ("k0", "k1")]
                                                  + ["frames/take1", "markers3d/take1", "smoothed/take1", "skeleton/take1",
                                                     "poses/take1"])
