@@ -284,14 +284,12 @@ def _reflectors_table(result: dict) -> list[str]:
 
 def _refined_table(result: dict) -> list[str]:
     """AP of each view's own estimates (after filtering) against the same estimates refined from the poses."""
-    own, refined = result.get("reflectors2d"), result["reflectors2d_refined"]
-    lines = [f"2D reflectors refined from the solved poses ({refined['stage']}): AP % at PCK 0.05"]
+    refined = result["reflectors2d_refined"]["filtered"]
+    own = result["reflectors2d"]["filtered"] if "reflectors2d" in result else {}
+    lines = [f"2D reflectors refined from the solved poses ({result['reflectors2d_refined']['stage']}): AP % at PCK 0.05"]
     rows = [("reflector", "AP filtered", "AP refined")]
-    names = list(refined["filtered"]["ap"])
-    base = own["filtered"] if own else {"ap": dict.fromkeys(names, float("nan")), "map": float("nan"),
-                                        "map_no_end": float("nan"), "precision": float("nan"), "recall": float("nan")}
-    rows += [(n, _pct(base["ap"][n]), _pct(refined["filtered"]["ap"][n])) for n in names]
-    rows += [(label, _pct(base[k]), _pct(refined["filtered"][k])) for label, k in (
+    rows += [(n, _pct(own.get("ap", {}).get(n, np.nan)), _pct(ap)) for n, ap in refined["ap"].items()]
+    rows += [(label, _pct(own.get(k, np.nan)), _pct(refined[k])) for label, k in (
         ("mAP", "map"), ("mAP without end-reflectors", "map_no_end"), ("precision", "precision"), ("recall", "recall"))]
     lines += _format(rows) + ["", "per sequence"]
     rows = [("sequence", "motion", "mAP filtered", "mAP refined", "precision", "recall")]

@@ -53,8 +53,18 @@ class Refine2DConfig:
     contour_px: int = 2  # region-contour depth, as markers3d
     max_depth_spread_mm: float = 150.0
 
+    def __post_init__(self):
+        for name in ("exchange_reach_px", "exchange_margin_px", "exchange_keep_m", "reproject_snap_px",
+                     "reproject_split_px"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)} (see tasks/refine2d.py for the defaults)")
+        if not self.depth_tolerance_m > 0:
+            raise ValueError(f"depth_tolerance_m must be > 0 metres (e.g. 0.15), got {self.depth_tolerance_m}")
+        if not -1.0 <= self.min_facing <= 1.0:
+            raise ValueError(f"min_facing is a cosine in [-1, 1] (-1: no facing test), got {self.min_facing}")
 
-def mirrored_pairs(names: list[str], keep_m: float) -> list[tuple[int, int]]:
+
+def exchangeable_pairs(names: list[str], keep_m: float) -> list[tuple[int, int]]:
     """Index pairs (left, right) of the mirrored reflectors farther apart than ``keep_m`` at rest."""
     close = neighbours(names, keep_m)
     pairs = []
@@ -67,6 +77,18 @@ def mirrored_pairs(names: list[str], keep_m: float) -> list[tuple[int, int]]:
     return pairs
 
 
+def chain_order(parents: np.ndarray) -> list[int]:
+    """The joints, each after its parent.  (joint,) parent index, -1 for a root -> order"""
+    order, placed = [], set()
+    while len(order) < len(parents):
+        ready = [j for j in range(len(parents)) if j not in placed and (parents[j] < 0 or parents[j] in placed)]
+        if not ready:
+            raise ValueError(f"the skeleton's parent indices {list(parents)} hold a cycle; recalibrate the skeleton")
+        order += ready
+        placed.update(ready)
+    return order
+
+
 def posed_reflectors(rotation: np.ndarray, position: np.ndarray, parents: np.ndarray, bones: np.ndarray,
                      offsets: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """World positions and normals of the template's reflectors in the solved poses; NaN in unsolved frames.
@@ -77,7 +99,7 @@ def posed_reflectors(rotation: np.ndarray, position: np.ndarray, parents: np.nda
     quat = np.where(solved[:, None, None], rotation, [0.0, 0.0, 0.0, 1.0])
     local = Rotation.from_quat(quat.reshape(-1, 4)).as_matrix().reshape(n_frames, n_joints, 3, 3)
     world = np.empty_like(local)
-    for j in range(n_joints):  # parents precede their children (the skeleton's order)
+    for j in chain_order(parents):
         world[:, j] = local[:, j] if parents[j] < 0 else world[:, parents[j]] @ local[:, j]
     xyz = reflector_positions(world, np.nan_to_num(position), bones, offsets)  # (frame, R, 3)
     normal = np.einsum("frij,rj->fri", world[:, bones], normals)
@@ -178,7 +200,7 @@ def refine_reflectors(reflectors: xr.Dataset, poses: xr.Dataset, skeleton: xr.Da
         skel["parent"].values.astype(int), skel["bone"].values.astype(int),
         skel["reflector_offset"].values.astype(np.float64), patch_normals(names))  # (frame, R, 3) x2
     radius = np.array([nominal_radius(n) if KINDS[n] == "strap" else 0.0 for n in names])  # a strap: limb centre
-    pairs = mirrored_pairs(names, cfg.exchange_keep_m)
+    pairs = exchangeable_pairs(names, cfg.exchange_keep_m)
     est = {k: reflectors[k].values.copy() for k in ("x", "y", "confidence", "region_size")}  # (view, frame, R)
     est["recovered"] = (reflectors["recovered"].values.astype(bool) if "recovered" in reflectors
                         else np.zeros(est["x"].shape, bool))

@@ -52,11 +52,11 @@ def test_posed_reflectors_follow_the_chain_and_unsolved_frames_are_nan():
     assert np.isnan(xyz[1]).all() and np.isnan(normal[1]).all()
 
 
-def test_mirrored_pairs_leave_out_reflectors_close_at_rest():
-    pairs = refine2d.mirrored_pairs(NAMES, 0.10)
+def test_exchangeable_pairs_leave_out_mirrored_reflectors_close_at_rest():
+    pairs = refine2d.exchangeable_pairs(NAMES, 0.10)
     named = {(NAMES[a], NAMES[b]) for a, b in pairs}
     assert named == {("L_PELVIS", "R_PELVIS"), ("L_CALF", "R_CALF")}  # the forehead patches are 6 cm apart
-    assert ("F_L_HEAD", "F_R_HEAD") in {(NAMES[a], NAMES[b]) for a, b in refine2d.mirrored_pairs(NAMES, 0.0)}
+    assert ("F_L_HEAD", "F_R_HEAD") in {(NAMES[a], NAMES[b]) for a, b in refine2d.exchangeable_pairs(NAMES, 0.0)}
 
 
 def test_labels_are_exchanged_only_when_clearly_nearer_the_other_projection():
@@ -190,3 +190,15 @@ def test_a_missing_reflector_takes_its_part_of_a_region_another_estimate_holds()
     assert out["reprojected"].values[r]
     assert np.linalg.norm([out["x"].values[r] - left[0], out["y"].values[r] - left[1]]) < 2.0  # its own half
     assert out["x"].values[NAMES.index("F_R_HEAD")] == pytest.approx(right[0])  # the holder does not move
+
+
+def test_joints_are_posed_after_their_parents_and_bad_settings_are_clear_errors():
+    assert refine2d.chain_order(np.array([2, -1, 1])) == [1, 2, 0]
+    with pytest.raises(ValueError, match="cycle"):
+        refine2d.chain_order(np.array([1, 0]))
+    with pytest.raises(ValueError, match="depth_tolerance_m must be > 0"):
+        refine2d.Refine2DConfig(depth_tolerance_m=0.0)
+    with pytest.raises(ValueError, match="min_facing is a cosine"):
+        refine2d.Refine2DConfig(min_facing=2.0)
+    with pytest.raises(ValueError, match="exchange_reach_px must be >= 0"):
+        refine2d.Refine2DConfig(exchange_reach_px=-1.0)
