@@ -27,14 +27,12 @@ def evaluation_plan(catalog, sequences: str | None) -> Plan:
     return build_plan(catalog, pattern)
 
 
-REFINING_TASKS = ("refine_reflectors",)  # write reflectors2d from the solved poses: scored apart from the views' own
-
-
 def stage_writing(catalog, schema: str, *, refined: bool = False) -> str | None:
-    """The last stage of the catalog whose implementation writes ``schema`` (for reflectors2d: ``refined``
-    picks a stage that refines them from the poses, otherwise one that does not)."""
-    found = [s.name for s in catalog.stages.values() if registry.get(s.task).output == schema
-             and (s.task in REFINING_TASKS) == refined]
+    """The last stage of the catalog whose implementation writes ``schema``: one that also reads that schema
+    (refines an upstream artifact of its kind, as refine_reflectors does the views' reflectors2d) when
+    ``refined``, otherwise one that does not."""
+    found = [s.name for s in catalog.stages.values() if (spec := registry.get(s.task)).output == schema
+             and (schema in spec.inputs.values()) == refined]
     return found[-1] if found else None
 
 

@@ -33,7 +33,7 @@ from scipy.spatial.transform import Rotation
 from mocapflow.tasks.geometry import intrinsics, project
 from mocapflow.tasks.markers3d import KINDS, nominal_radius, region_depths
 from mocapflow.tasks.poses import reflector_positions
-from mocapflow.tasks.reflectors2d import reflector_region, split_region
+from mocapflow.tasks.reflectors2d import claim_part, reflector_region
 from mocapflow.tasks.skeleton import neighbours, patch_normals
 from mocapflow.tasks.targets import mirrored
 
@@ -141,13 +141,10 @@ def free_place(ref: np.ndarray, held: dict[int, list], blob_id: np.ndarray, blob
         return None
     centre, area, label = found
     if label in held:
-        seeds = np.vstack(held[label] + [ref])  # (holders + 1, 2)
-        if np.linalg.norm(seeds[:-1] - ref, axis=1).min() < split_px:
+        part = claim_part(ref, np.array(held[label]), blob_id, label, split_px=split_px)
+        if part is None or np.linalg.norm(part[1] - part[0], axis=1).min() < split_px:
             return None
-        parts = split_region(seeds, blob_id, label)
-        if np.linalg.norm(parts[:-1] - parts[-1], axis=1).min() < split_px:
-            return None
-        centre = parts[-1]
+        centre = part[0]
     return centre, label, area
 
 

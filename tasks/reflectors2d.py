@@ -165,6 +165,17 @@ def split_region(seeds: np.ndarray, blob_id: np.ndarray, label: int, iterations:
     return centres
 
 
+def claim_part(seed: np.ndarray, holders: np.ndarray, blob_id: np.ndarray, label: int, *,
+               split_px: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The part of region ``label`` that a further estimate at ``seed`` (2,) takes beside the estimates
+    ``holders`` (n, 2) already on it: k-means of its pixels seeded at them and it (``split_region``); None
+    when the seed lies within ``split_px`` of a holder.  -> its centre (2,), the holders' parts (n, 2)"""
+    if np.linalg.norm(holders - seed, axis=1).min() < split_px:
+        return None
+    parts = split_region(np.vstack([holders, seed]), blob_id, label)
+    return parts[-1], parts[:-1]
+
+
 def suppress_close(xy: np.ndarray, confidence: np.ndarray, min_distance: float) -> np.ndarray:
     """Keep mask: of estimates closer than ``min_distance``, the more confident.  (R, 2), (R,) -> (R,)"""
     keep = np.isfinite(xy[:, 0])
@@ -275,11 +286,11 @@ def recover_dropped(xy, confidence, out, label, blob_id, blob_area, *, b_min: in
         holders = np.flatnonzero(held_label == region_label)
         others = held_xy.copy()
         if len(holders):
-            if may_share is None or not may_share[r, holders].all() \
-                    or np.linalg.norm(xy[holders] - xy[r], axis=1).min() < split_px:
+            part = claim_part(xy[r], xy[holders], blob_id, region_label, split_px=split_px) \
+                if may_share is not None and may_share[r, holders].all() else None
+            if part is None:
                 continue
-            parts = split_region(np.vstack([xy[holders], xy[r]]), blob_id, region_label)
-            centre, others[holders] = parts[-1], parts[:-1]  # apart from the holders' parts, not their whole-region centres
+            centre, others[holders] = part  # apart from the holders' parts, not their whole-region centres
         if np.nanmin(np.linalg.norm(others - centre, axis=1), initial=np.inf) < min_distance_px:
             continue
         found[r] = (centre, area, region_label)
