@@ -48,9 +48,7 @@ def main() -> None:
     args = parser.parse_args()
     catalog = load_catalog(args.catalog, ())
     store = Store(catalog.root)
-    items = defaultdict(list)
-    for item in build_plan(catalog).items.values():
-        items[item.partition.stage].append(item)
+    items = build_plan(catalog).by_stage()
     counts = defaultdict(Counter)
     for item in items["reflectors2d"]:
         seq, view = item.partition.sequence, item.partition.view

@@ -16,7 +16,7 @@ on the catalog first:
 from __future__ import annotations
 
 import argparse
-from collections import Counter, defaultdict
+from collections import Counter
 
 import numpy as np
 
@@ -75,9 +75,7 @@ def main() -> None:
     args = parser.parse_args()
     catalog = load_catalog(args.catalog, ())
     store = Store(catalog.root)
-    items = defaultdict(list)
-    for item in build_plan(catalog).items.values():
-        items[item.partition.stage].append(item)
+    items = build_plan(catalog).by_stage()
     before = after = names = None
     verdicts = Counter()
     for frames_item in items["frames"]:

@@ -83,6 +83,13 @@ class Plan:
     def for_stages(self, stages: list[str]) -> list[WorkItem]:
         return [i for i in self.items.values() if i.partition.stage in stages]
 
+    def by_stage(self) -> dict[str, list[WorkItem]]:
+        """Every stage's work items, in plan order."""
+        grouped: dict[str, list[WorkItem]] = {}
+        for item in self.items.values():
+            grouped.setdefault(item.partition.stage, []).append(item)
+        return grouped
+
 
 def build_plan(catalog: Catalog, sequences: str | None = None) -> Plan:
     """Keys for every stage x partition of the catalog (for the sequences matching the glob)."""

@@ -90,6 +90,17 @@ def mocapflow_plan(project):
     return build_plan(load_catalog(project / "catalog.yaml"))
 
 
+def test_plan_groups_work_items_by_stage_in_plan_order(toy_project):
+    plan = mocapflow_plan(toy_project())
+    grouped = plan.by_stage()
+    assert list(grouped) == ["frames", "scaled", "diffed", "summed"]
+    for stage, items in grouped.items():
+        assert items == plan.for_stages([stage])
+        assert {i.partition.stage for i in items} == {stage}
+    assert sum(map(len, grouped.values())) == len(plan.items)
+    assert len(grouped["scaled"]) > 1  # one item per (sequence, view) partition
+
+
 def test_bad_catalog_in_cli_leaves_artifacts_untouched(toy_project):
     project = toy_project()
     mocapflow("run", "--json", cwd=project)
