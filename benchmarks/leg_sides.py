@@ -102,7 +102,11 @@ def main() -> None:
                 uv, pix = cam["gt_reflectors2d"].values[f], cam["gt_pixels"].values[f]
                 radius = pck_radius(cam["gt_body"].values[f])
                 match_2d(before, xy, conf, uv, pix, radius)
-                verdicts["view-frames without a trunk axis"] += left_axis(points[f], ix) is None
+                no_axis = left_axis(points[f], ix) is None
+                swapped = leg_hits(xy[swap], uv, radius, ix) > 0  # a leg label on the other leg's reflector
+                verdicts["view-frames without a trunk axis"] += no_axis
+                verdicts["view-frames with swapped leg labels"] += swapped
+                verdicts["of those, without a trunk axis"] += swapped and no_axis
                 if exchanged_legs(points[f], ix, args.margin):
                     gain = leg_hits(xy[swap], uv, radius, ix) - leg_hits(xy, uv, radius, ix)
                     verdicts["right" if gain > 0 else "wrong" if gain < 0 else "neither"] += 1
