@@ -43,9 +43,9 @@ def left_axis(points: np.ndarray, ix: dict) -> np.ndarray | None:
     return axis / np.linalg.norm(axis)
 
 
-def exchanged_legs(points: np.ndarray, ix: dict, margin: float) -> bool:
-    """Whether the view's left leg chain lies right of its right chain by more than ``margin`` m."""
-    axis = left_axis(points, ix)
+def exchanged_legs(points: np.ndarray, axis: np.ndarray | None, ix: dict, margin: float) -> bool:
+    """Whether the view's left leg chain lies right of its right chain, along its trunk's left ``axis``
+    (``left_axis``), by more than ``margin`` m."""
     if axis is None:
         return False
     side = [points[[ix[f"{s}_{p}"] for p in LEG]] @ axis for s in "LR"]
@@ -102,13 +102,13 @@ def main() -> None:
                 uv, pix = cam["gt_reflectors2d"].values[f], cam["gt_pixels"].values[f]
                 radius = pck_radius(cam["gt_body"].values[f])
                 match_2d(before, xy, conf, uv, pix, radius)
-                no_axis = left_axis(points[f], ix) is None
-                swapped = leg_hits(xy[swap], uv, radius, ix) > 0  # a leg label on the other leg's reflector
-                verdicts["view-frames without a trunk axis"] += no_axis
-                verdicts["view-frames with swapped leg labels"] += swapped
-                verdicts["of those, without a trunk axis"] += swapped and no_axis
-                if exchanged_legs(points[f], ix, args.margin):
-                    gain = leg_hits(xy[swap], uv, radius, ix) - leg_hits(xy, uv, radius, ix)
+                axis = left_axis(points[f], ix)
+                on_other = leg_hits(xy[swap], uv, radius, ix)  # leg labels on the other leg's reflector
+                verdicts["view-frames without a trunk axis"] += axis is None
+                verdicts["view-frames with swapped leg labels"] += on_other > 0
+                verdicts["of those, without a trunk axis"] += on_other > 0 and axis is None
+                if exchanged_legs(points[f], axis, ix, args.margin):
+                    gain = on_other - leg_hits(xy, uv, radius, ix)
                     verdicts["right" if gain > 0 else "wrong" if gain < 0 else "neither"] += 1
                     xy, conf = xy[swap], conf[swap]
                 match_2d(after, xy, conf, uv, pix, radius)
