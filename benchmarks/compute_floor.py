@@ -21,7 +21,6 @@ import subprocess  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
 from concurrent.futures import ProcessPoolExecutor  # noqa: E402
-from dataclasses import asdict  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import xarray as xr  # noqa: E402
@@ -44,9 +43,8 @@ def stage_calls(folder: Path) -> dict:
     for item in build_plan(catalog).items.values():
         name = item.partition.stage
         if name != "frames" and name not in calls:
-            params = asdict(item.stage.params)
-            params.update({p: load_weights(path, sha) for p, (path, sha) in item.weights.items()})
-            calls[name] = (registry.get(item.stage.task).fn, params)
+            weights = {p: load_weights(path, sha) for p, (path, sha) in item.weights.items()}
+            calls[name] = (registry.get(item.stage.task).fn, item.stage.params, weights)
     return calls
 
 
@@ -61,8 +59,8 @@ def raw_frames(folder: Path) -> xr.Dataset:
 
 def apply(calls: dict, stage: str, *inputs: xr.Dataset) -> xr.Dataset:
     """``stage``'s task on ``inputs`` with the catalog's parameters (``stage_calls``)."""
-    fn, params = calls[stage]
-    return fn(*inputs, **params)
+    fn, config, weights = calls[stage]
+    return fn(*inputs, config, **weights)
 
 
 def view_chain(folder: Path, view: str) -> tuple[xr.Dataset, xr.Dataset]:

@@ -14,7 +14,6 @@ import json
 import os
 import statistics
 import time
-from dataclasses import asdict
 from pathlib import Path
 
 for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -26,10 +25,10 @@ from mocapflow.pipeline.catalog import load_catalog  # noqa: E402
 from mocapflow.pipeline.plan import build_plan  # noqa: E402
 from mocapflow.pipeline.storage import Store  # noqa: E402
 from mocapflow.schemas import get_schema  # noqa: E402
-from mocapflow.tasks.flow import DisConfig, dis  # noqa: E402
-from mocapflow.tasks.heatmaps import fcn_heatmaps  # noqa: E402
-from mocapflow.tasks.masks import MaskConfig, masks  # noqa: E402
-from mocapflow.tasks.reflectors2d import GreedyConfig, greedy_reflectors  # noqa: E402
+from mocapflow.tasks.deepmocap.flow import DisConfig, dis  # noqa: E402
+from mocapflow.tasks.deepmocap.heatmaps import fcn_heatmaps  # noqa: E402
+from mocapflow.tasks.deepmocap.masks import MaskConfig, masks  # noqa: E402
+from mocapflow.tasks.deepmocap.reflectors2d import GreedyConfig, greedy_reflectors  # noqa: E402
 from mocapflow.tasks.studio.synth import SequenceSpec, build_rig, synthesize  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -41,8 +40,8 @@ def time_per_view_frame(weights_file: Path, frames: int = 16) -> dict[str, float
     interleaved, and of greedy inference."""
     torch.set_num_threads(1)
     raw = synthesize(build_rig(SequenceSpec("jumping_jack", frames=frames, seed=9100, random_layout=True)), 0, frames)
-    m = masks(raw[["depth", "ir"]], **asdict(MaskConfig()))
-    f = dis(raw, **asdict(DisConfig()))
+    m = masks(raw[["depth", "ir"]], MaskConfig())
+    f = dis(raw, DisConfig())
     weights = torch.load(weights_file, weights_only=True)
     heat_ms, greedy_ms = {"float32": [], "bfloat16": []}, []
     for view in raw["view"].values[:1]:
@@ -53,7 +52,7 @@ def time_per_view_frame(weights_file: Path, frames: int = 16) -> dict[str, float
                 h = fcn_heatmaps(one_m, one_f, weights=weights, batch=1, precision=precision)
                 times.append(1000 * (time.perf_counter() - t))
             t = time.perf_counter()
-            greedy_reflectors(h, one_m, **asdict(GreedyConfig()))
+            greedy_reflectors(h, one_m, GreedyConfig())
             greedy_ms.append(1000 * (time.perf_counter() - t))
     return {"heatmaps_ms": statistics.median(heat_ms["float32"][2:]),
             "heatmaps_bfloat16_ms": statistics.median(heat_ms["bfloat16"][2:]),

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 from collections import Counter, defaultdict
-from dataclasses import asdict
 
 import numpy as np
 
@@ -18,27 +17,27 @@ from mocapflow.pipeline.catalog import load_catalog
 from mocapflow.pipeline.plan import build_plan
 from mocapflow.pipeline.storage import Store
 from mocapflow.schemas import get_schema
-from mocapflow.tasks import reflectors2d as r2d
-from mocapflow.tasks.evaluation import pck_radius
+from mocapflow.tasks.deepmocap import reflectors2d as r2d
+from mocapflow.tasks.deepmocap.evaluation import pck_radius
 
 MIN_PIXELS = 5  # a positive, as in the 2D evaluation
 
 
 def why_dropped(r: int, cand: np.ndarray, out: np.ndarray, blob_id, blob_area, names, config) -> str:
     """The filtering rule that dropped (or moved) reflector ``r``'s right candidate."""
-    region = r2d.reflector_region(cand[r], blob_id, blob_area, snap_px=config["snap_px"],
-                                  radius_px=config["region_radius_px"])
+    region = r2d.reflector_region(cand[r], blob_id, blob_area, snap_px=config.snap_px,
+                                  radius_px=config.region_radius_px)
     if region is None:
         return "no reflector region within snap_px"
-    if region[1] < config["b_min"]:
+    if region[1] < config.b_min:
         return "region smaller than b_min"
     if np.isfinite(out[r, 0]):
         return "moved to a wrong centre"
     d = np.linalg.norm(out - region[0], axis=1)
     d[r] = np.inf
     k = int(np.argmin(np.where(np.isfinite(d), d, np.inf)))
-    return f"suppressed within {config['min_distance_px']:g} px by {names[k]}" \
-        if d[k] <= config["min_distance_px"] + 1e-6 else "dropped otherwise (c_min)"
+    return f"suppressed within {config.min_distance_px:g} px by {names[k]}" \
+        if d[k] <= config.min_distance_px + 1e-6 else "dropped otherwise (c_min)"
 
 
 def main() -> None:
@@ -52,7 +51,7 @@ def main() -> None:
     counts = defaultdict(Counter)
     for item in items["reflectors2d"]:
         seq, view = item.partition.sequence, item.partition.view
-        config = asdict(item.stage.params)
+        config = item.stage.params
         est = store.open("reflectors2d", item.key, get_schema("reflectors2d")).load()
         masks_item = next(m for m in items["masks"] if (m.partition.sequence, m.partition.view) == (seq, view))
         masks = store.open("masks", masks_item.key, get_schema("reflector_masks"))[["blob_id", "blob_area"]].load()

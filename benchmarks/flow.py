@@ -12,7 +12,6 @@ import statistics
 import subprocess
 import sys
 import time
-from dataclasses import asdict
 from pathlib import Path
 
 for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -21,13 +20,13 @@ for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import cv2  # noqa: E402
 import torch  # noqa: E402
 
-from mocapflow.tasks.flow import DisConfig, PrimalDualConfig, dis  # noqa: E402
-from mocapflow.tasks.pdflow import primal_dual  # noqa: E402
+from mocapflow.tasks.deepmocap.flow import DisConfig, PrimalDualConfig, dis  # noqa: E402
+from mocapflow.tasks.deepmocap.pdflow import primal_dual  # noqa: E402
 from mocapflow.tasks.studio.synth import SequenceSpec, build_rig, synthesize  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-VARIANTS = {"dis": lambda ds: dis(ds, **asdict(DisConfig())),
-            "primal_dual": lambda ds: primal_dual(ds, **asdict(PrimalDualConfig(device="cpu")))}
+VARIANTS = {"dis": lambda ds: dis(ds, DisConfig()),
+            "primal_dual": lambda ds: primal_dual(ds, PrimalDualConfig(device="cpu"))}
 
 
 def time_per_pair(pairs: int = 12) -> dict[str, float]:

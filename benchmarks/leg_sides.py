@@ -24,7 +24,7 @@ from mocapflow.pipeline.catalog import load_catalog
 from mocapflow.pipeline.plan import build_plan
 from mocapflow.pipeline.storage import Store
 from mocapflow.schemas import get_schema
-from mocapflow.tasks.evaluation import Matches2D, match_2d, pck_radius, summarize_2d
+from mocapflow.tasks.deepmocap.evaluation import Matches2D, match_2d, pck_radius, summarize_2d
 
 TRUNK_PAIRS = [("F_L_SHOULDER", "F_R_SHOULDER"), ("B_L_SHOULDER", "B_R_SHOULDER"), ("L_PELVIS", "R_PELVIS"),
                ("F_L_CHEST", "F_R_CHEST"), ("F_L_HEAD", "F_R_HEAD")]

@@ -11,7 +11,6 @@ import json
 import os
 import statistics
 import time
-from dataclasses import asdict
 from pathlib import Path
 
 for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -23,7 +22,7 @@ from mocapflow.pipeline.catalog import load_catalog  # noqa: E402
 from mocapflow.pipeline.plan import build_plan  # noqa: E402
 from mocapflow.pipeline.storage import Store  # noqa: E402
 from mocapflow.schemas import get_schema  # noqa: E402
-from mocapflow.tasks import markers3d, smoothing  # noqa: E402
+from mocapflow.tasks.deepmocap import markers3d, smoothing  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SEQUENCE = "cmu_jumping_jacks"
@@ -37,7 +36,7 @@ def _inputs():
         parts = [store.open(stage, i.key, get_schema(schema))[list(variables)] for i in plan.for_stages([stage])]
         return xr.concat(parts, dim="view", data_vars="minimal", coords="minimal", compat="override").load()
 
-    frames = store.open("frames", plan.items[f"frames/{SEQUENCE}"].key, get_schema("raw_sequence"))
+    frames = plan.open(store, "frames", SEQUENCE)
     frames = frames[["depth", "fx", "fy", "cx", "cy", "dist", "cam_to_world", "width", "height"]].load()
     return (load("reflectors2d", "reflectors2d", ("x", "y", "confidence")), load("masks", "reflector_masks", ("blob_id",)),
             frames)
@@ -49,13 +48,13 @@ def main(repeats: int = 3) -> None:
     fuse_s, smooth_s = [], {"kalman": [], "butterworth": [], "none": []}
     for _ in range(repeats):
         t = time.perf_counter()
-        markers = markers3d.markers3d(reflectors, masks, frames, **asdict(markers3d.Markers3DConfig()))
+        markers = markers3d.markers3d(reflectors, masks, frames, markers3d.Markers3DConfig())
         fuse_s.append(time.perf_counter() - t)
         for name, fn, config in (("kalman", smoothing.kalman, smoothing.KalmanConfig()),
                                  ("butterworth", smoothing.butterworth, smoothing.ButterworthConfig()),
                                  ("none", smoothing.no_smoothing, smoothing.NoSmoothing())):
             t = time.perf_counter()
-            fn(markers, **asdict(config))
+            fn(markers, config)
             smooth_s[name].append(time.perf_counter() - t)
     figures = {"sequence": SEQUENCE, "views": reflectors.sizes["view"], "frames": n,
                "markers3d_ms_per_frame": 1000 * statistics.median(fuse_s) / n,

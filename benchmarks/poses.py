@@ -11,7 +11,6 @@ import json
 import os
 import statistics
 import time
-from dataclasses import asdict
 from pathlib import Path
 
 for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -20,8 +19,8 @@ for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 from mocapflow.pipeline.catalog import load_catalog  # noqa: E402
 from mocapflow.pipeline.plan import build_plan  # noqa: E402
 from mocapflow.pipeline.storage import Store  # noqa: E402
-from mocapflow.schemas import get_schema  # noqa: E402
-from mocapflow.tasks import poses, skeleton  # noqa: E402
+from mocapflow.tasks.deepmocap import poses  # noqa: E402
+from mocapflow.tasks.deepmocap import skeleton  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -31,13 +30,13 @@ def main() -> None:
     store, plan = Store(catalog.root), build_plan(catalog)
     solve_ms, calib_s = [], []
     for seq in plan.sequences:
-        markers = store.open("smoothed", plan.items[f"smoothed/{seq.id}"].key, get_schema("smoothed_markers")).load()
-        views = store.open("markers3d", plan.items[f"markers3d/{seq.id}"].key, get_schema("markers3d")).load()
+        markers = plan.open(store, "smoothed", seq.id).load()
+        views = plan.open(store, "markers3d", seq.id).load()
         started = time.perf_counter()
-        skel = skeleton.calibrate_skeleton(markers, **asdict(skeleton.SkeletonConfig()))
+        skel = skeleton.calibrate_skeleton(markers, skeleton.SkeletonConfig())
         calib_s.append(time.perf_counter() - started)
         started = time.perf_counter()
-        poses.solve_poses(skel, markers, views, **asdict(poses.PoseConfig()))
+        poses.solve_poses(skel, markers, views, poses.PoseConfig())
         solve_ms.append(1000 * (time.perf_counter() - started) / markers.sizes["frame"])
     print(json.dumps({"pose_solve_ms_per_frame_median": round(statistics.median(solve_ms), 2),
                       "skeleton_calibration_s_median": round(statistics.median(calib_s), 2),

@@ -11,7 +11,6 @@ depth lifting and fusion cost. Run the held-out evaluation first so the inputs e
 from __future__ import annotations
 
 import json
-from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -20,9 +19,8 @@ import xarray as xr
 from mocapflow.pipeline.catalog import load_catalog
 from mocapflow.pipeline.plan import build_plan
 from mocapflow.pipeline.storage import Store
-from mocapflow.schemas import get_schema
-from mocapflow.tasks import poses, skeleton
-from mocapflow.tasks.evaluation import TABLE8_JOINTS, joint_errors
+from mocapflow.tasks.deepmocap import poses, skeleton
+from mocapflow.tasks.deepmocap.evaluation import TABLE8_JOINTS, joint_errors
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -49,11 +47,11 @@ def main() -> None:
     store, plan = Store(catalog.root), build_plan(catalog)
     per_clip, errors = {}, []
     for seq in plan.sequences:
-        raw = store.open("frames", plan.items[f"frames/{seq.id}"].key, get_schema("raw_sequence"))
-        smoothed = store.open("smoothed", plan.items[f"smoothed/{seq.id}"].key, get_schema("smoothed_markers")).load()
+        raw = plan.open(store, "frames", seq.id)
+        smoothed = plan.open(store, "smoothed", seq.id).load()
         markers = true_markers(smoothed, raw)
-        skel = skeleton.calibrate_skeleton(markers, **asdict(skeleton.SkeletonConfig()))
-        solved = poses.solve_poses(skel, markers, no_views(markers), **asdict(poses.PoseConfig()))
+        skel = skeleton.calibrate_skeleton(markers, skeleton.SkeletonConfig())
+        solved = poses.solve_poses(skel, markers, no_views(markers), poses.PoseConfig())
         e = joint_errors(solved["position"].sel(joint=list(TABLE8_JOINTS)).values,
                          raw["gt_joints"].sel(joint=list(TABLE8_JOINTS)).values)  # (frame, 12) cm
         per_clip[seq.id] = round(float(np.nanmean(e)), 2)

@@ -16,7 +16,6 @@ import json
 import os
 import statistics
 import time
-from dataclasses import asdict
 from pathlib import Path
 
 for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -29,8 +28,7 @@ from mocapflow.pipeline.catalog import load_catalog  # noqa: E402
 from mocapflow.pipeline.plan import build_plan  # noqa: E402
 from mocapflow.pipeline.report import overlay, write_png  # noqa: E402
 from mocapflow.pipeline.storage import Store  # noqa: E402
-from mocapflow.schemas import get_schema  # noqa: E402
-from mocapflow.tasks.refine2d import Refine2DConfig, refine_reflectors  # noqa: E402
+from mocapflow.tasks.deepmocap.refine2d import Refine2DConfig, refine_reflectors  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 INPUTS = {"reflectors": ("reflectors2d", "reflectors2d"), "poses": ("poses", "poses"), "skeleton": ("skeleton", "skeleton"),
@@ -41,28 +39,28 @@ def timing(plan, store) -> dict:
     """Median ms per view-frame of the stage function, one frame per call, over every held-out view-frame."""
     times = []
     for seq in plan.sequences:
-        whole = {role: store.open(stage, plan.items[f"{stage}/{seq.id}"].key, get_schema(schema))
+        whole = {role: plan.open(store, stage, seq.id)
                  for role, (stage, schema) in INPUTS.items() if f"{stage}/{seq.id}" in plan.items}
         whole["frames"] = whole["frames"][["depth", "fx", "fy", "cx", "cy", "dist", "cam_to_world"]]
         for view in seq.views:
             view_inputs = dict(whole)
             for role in ("reflectors", "masks"):
                 stage, schema = INPUTS[role]
-                view_inputs[role] = store.open(stage, plan.items[f"{stage}/{seq.id}/{view}"].key, get_schema(schema))
+                view_inputs[role] = plan.open(store, stage, seq.id, view)
             view_inputs["frames"] = whole["frames"].sel(view=[view])
             loaded = {role: ds.load() for role, ds in view_inputs.items()}
             for i in range(loaded["reflectors"].sizes["frame"]):
                 one = {role: ds.isel(frame=[i]) if "frame" in ds.dims else ds for role, ds in loaded.items()}
                 t = time.perf_counter()
-                refine_reflectors(**one, **asdict(Refine2DConfig()))
+                refine_reflectors(**one, config=Refine2DConfig())
                 times.append(1000 * (time.perf_counter() - t))
     return {"refine_reflectors_ms": statistics.median(times), "view_frames": len(times)}
 
 
 def figure(plan, store, path: Path, sequence: str) -> None:
     """The views' own labels beside the refined ones on the view-frame of ``sequence`` the stage changed most."""
-    raw = store.open("frames", plan.items[f"frames/{sequence}"].key, get_schema("raw_sequence"))
-    open_2d = {stage: {view: store.open(stage, plan.items[f"{stage}/{sequence}/{view}"].key, get_schema("reflectors2d"))
+    raw = plan.open(store, "frames", sequence)
+    open_2d = {stage: {view: plan.open(store, stage, sequence, view)
                        .sel(view=view).load() for view in map(str, raw["view"].values)}
                for stage in ("reflectors2d", "reflectors2d_refined")}
     changed = {view: (ds["exchanged"].values | ds["reprojected"].values).sum(1)

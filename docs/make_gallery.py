@@ -9,14 +9,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from dataclasses import asdict
 
 import cv2
 import numpy as np
 
-from mocapflow.tasks.flow import DisConfig, PrimalDualConfig, dis
-from mocapflow.tasks.masks import MaskConfig, masks
-from mocapflow.tasks.pdflow import primal_dual
+from mocapflow.tasks.deepmocap.flow import DisConfig, PrimalDualConfig, dis
+from mocapflow.tasks.deepmocap.masks import MaskConfig, masks
+from mocapflow.tasks.deepmocap.pdflow import primal_dual
 from mocapflow.tasks.studio.synth import SequenceSpec, build_rig, synthesize
 
 OUT = Path(__file__).resolve().parent / "studio"
@@ -52,8 +51,8 @@ def panel(ds, frame: int) -> np.ndarray:
 def stages_panel(name: str, spec: SequenceSpec, frame: int) -> None:
     """Per view: I_CD (masks stage), I_F from dis, I_F from primal_dual, and the true flow, colorized alike."""
     ds = synthesize(build_rig(spec), frame - 1, frame + 1)
-    cd = masks(ds, **asdict(MaskConfig())).colorized_depth.values[:, 1]
-    flows = [dis(ds, **asdict(DisConfig())), primal_dual(ds, **asdict(PrimalDualConfig()))]
+    cd = masks(ds, MaskConfig()).colorized_depth.values[:, 1]
+    flows = [dis(ds, DisConfig()), primal_dual(ds, PrimalDualConfig())]
     scale = DisConfig().color_scale_m
     truth = np.clip(128 + 127 * ds.gt_scene_flow_prev.values[:, 1].astype(np.float32) / scale, 0, 255).astype(np.uint8)
     truth[~ds.gt_body.values[:, 1]] = 128

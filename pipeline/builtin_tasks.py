@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 from mocapflow.pipeline.registry import Lazy, NoParams, TaskSpec, register
-from mocapflow.tasks import flow, markers3d, masks, poses, refine2d, reflectors2d, skeleton, smoothing, training
-from mocapflow.tasks.heatmaps import HeatmapConfig
+from mocapflow.tasks.deepmocap import flow, markers3d, masks, poses, refine2d, reflectors2d, skeleton, smoothing, training
+from mocapflow.tasks.deepmocap.heatmaps import HeatmapConfig
+from mocapflow.tasks.shared.cameras import CALIBRATION_VARIABLES as CALIBRATION
 
-CALIBRATION = ("fx", "fy", "cx", "cy", "dist", "width", "height")
 
 # The `frames` stage: every raw sequence of a dataset synthesized (studio) or imported
 # (zarr, image folders) into the raw-sequence schema. The dataset reader runs it.
@@ -34,7 +34,7 @@ register(TaskSpec(
     description="OpenCV DIS optical flow on IR, lifted to 3D with both depth maps",
 ))
 register(TaskSpec(
-    name="primal_dual", fn=Lazy("mocapflow.tasks.pdflow", "primal_dual"), version="2", params=flow.PrimalDualConfig,
+    name="primal_dual", fn=Lazy("mocapflow.tasks.deepmocap.pdflow", "primal_dual"), version="2", params=flow.PrimalDualConfig,
     output="scene_flow",
     partition="view", inputs={"frames": "raw_sequence"}, reads={"frames": ("depth", "ir") + CALIBRATION},
     halo=(1, 0), description="primal-dual RGB-D scene flow (Jaimez et al. 2015) on IR + depth, torch",
@@ -55,7 +55,7 @@ register(TaskSpec(
     inputs={"samples": "fcn_samples"}, description="train the two-stream multi-stage FCN (seeded; GPU if present)",
 ))
 register(TaskSpec(
-    name="fcn_heatmaps", fn=Lazy("mocapflow.tasks.heatmaps", "fcn_heatmaps"), version="2",
+    name="fcn_heatmaps", fn=Lazy("mocapflow.tasks.deepmocap.heatmaps", "fcn_heatmaps"), version="2",
     params=HeatmapConfig, output="heatmaps", partition="view",
     inputs={"masks": "reflector_masks", "flow": "scene_flow"},
     reads={"masks": ("colorized_depth", "blob_id", "blob_area"), "flow": ("colorized_flow",)},
@@ -73,8 +73,7 @@ register(TaskSpec(
 register(TaskSpec(
     name="fuse_views", fn=markers3d.markers3d, version="2", params=markers3d.Markers3DConfig, output="markers3d",
     partition="sequence", inputs={"reflectors": "reflectors2d", "masks": "reflector_masks", "frames": "raw_sequence"},
-    reads={"reflectors": ("x", "y", "confidence", "recovered"), "masks": ("blob_id",), "frames": ("depth",) + CALIBRATION
-           + ("cam_to_world",)},
+    reads={"reflectors": ("x", "y", "confidence", "recovered"), "masks": ("blob_id",), "frames": ("depth",) + CALIBRATION},
     description="region-contour depth, back-projection, patch mean / strap normal-line fusion (Eq. 10, A1)",
 ))
 for name, fn, params, version, what in (
@@ -102,13 +101,13 @@ register(TaskSpec(
                 "anchor frame; wrong labels gated out, lost limbs taken back, outvoted single views used",
 ))
 
-# Beyond the paper: each view's 2D reflectors made consistent with the solved poses (tasks/refine2d.py).
+# Beyond the paper: each view's 2D reflectors made consistent with the solved poses (tasks/deepmocap/refine2d.py).
 register(TaskSpec(
     name="refine_reflectors", fn=refine2d.refine_reflectors, version="1", params=refine2d.Refine2DConfig,
     output="reflectors2d", partition="view",
     inputs={"reflectors": "reflectors2d", "poses": "poses", "skeleton": "skeleton", "masks": "reflector_masks",
             "frames": "raw_sequence"},
     reads={"poses": ("position", "rotation"), "skeleton": ("parent", "bone", "reflector_offset"),
-           "masks": ("blob_id", "blob_area"), "frames": ("depth",) + CALIBRATION + ("cam_to_world",)},
+           "masks": ("blob_id", "blob_area"), "frames": ("depth",) + CALIBRATION},
     description="mirrored labels exchanged and missing reflectors added where the solved poses project",
 ))

@@ -17,7 +17,7 @@ import yaml
 
 from mocapflow.pipeline import registry
 from mocapflow.pipeline.errors import CatalogError
-from mocapflow.schemas import get_schema
+from mocapflow.schemas import ArtifactSchema, get_schema
 
 TOP_KEYS = ("data_roots", "plugins", "storage", "datasets", "stages", "evaluation")
 STORAGE_KEYS = ("root", "region_frames")
@@ -37,12 +37,19 @@ class DatasetConfig:
 
 @dataclass(frozen=True)
 class StageConfig:
+    """One stage, resolved once at load: its implementation, its output schema and its checked params."""
+
     name: str
-    task: str
+    spec: registry.TaskSpec  # the registered implementation
+    schema: ArtifactSchema  # of its output
     params: Any  # the task's frozen params dataclass
     inputs: Mapping[str, str]  # role -> upstream stage name
     dataset: str | None
     region_frames: int
+
+    @property
+    def task(self) -> str:
+        return self.spec.name
 
 
 @dataclass(frozen=True)
@@ -208,7 +215,7 @@ class _Validator:
             inputs = self.inputs(name, spec, body.get("inputs"))
             dataset = self.dataset_ref(name, spec, body.get("dataset"), datasets)
             region = self.positive_int(body.get("region_frames", default_region), "stages", name, "region_frames")
-            parsed[name] = StageConfig(name, spec.name, params, inputs, dataset, region)
+            parsed[name] = StageConfig(name, spec, get_schema(spec.output), params, inputs, dataset, region)
         self.check_inputs(parsed)
         return {name: parsed[name] for name in self.topological(parsed)}
 
@@ -246,13 +253,13 @@ class _Validator:
 
     def check_inputs(self, stages: dict[str, StageConfig]) -> None:
         for name, stage in stages.items():
-            spec = registry.get(stage.task)
+            spec = stage.spec
             for role, upstream in stage.inputs.items():
                 where = self.where("stages", name, "inputs")
                 if upstream not in stages:
                     raise CatalogError(f"{where}: input {role!r} names stage {upstream!r}, which is not declared"
                                        f"{registry.did_you_mean(upstream, stages)}; declared stages: {list(stages)}")
-                produced = registry.get(stages[upstream].task).output
+                produced = stages[upstream].spec.output
                 expected = get_schema(spec.inputs[role]).name
                 if produced != expected:
                     raise CatalogError(f"{where}: input {role!r} of task {spec.name!r} must be a {expected!r} artifact, "

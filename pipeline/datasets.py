@@ -46,9 +46,9 @@ def discover(catalog, dataset, pattern: str | None = None) -> list[SequenceInfo]
     return sorted(found, key=lambda s: s.id)
 
 
-def read_frames(catalog, dataset, seq: SequenceInfo, start: int, stop: int) -> xr.Dataset:
-    """Frames [start, stop) of ``seq`` in the raw-sequence schema."""
-    return DATASET_KINDS[dataset.kind].read(catalog, dataset, seq, start, stop)
+def read_frames(dataset, seq: SequenceInfo, start: int, stop: int) -> xr.Dataset:
+    """Frames [start, stop) of ``seq`` (found by ``discover``) in the raw-sequence schema."""
+    return DATASET_KINDS[dataset.kind].read(dataset, seq, start, stop)
 
 
 # ---- zarr ---------------------------------------------------------------------------------
@@ -71,7 +71,7 @@ class ZarrReader:
         return out
 
     @staticmethod
-    def read(catalog, dataset, seq: SequenceInfo, start: int, stop: int) -> xr.Dataset:
+    def read(dataset, seq: SequenceInfo, start: int, stop: int) -> xr.Dataset:
         ds = _open_raw(Path(seq.spec["path"]))
         return ds.isel(frame=slice(start, stop)).load()
 
@@ -111,7 +111,7 @@ class ImageFolderReader:
         return out
 
     @staticmethod
-    def read(catalog, dataset, seq: SequenceInfo, start: int, stop: int) -> xr.Dataset:
+    def read(dataset, seq: SequenceInfo, start: int, stop: int) -> xr.Dataset:
         import cv2
 
         seq_dir = Path(seq.spec["path"])
@@ -151,10 +151,10 @@ class StudioReader:
         return studio_io.discover(catalog, dataset)
 
     @staticmethod
-    def read(catalog, dataset, seq: SequenceInfo, start: int, stop: int) -> xr.Dataset:
+    def read(dataset, seq: SequenceInfo, start: int, stop: int) -> xr.Dataset:
         from mocapflow.pipeline import studio_io
 
-        return studio_io.read(catalog, dataset, seq, start, stop)
+        return studio_io.read(dataset, seq, start, stop)
 
 
 def _folder(catalog, dataset) -> Path:

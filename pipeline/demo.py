@@ -23,7 +23,6 @@ from mocapflow.pipeline.report import figures, write_html
 from mocapflow.pipeline.scaffold import DEFAULT_STAGES
 from mocapflow.pipeline.scheduler import compute_missing
 from mocapflow.pipeline.storage import Store
-from mocapflow.schemas import get_schema
 
 DEFAULT_MOTIONS = ("jumping_jack", "classic_squat", "elbow_flexion")
 
@@ -80,10 +79,10 @@ def run_demo(out: Path, options: DemoOptions, *, workers: int, processes: bool =
     files = [path for fmt in ("bvh", "c3d")
              for path in export_files(catalog, None, fmt, None, out / "export", workers, processes=processes)]
     seq = plan.sequences[0]
-    raw = store.open("frames", plan.items[f"frames/{seq.id}"].key, get_schema("raw_sequence"))
-    poses = store.open("poses", plan.items[f"poses/{seq.id}"].key, get_schema("poses")).load()
-    reflectors = xr.concat([store.open("reflectors2d", plan.items[f"reflectors2d/{seq.id}/{v}"].key,
-                                       get_schema("reflectors2d")).sel(view=v).load() for v in seq.views], dim="view")
+    raw = plan.open(store, "frames", seq.id)
+    poses = plan.open(store, "poses", seq.id).load()
+    reflectors = xr.concat([plan.open(store, "reflectors2d", seq.id, v).sel(view=v).load() for v in seq.views],
+                           dim="view")
     images = figures(out / "report", raw, reflectors, poses, result)
     summary = {**headline(result), "partitions computed": len(computed),
                "seconds": round(time.perf_counter() - started, 1)}

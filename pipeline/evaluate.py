@@ -1,7 +1,7 @@
 """`mocapflow evaluate`: accuracy of the catalog's stages on its evaluation split, against studio ground truth.
 
 Missing partitions are computed first (through the same engine as `mocapflow run`); then each
-sequence's artifacts are read view by view and scored by the pure metrics of tasks/evaluation.py:
+sequence's artifacts are read view by view and scored by the pure metrics of tasks/deepmocap/evaluation.py:
 scene flow (the `flow` stage), the labelled 2D reflectors (a stage writing `reflectors2d`), the 3D
 reflectors (`markers3d`, `smoothed_markers`) and the joints of the solved poses (`poses`).
 """
@@ -10,12 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocapflow.pipeline import registry
 from mocapflow.pipeline.errors import PlanError
 from mocapflow.pipeline.plan import Plan, build_plan
 from mocapflow.pipeline.storage import Store
-from mocapflow.schemas import get_schema
-from mocapflow.tasks.evaluation import (TABLE8_JOINTS, Matches2D, flow_errors, jitter, joint_errors, marker_errors,
+from mocapflow.tasks.deepmocap.evaluation import (TABLE8_JOINTS, Matches2D, flow_errors, jitter, joint_errors, marker_errors,
                                        match_2d, pck_radius, summarize_2d, summarize_flow, summarize_joints,
                                        summarize_markers)
 
@@ -31,8 +29,8 @@ def stage_writing(catalog, schema: str, *, refined: bool = False) -> str | None:
     """The last stage of the catalog whose implementation writes ``schema``: one that also reads that schema
     (refines an upstream artifact of its kind, as refine_reflectors does the views' reflectors2d) when
     ``refined``, otherwise one that does not."""
-    found = [s.name for s in catalog.stages.values() if (spec := registry.get(s.task)).output == schema
-             and (schema in spec.inputs.values()) == refined]
+    found = [s.name for s in catalog.stages.values() if s.spec.output == schema
+             and (schema in s.spec.inputs.values()) == refined]
     return found[-1] if found else None
 
 
@@ -49,7 +47,7 @@ def evaluate(catalog, plan: Plan, store: Store) -> dict:
     result: dict = {"sequences": {}}
     raws = {}
     for seq in plan.sequences:
-        raw = store.open("frames", plan.items[f"frames/{seq.id}"].key, get_schema("raw_sequence"))
+        raw = plan.open(store, "frames", seq.id)
         if "gt_body" not in raw:
             raise PlanError(f"sequence {seq.id!r} has no ground truth (gt_body); evaluate on studio sequences")
         raws[seq.id] = raw
@@ -78,7 +76,7 @@ def _evaluate_poses(plan: Plan, store: Store, raws: dict, stage: str, per_sequen
         raw = raws[seq.id]
         if "gt_joints" not in raw:
             raise PlanError(f"sequence {seq.id!r} has no joint ground truth (gt_joints)")
-        est = store.open(stage, plan.items[f"{stage}/{seq.id}"].key, get_schema("poses")).load()
+        est = plan.open(store, stage, seq.id).load()
         est_joints = [str(j) for j in est["joint"].values]
         gt_names = [str(j) for j in raw["joint"].values]
         e = joint_errors(est["position"].values[:, [est_joints.index(j) for j in TABLE8_JOINTS]],
@@ -95,13 +93,12 @@ def _evaluate_poses(plan: Plan, store: Store, raws: dict, stage: str, per_sequen
 def _evaluate_markers(plan: Plan, store: Store, raws: dict, stage: str, schema_name: str, kind: str,
                       per_sequence: dict) -> dict:
     """3D error of each reflector against the studio's ground truth, completeness and jitter."""
-    schema = get_schema(schema_name)
     errors, names, jitters, gt_jitters = [], None, [], []
     for seq in plan.sequences:
         raw = raws[seq.id]
         if "gt_reflectors" not in raw:
             raise PlanError(f"sequence {seq.id!r} has no 3D reflector ground truth (gt_reflectors)")
-        est = store.open(stage, plan.items[f"{stage}/{seq.id}"].key, schema).load()
+        est = plan.open(store, stage, seq.id).load()
         names = [str(n) for n in est["reflector"].values]
         gt = raw["gt_reflectors"].values
         e = marker_errors(est["position"].values, gt)
@@ -124,7 +121,7 @@ def _evaluate_flow(plan: Plan, store: Store, raws: dict, per_sequence: dict) -> 
         if "gt_scene_flow_prev" not in raw:
             raise PlanError(f"sequence {seq.id!r} has no scene-flow ground truth (gt_scene_flow_prev)")
         for view in seq.views:
-            est = store.open("flow", plan.items[f"flow/{seq.id}/{view}"].key, get_schema("scene_flow")).sel(view=view)
+            est = plan.open(store, "flow", seq.id, view).sel(view=view)
             gt = raw.sel(view=view)
             e, n = flow_errors(est["flow"].values, est["valid"].values, gt["gt_scene_flow_prev"].values,
                                gt["gt_body"].values, gt["depth"].values, est["frame"].values == 0)
@@ -148,7 +145,7 @@ def _evaluate_2d(plan: Plan, store: Store, raws: dict, stage: str, per_sequence:
             raise PlanError(f"sequence {seq.id!r} has no 2D reflector ground truth (gt_reflectors2d)")
         seq_matches = {k: Matches2D(n_reflectors) for k in total}
         for view in seq.views:
-            est = store.open(stage, plan.items[f"{stage}/{seq.id}/{view}"].key, get_schema("reflectors2d"))
+            est = plan.open(store, stage, seq.id, view)
             est, gt = est.sel(view=view).load(), raw.sel(view=view)
             names = list(est["reflector"].values)
             body, uv, pixels = gt["gt_body"].values, gt["gt_reflectors2d"].values, gt["gt_pixels"].values

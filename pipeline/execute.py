@@ -21,7 +21,7 @@ import threading
 import time
 import traceback
 from contextlib import contextmanager, nullcontext
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Iterator
 
 import numpy as np
@@ -29,11 +29,10 @@ import xarray as xr
 
 from mocapflow.pipeline import registry
 from mocapflow.pipeline.datasets import read_frames
-from mocapflow.pipeline.errors import MocapflowError
+from mocapflow.pipeline.errors import MocapflowError, StorageError
 from mocapflow.pipeline.models import load_weights
 from mocapflow.pipeline.plan import WorkItem, now
 from mocapflow.pipeline.storage import Store
-from mocapflow.schemas import get_schema
 
 log = logging.getLogger(__name__)
 
@@ -60,9 +59,8 @@ def regions(n_frames: int, region_frames: int, frame_chunk: int) -> list[tuple[i
 
 def spans(item: WorkItem) -> list[tuple[int, int]]:
     """The frame regions ``item`` is produced in (one for a whole-sequence task)."""
-    spec = registry.get(item.stage.task)
     n = item.sequence.n_frames
-    return [(0, n)] if spec.whole_sequence else regions(n, item.stage.region_frames, get_schema(spec.output).frame_chunk)
+    return [(0, n)] if item.spec.whole_sequence else regions(n, item.stage.region_frames, item.stage.schema.frame_chunk)
 
 
 def failed_upstream(item: WorkItem, upstream) -> list[str]:
@@ -80,7 +78,7 @@ def run_partition(item: WorkItem, *upstream) -> Result:
     failed_up = failed_upstream(item, upstream)
     if failed_up:
         return Result(item.partition.id, "skipped", error=f"upstream failed: {', '.join(failed_up)}")
-    store = Store(item.catalog.root)
+    store = Store(item.root)
     return _locked(item, store, lambda started: (_produce(item, store), True))
 
 
@@ -91,7 +89,7 @@ def _locked(item: WorkItem, store: Store, produce) -> Result:
     pid, stage, key = item.partition.id, item.partition.stage, item.key
     started = time.perf_counter()
     try:
-        registry.import_plugins(item.catalog.plugins)
+        registry.import_plugins(item.plugins)
         if store.is_complete(stage, key):
             return Result(pid, "cached")
         with store.lock(stage, key, pid):
@@ -129,7 +127,7 @@ def run_unit(unit: Unit, *upstream) -> list[Result]:
     """Produce frames [start, stop) of every member of ``unit`` not yet written, each member's output going to
     the members after it in memory; one Result per member (in order), failures reported, never raised. A
     member whose input failed (here or in an earlier region) is skipped; the others go on."""
-    store = Store(unit.items[0].catalog.root)
+    store = Store(unit.items[0].root)
     loader = _UnitInputs(store, unit)
     before = _flat(upstream)  # the upstream units' reports, this group's previous region included
     done: list[Result] = []
@@ -153,11 +151,10 @@ def _unit_member(item: WorkItem, unit: Unit, store: Store, loader: "_UnitInputs"
     def produce(started: float) -> tuple[int, bool]:
         written = 0
         if not store.region_done(stage, key, unit.start, unit.stop):
-            spec = registry.get(item.stage.task)
             if unit.first or not store.pending_lineage(stage, key):
                 store.begin(stage, key, item.lineage(started=now(), host=socket.gethostname()))
-            out = _compute_region(item, spec, store, unit.start, unit.stop, load=loader.for_member(item))
-            store.write_region(stage, key, get_schema(spec.output), out, item.sequence.n_frames, unit.start,
+            out = _compute_region(item, store, unit.start, unit.stop, load=loader.for_member(item))
+            store.write_region(stage, key, item.stage.schema, out, item.sequence.n_frames, unit.start,
                                unit.stop, seconds=time.perf_counter() - started)
             loader.keep(item, out)
             written = 1
@@ -173,12 +170,11 @@ def _commit_if_whole(item: WorkItem, store: Store) -> bool:
     stage, key = item.partition.stage, item.key
     if not all(store.region_done(stage, key, a, b) for a, b in spans(item)):
         return False
-    spec = registry.get(item.stage.task)
     begun = store.pending_lineage(stage, key)
     store.commit(stage, key, item.lineage(started=begun.get("started", now()), finished=now(),
                                           host=socket.gethostname(),
                                           compute_seconds=round(store.region_seconds(stage, key), 3),
-                                          code_version=spec.version, schema=item.components["schema"]))
+                                          code_version=item.spec.version, schema=item.components["schema"]))
     return True
 
 
@@ -195,7 +191,7 @@ class _UnitInputs:
         members = {i.partition.stage for i in unit.items}
         self.halos: dict[str, int] = {}  # member -> the most frames before a region that a member reads of it
         for item in unit.items:
-            spec = registry.get(item.stage.task)
+            spec = item.spec
             lo, hi = max(0, unit.start - spec.halo[0]), min(item.sequence.n_frames, unit.stop + spec.halo[1])
             for role, up in item.upstream.items():
                 if up.stage in members:
@@ -262,8 +258,7 @@ def _upstream_id(up) -> tuple:
 
 
 def _produce(item: WorkItem, store: Store) -> int:
-    spec = registry.get(item.stage.task)
-    schema = get_schema(spec.output)
+    schema = item.stage.schema
     stage, key = item.partition.stage, item.key
     store.begin(stage, key, item.lineage(started=now(), host=socket.gethostname()))
     written = 0
@@ -271,23 +266,23 @@ def _produce(item: WorkItem, store: Store) -> int:
         if store.region_done(stage, key, start, stop):
             continue
         t0 = time.perf_counter()
-        out = _compute_region(item, spec, store, start, stop)
+        out = _compute_region(item, store, start, stop)
         store.write_region(stage, key, schema, out, item.sequence.n_frames, start, stop,
                            seconds=time.perf_counter() - t0)
         written += 1
         log.debug("%s: frames %d-%d written", item.partition.id, start, stop)
-    committed = _commit_if_whole(item, store)
-    assert committed, item.partition.id  # every region was written above
+    if not _commit_if_whole(item, store):
+        raise StorageError(f"{item.partition.id}: a region is still missing after every region was written "
+                           f"(storage root {item.root}); another process may be deleting it: rerun the stage")
     return written
 
 
-def _compute_region(item: WorkItem, spec: registry.TaskSpec, store: Store, start: int, stop: int,
-                    load=None) -> xr.Dataset:
+def _compute_region(item: WorkItem, store: Store, start: int, stop: int, load=None) -> xr.Dataset:
     """``item``'s task on frames [start, stop); ``load(up, lo, hi, variables)`` gives an input (from storage
     when None)."""
+    spec = item.spec
     if spec.source:
-        dataset = item.catalog.datasets[item.stage.dataset]
-        return read_frames(item.catalog, dataset, item.sequence, start, stop)
+        return read_frames(item.dataset, item.sequence, start, stop)
     if spec.partition == "dataset":
         inputs = {role: _load_samples(store, up, spec.reads.get(role)) for role, up in item.upstream.items()}
     else:
@@ -297,11 +292,9 @@ def _compute_region(item: WorkItem, spec: registry.TaskSpec, store: Store, start
             def load(up, lo, hi, variables):
                 return _load_input(store, up, item.partition.view, lo, hi, variables)
         inputs = {role: load(up, lo, hi, spec.reads.get(role)) for role, up in item.upstream.items()}
-    params = {f.name: getattr(item.stage.params, f.name) for f in fields(item.stage.params)}
-    for name, (path, sha) in item.weights.items():  # weight files arrive as tensors, loaded once per worker
-        params[name] = load_weights(path, sha)
+    weights = {name: load_weights(path, sha) for name, (path, sha) in item.weights.items()}  # cached per worker
     with every_core() if spec.partition == "dataset" else nullcontext():
-        out = spec.fn(**inputs, **params)
+        out = spec.fn(**inputs, config=item.stage.params, **weights)
     if not isinstance(out, xr.Dataset):
         raise TypeError(f"task {spec.name!r} returned {type(out).__name__}, expected an xarray Dataset")
     if "frame" in out.dims:
@@ -332,7 +325,7 @@ def _select(ds: xr.Dataset, variables, up) -> xr.Dataset:
     """``ds`` with only ``variables`` (None: all), less those that ``up``'s schema marks optional and ``ds`` lacks."""
     if variables is None:
         return ds
-    optional = {name for name, spec in get_schema(up.schema).variables.items() if not spec.required}
+    optional = {name for name, spec in up.schema.variables.items() if not spec.required}
     return ds[[v for v in variables if v in ds.variables or v not in optional]]
 
 
@@ -345,7 +338,7 @@ def _load_samples(store: Store, up, variables=None) -> xr.Dataset:
     parts = []
     for sequence, keys in up.by_sequence.items():
         for key in keys.values():
-            ds = store.open(up.stage, key, get_schema(up.schema))
+            ds = store.open(up.stage, key, up.schema)
             ds = _select(ds, variables, up)
             ds = ds.drop_vars([n for n, v in ds.data_vars.items() if "frame" not in v.dims])
             stacked = ds.stack(sample=[d for d in ("view", "frame") if d in ds.dims]).transpose("sample", ...).load()
@@ -361,7 +354,7 @@ def _load_input(store: Store, up, view: str | None, lo: int, hi: int, variables=
     ``partial``: the artifact may be incomplete (the caller knows those frames are written)."""
     parts = []
     for key in up.keys.values():
-        ds = store.open(up.stage, key, get_schema(up.schema), partial=partial)
+        ds = store.open(up.stage, key, up.schema, partial=partial)
         ds = _select(ds, variables, up)
         if up.partition == "sequence" and view is not None and "view" in ds.dims:  # a slice: zarr reads it 3x faster
             at = [str(v) for v in ds["view"].values].index(str(view))

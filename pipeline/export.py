@@ -19,13 +19,11 @@ import xarray as xr
 
 from scipy.spatial.transform import Rotation
 
-from mocapflow.pipeline import registry
 from mocapflow.pipeline.errors import InputError, PlanError, StorageError
 from mocapflow.pipeline.evaluate import stage_writing
 from mocapflow.pipeline.plan import build_plan, select
 from mocapflow.pipeline.storage import Store
-from mocapflow.schemas import get_schema
-from mocapflow.tasks.studio.body import JOINT_NAMES, PARENTS
+from mocapflow.tasks.shared.body import JOINT_NAMES, PARENTS
 from mocapflow.tasks.studio.bvh import parse_bvh
 
 UNIT_SCALE = 1000.0  # metres -> millimetres
@@ -191,7 +189,7 @@ def export_files(catalog, sequences: str | None, fmt: str, stage: str | None, ou
     if stage not in catalog.stages:
         raise PlanError(f"no stage {stage!r} to export as {fmt} (it needs one writing {' or '.join(SCHEMAS[fmt])}); "
                         f"the catalog's stages: {list(catalog.stages)}")
-    output = registry.get(catalog.stages[stage].task).output
+    output = catalog.stages[stage].spec.output
     if output not in SCHEMAS[fmt]:
         raise PlanError(f"stage {stage!r} writes {output}; {fmt} exports {' or '.join(SCHEMAS[fmt])} — "
                         "pick another --stage")
@@ -202,6 +200,6 @@ def export_files(catalog, sequences: str | None, fmt: str, stage: str | None, ou
     written = []
     for item in plan.for_stages([stage]):
         path = out_dir / f"{item.partition.sequence}.{fmt}"
-        WRITERS[fmt](store.open(stage, item.key, get_schema(output)).load(), path)
+        WRITERS[fmt](store.open(stage, item.key, item.stage.schema).load(), path)
         written.append(path)
     return written

@@ -14,14 +14,16 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
+import xarray as xr
+
 from mocapflow.pipeline import registry
-from mocapflow.pipeline.catalog import Catalog
+from mocapflow.pipeline.catalog import Catalog, DatasetConfig, StageConfig
 from mocapflow.pipeline.datasets import SequenceInfo, discover
 from mocapflow.pipeline.errors import PlanError
 from mocapflow.pipeline.hashing import digest, file_digest
 from mocapflow.pipeline.storage import Store
 from mocapflow.models import packaged
-from mocapflow.schemas import get_schema
+from mocapflow.schemas import ArtifactSchema
 
 
 @dataclass(frozen=True)
@@ -41,26 +43,30 @@ class Upstream:
 
     stage: str
     partition: str  # "view" or "sequence"
-    schema: str
+    schema: ArtifactSchema
     keys: Mapping[str | None, str]  # view (or None) -> key
     by_sequence: Mapping[str, Mapping[str | None, str]] | None = None  # a per-dataset reader: sequence -> keys
 
 
 @dataclass(frozen=True)
 class WorkItem:
-    """Everything a worker needs to produce one partition; small, so it travels in the graph."""
+    """Everything a worker needs to produce one partition, and no more: its stage (resolved spec, schema and
+    params), the storage root, the plugins to import, and for a source stage its dataset."""
 
     partition: Partition
     key: str
     components: Mapping[str, Any]
     upstream: Mapping[str, Upstream]
     sequence: SequenceInfo
-    catalog: Catalog
+    stage: StageConfig
+    root: str
+    plugins: tuple[str, ...] = ()
+    dataset: DatasetConfig | None = None  # source stages: where their sequences come from
     weights: Mapping[str, tuple[str, str]] = field(default_factory=dict)  # param -> (path, sha256)
 
     @property
-    def stage(self):
-        return self.catalog.stages[self.partition.stage]
+    def spec(self) -> registry.TaskSpec:
+        return self.stage.spec
 
     @property
     def depends_on(self) -> list[str]:
@@ -90,32 +96,42 @@ class Plan:
             grouped.setdefault(item.partition.stage, []).append(item)
         return grouped
 
+    def item(self, stage: str, sequence: str, view: str | None = None) -> WorkItem:
+        """The work item of ``stage`` for ``sequence`` (and ``view``, for a per-view stage)."""
+        pid = Partition(stage, sequence, view).id
+        try:
+            return self.items[pid]
+        except KeyError:
+            raise PlanError(f"no partition {pid!r} in the plan{registry.did_you_mean(pid, self.items)}; "
+                            "check the stage, sequence and view names (`mocapflow status` lists them)") from None
+
+    def open(self, store: Store, stage: str, sequence: str, view: str | None = None) -> xr.Dataset:
+        """The stored artifact of ``stage`` for ``sequence`` (and ``view``), lazily, checked against its schema."""
+        item = self.item(stage, sequence, view)
+        return store.open(stage, item.key, item.stage.schema)
+
 
 def build_plan(catalog: Catalog, sequences: str | None = None) -> Plan:
     """Keys for every stage x partition of the catalog (for the sequences matching the glob)."""
     plan = Plan()
     seqs_by_dataset = {name: discover(catalog, ds, sequences) for name, ds in catalog.datasets.items()}
     source_of = _source_datasets(catalog)
-    weights = {}
-    for stage in catalog.stages.values():
-        spec = registry.get(stage.task)
-        weights[stage.name] = _weights(catalog, stage, spec)
+    weights = {stage.name: _weights(catalog, stage) for stage in catalog.stages.values()}
     for dataset_name, seqs in seqs_by_dataset.items():
         plan.sequences.extend(seqs)
         plan.dataset_of.update({seq.id: dataset_name for seq in seqs})
         stages = [s for s in catalog.stages.values() if source_of[s.name] == dataset_name]
-        per_dataset = [s for s in stages if registry.get(s.task).partition == "dataset"]
+        per_dataset = [s for s in stages if s.spec.partition == "dataset"]
         all_keys: dict[str, dict[str, dict[str | None, str]]] = {}  # sequence -> stage -> view -> key
         for seq in seqs:
             keys: dict[str, dict[str | None, str]] = all_keys.setdefault(seq.id, {})
             for stage in stages:
                 if stage in per_dataset:
                     continue
-                spec = registry.get(stage.task)
-                views = list(seq.views) if spec.partition == "view" else [None]
+                views = list(seq.views) if stage.spec.partition == "view" else [None]
                 keys[stage.name] = {}
                 for view in views:
-                    item = _work_item(catalog, stage, spec, seq, view, keys, weights[stage.name])
+                    item = _work_item(catalog, stage, seq, view, keys, weights[stage.name])
                     keys[stage.name][view] = item.key
                     plan.items[item.partition.id] = item
         for stage in per_dataset:
@@ -127,44 +143,47 @@ def build_plan(catalog: Catalog, sequences: str | None = None) -> Plan:
 def _dataset_item(catalog, stage, dataset_name, seqs, all_keys, weights) -> WorkItem:
     """The one partition of a per-dataset stage: it reads its inputs for every sequence of the dataset."""
     for up_name in stage.inputs.values():
-        if registry.get(catalog.stages[up_name].task).partition == "dataset":
+        if catalog.stages[up_name].spec.partition == "dataset":
             raise PlanError(f"stage {stage.name!r} (per dataset) reads {up_name!r}, also per dataset; "
                             "a per-dataset stage reads per-view or per-sequence stages")
     whole = SequenceInfo(id=dataset_name, views=(), n_frames=1,
                          fingerprint=digest([s.fingerprint for s in seqs]), spec={"sequences": [s.id for s in seqs]})
     upstream = {}
     for role, up_name in stage.inputs.items():
-        up_spec = registry.get(catalog.stages[up_name].task)
+        up = catalog.stages[up_name]
         by_sequence = {seq.id: dict(all_keys[seq.id][up_name]) for seq in seqs}
-        upstream[role] = Upstream(up_name, up_spec.partition, up_spec.output, {}, by_sequence)
-    return _item(catalog, stage, registry.get(stage.task), whole, None, upstream, weights)
+        upstream[role] = Upstream(up_name, up.spec.partition, up.schema, {}, by_sequence)
+    return _item(catalog, stage, whole, None, upstream, weights)
 
 
-def _work_item(catalog, stage, spec, seq, view, keys, weights) -> WorkItem:
+def _work_item(catalog, stage, seq, view, keys, weights) -> WorkItem:
     upstream = {}
     for role, up_name in stage.inputs.items():
-        up_spec = registry.get(catalog.stages[up_name].task)
+        up = catalog.stages[up_name]
         up_keys = keys[up_name]
-        if up_spec.partition == "view" and view is not None:
+        if up.spec.partition == "view" and view is not None:
             up_keys = {view: up_keys[view]}
-        upstream[role] = Upstream(up_name, up_spec.partition, up_spec.output, dict(up_keys))
-    return _item(catalog, stage, spec, seq, view, upstream, weights)
+        upstream[role] = Upstream(up_name, up.spec.partition, up.schema, dict(up_keys))
+    return _item(catalog, stage, seq, view, upstream, weights)
 
 
-def _item(catalog, stage, spec, seq, view, upstream, weights) -> WorkItem:
+def _item(catalog, stage, seq, view, upstream, weights) -> WorkItem:
+    spec = stage.spec
     components = {
         "stage": stage.name,
         "partition": {"sequence": seq.id, "view": view},
         "task": spec.name,
         "code_version": spec.version,
-        "params": _params(stage.params),
-        "schema": f"{spec.output}@{get_schema(spec.output).version}",
+        "params": cache_params(stage.params),
+        "schema": f"{spec.output}@{stage.schema.version}",
         "upstream": {role: {"stage": u.stage, "keys": _keys_component(u)} for role, u in upstream.items()},
         "raw_input": seq.fingerprint if spec.source else None,
         "weights": {name: digest_ for name, (_, digest_) in weights.items()},
     }
     key = digest(components)
-    return WorkItem(Partition(stage.name, seq.id, view), key, components, upstream, seq, catalog, weights)
+    dataset = catalog.datasets[stage.dataset] if spec.source else None
+    return WorkItem(Partition(stage.name, seq.id, view), key, components, upstream, seq, stage, catalog.root,
+                    catalog.plugins, dataset, weights)
 
 
 def _keys_component(up: Upstream) -> dict:
@@ -173,13 +192,16 @@ def _keys_component(up: Upstream) -> dict:
     return {str(k): v for k, v in up.keys.items()}
 
 
-def _params(params) -> dict:
-    return {f.name: getattr(params, f.name) for f in dataclasses.fields(params)}
+def cache_params(params) -> dict:
+    """A stage's params as its cache key sees them: every field but the run-time ones (``registry.runtime_fields``:
+    how a task runs, not what it computes), so changing those recomputes nothing."""
+    runtime = registry.runtime_fields(type(params))
+    return {f.name: getattr(params, f.name) for f in dataclasses.fields(params) if f.name not in runtime}
 
 
-def _weights(catalog, stage, spec) -> dict[str, tuple[str, str]]:
+def _weights(catalog, stage) -> dict[str, tuple[str, str]]:
     """param name -> (resolved path, sha256) of every weight file the stage's task uses."""
-    out = {}
+    out, spec = {}, stage.spec
     for name in spec.weights_params:
         value = getattr(stage.params, name)
         if value:

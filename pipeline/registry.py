@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import importlib
+import inspect
 import types
 import typing
 from dataclasses import dataclass, field
@@ -27,11 +28,14 @@ Partitioning = Literal["view", "sequence", "dataset"]
 class TaskSpec:
     """How the engine runs one implementation.
 
-    ``fn(**inputs, **params) -> xr.Dataset`` for ordinary tasks, where each input is the
-    upstream artifact sliced to this partition and the region's frames (plus the halo).
+    ``fn(**inputs, config=params, **weights) -> xr.Dataset`` for ordinary tasks: each input is the
+    upstream artifact sliced to this partition and the region's frames (plus the halo), ``config`` the
+    stage's frozen params dataclass, and each of ``weights_params`` the tensors of the weight file that
+    parameter names (loaded by the engine). :func:`register` checks ``fn``'s signature against that.
     Source tasks (``source=True``) are run by the dataset reader instead and have no inputs.
     ``reads`` names the variables a role needs (all when absent), so large unused arrays such as
-    ground truth are never loaded.
+    ground truth are never loaded. Parameters whose field carries ``metadata={"runtime": True}`` (how a
+    task runs, not what it computes: a batch size, a device, worker processes) stay out of cache keys.
     """
 
     name: str
@@ -52,13 +56,20 @@ class TaskSpec:
 
 @dataclass(frozen=True)
 class Lazy:
-    """A task function imported on first call (keeps heavy modules such as torch out of planning)."""
+    """A task function imported on first call (keeps heavy modules such as torch out of planning); its
+    signature is checked then (and by the tests, which import every built-in task)."""
 
     module: str
     name: str
+    roles: tuple[str, ...] = ()  # the parameters it must take, set by register()
+
+    def resolve(self) -> Callable[..., Any]:
+        fn = getattr(importlib.import_module(self.module), self.name)
+        check_signature(f"{self.module}.{self.name}", fn, self.roles)
+        return fn
 
     def __call__(self, *args, **kwargs):
-        return getattr(importlib.import_module(self.module), self.name)(*args, **kwargs)
+        return self.resolve()(*args, **kwargs)
 
 
 @dataclass(frozen=True)
@@ -71,11 +82,44 @@ _BUILTINS_LOADED = False
 
 
 def register(spec: TaskSpec) -> TaskSpec:
-    """Register (or replace) an implementation under ``spec.name``."""
+    """Register (or replace) an implementation under ``spec.name``, after checking that its function takes
+    exactly its input roles, ``config`` and its weight parameters (a Lazy function: when first imported)."""
     if not dataclasses.is_dataclass(spec.params):
-        raise TypeError(f"task {spec.name!r}: params must be a dataclass, got {spec.params!r}")
+        raise CatalogError(f"task {spec.name!r}: params must be a frozen dataclass, got {spec.params!r}")
+    if not spec.params.__dataclass_params__.frozen:
+        raise CatalogError(f"task {spec.name!r}: params {spec.params.__name__} must be frozen "
+                           "(@dataclass(frozen=True)): a stage's config never changes under a worker")
+    roles = task_parameters(spec)
+    if isinstance(spec.fn, Lazy):
+        spec = dataclasses.replace(spec, fn=dataclasses.replace(spec.fn, roles=roles))
+    elif spec.fn is not None:
+        check_signature(f"task {spec.name!r}", spec.fn, roles)
     _REGISTRY[spec.name] = spec
     return spec
+
+
+def task_parameters(spec: TaskSpec) -> tuple[str, ...]:
+    """The parameters a task's function takes, in order: its input roles, ``config``, its weight parameters."""
+    return (*spec.inputs, "config", *spec.weights_params)
+
+
+def check_signature(what: str, fn: Callable[..., Any], roles: tuple[str, ...]) -> None:
+    """Raise CatalogError unless ``fn`` takes exactly the parameters ``roles`` (each by keyword)."""
+    try:
+        params = inspect.signature(fn).parameters
+    except (TypeError, ValueError) as exc:
+        raise CatalogError(f"{what}: its function {fn!r} has no inspectable signature ({exc})") from exc
+    takes = [name for name, p in params.items() if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+    loose = [name for name, p in params.items() if p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD, p.POSITIONAL_ONLY)]
+    if loose or sorted(takes) != sorted(roles):
+        raise CatalogError(f"{what}: its function takes ({', '.join(params)}) but the engine calls it with "
+                           f"({', '.join(roles)}): its declared inputs, then config, then its weight parameters; "
+                           "make the two agree")
+
+
+def runtime_fields(params: type) -> tuple[str, ...]:
+    """The fields of a params dataclass marked ``metadata={"runtime": True}`` (kept out of cache keys)."""
+    return tuple(f.name for f in dataclasses.fields(params) if f.metadata.get("runtime"))
 
 
 def get(name: str) -> TaskSpec:

@@ -16,7 +16,7 @@ import numpy as np
 import xarray as xr
 
 from mocapflow.pipeline.errors import StorageError
-from mocapflow.tasks.studio.body import PARENTS
+from mocapflow.tasks.shared.body import PARENTS
 
 WHITE, GREY, BLACK = (255, 255, 255), (150, 150, 150), (0, 0, 0)
 FONT = cv2.FONT_HERSHEY_SIMPLEX

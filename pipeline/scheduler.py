@@ -92,8 +92,7 @@ def _warm_imports(items: list[WorkItem]) -> None:
     registered tasks, and torch where a task takes weights. The first region to need torch would otherwise import
     it (about 1.5 s) while the other worker threads wait on the import lock; this way it loads while the cluster
     starts and the first regions' other stages run."""
-    specs = [registry.get(task) for task in {item.stage.task for item in items}]
-    modules = {spec.fn.module for spec in specs if isinstance(spec.fn, registry.Lazy)}
+    modules = {item.spec.fn.module for item in items if isinstance(item.spec.fn, registry.Lazy)}
     if any(item.weights for item in items):
         modules.add("torch")
     modules = sorted(modules)
@@ -251,7 +250,7 @@ def region_groups(items: list[WorkItem]) -> list[list[WorkItem]]:
     group both reads one of them and is read by one (it would have to run between them)."""
     groups: dict[tuple, list[WorkItem]] = {}
     for item in items:
-        spec = registry.get(item.stage.task)
+        spec = item.spec
         if spec.partition in ("view", "sequence") and not spec.source and not spec.whole_sequence \
                 and spec.halo[1] == 0:
             groups.setdefault((item.partition.sequence, item.partition.view), []).append(item)

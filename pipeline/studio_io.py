@@ -167,7 +167,7 @@ def rig_for(info) -> Rig:
     return rig
 
 
-def read(catalog, dataset, seq, start: int, stop: int):
+def read(dataset, seq, start: int, stop: int):
     return synthesize(rig_for(seq), start, stop)
 
 

@@ -14,7 +14,6 @@ from pathlib import Path
 from mocapflow.pipeline.errors import PlanError, StorageError
 from mocapflow.pipeline.plan import Plan, WorkItem
 from mocapflow.pipeline.storage import Store
-from mocapflow.schemas import get_schema
 
 
 def training_item(plan: Plan, catalog, stage: str | None) -> WorkItem:
@@ -32,9 +31,9 @@ def export_weights(store: Store, item: WorkItem, out: Path) -> bytes:
     """Write the trained artifact of ``item`` to ``out`` as plain tensors; returns the file's bytes."""
     import torch
 
-    from mocapflow.tasks.training import weights_from_dataset
+    from mocapflow.tasks.deepmocap.training import weights_from_dataset
 
-    ds = store.open(item.partition.stage, item.key, get_schema("fcn_weights"))
+    ds = store.open(item.partition.stage, item.key, item.stage.schema)
     buffer = io.BytesIO()
     torch.save(weights_from_dataset(ds.load()), buffer)
     data = buffer.getvalue()

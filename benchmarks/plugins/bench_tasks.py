@@ -22,7 +22,7 @@ class NoParams:
     pass
 
 
-def mean_depth(frames: xr.Dataset) -> xr.Dataset:
+def mean_depth(frames: xr.Dataset, config: NoParams) -> xr.Dataset:
     return xr.Dataset({"mean_depth": frames["depth"].astype(np.float32).mean(("y", "x"))})
 
 

@@ -3,11 +3,12 @@
 DeepMoCap's datasets (DMC2.5D, DMC3D; Chatzitofis et al., Sensors 2019, §4) are available only on
 request, so the studio renders faithful stand-ins with ground truth for every stage:
 
-- ``body``        the 20-joint, 40-DoF template of the paper's Figure 9a and its capsule/ellipsoid surface
-- ``reflectors``  the 26 straps and patches in DeepMoCap's channel order
 - ``motion``      DMC3D's 15 exercises, procedurally
 - ``bvh``         BVH import and retargeting of real (CMU) motion onto the template
 - ``cameras``     Kinect-v2-like intrinsics, distortion and layouts
 - ``render``      ray-cast depth and IR with Kinect-like artifacts, reflector ids and scene flow
 - ``synth``       one sequence's frame region as a raw-sequence Dataset
+
+The body (the 20-joint template and its surface), the reflector table, the Camera type and the kinematics
+are the shared floor's (``mocapflow.tasks.shared``): the studio uses them, the stages never import the studio.
 """

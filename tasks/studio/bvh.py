@@ -14,7 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from mocapflow.tasks.studio.body import JOINT_INDEX, JOINT_NAMES, PARENTS, Subject, rest_offsets
+from mocapflow.tasks.shared.body import JOINT_INDEX, JOINT_NAMES, PARENTS, Subject, rest_offsets
+from mocapflow.tasks.shared.kinematics import forward_kinematics
 from mocapflow.tasks.studio.motion import Motion, lowest_foot_point
 
 Y_UP_TO_Z_UP = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])
@@ -69,27 +70,20 @@ class BVH:
     def forward_kinematics(self) -> tuple[np.ndarray, np.ndarray]:
         """Global rotations (frame, joint, 3, 3) and positions (frame, joint, 3), in the file's axes and units."""
         n = self.data.shape[0]
-        rot = np.zeros((n, len(self.names), 3, 3))
-        pos = np.zeros((n, len(self.names), 3))
+        local = np.tile(np.eye(3), (n, len(self.names), 1, 1))  # (frame, joint, 3, 3)
+        translation = np.tile(self.offsets, (n, 1, 1))  # (frame, joint, 3): the offset, or the position channels
         col = 0
         for j, chans in enumerate(self.channels):
             values = self.data[:, col:col + len(chans)]
             col += len(chans)
-            local = np.tile(np.eye(3), (n, 1, 1))
-            translation = np.tile(self.offsets[j], (n, 1))
             for k, chan in enumerate(chans):
                 axis = chan[0].lower()
                 if chan.endswith("rotation"):
-                    local = local @ Rotation.from_euler(axis, values[:, k:k + 1], degrees=True).as_matrix()
+                    local[:, j] = local[:, j] @ Rotation.from_euler(axis, values[:, k:k + 1], degrees=True).as_matrix()
                 else:
-                    translation[:, "xyz".index(axis)] = values[:, k]
-            parent = self.parents[j]
-            if parent < 0:
-                rot[:, j], pos[:, j] = local, translation
-            else:
-                rot[:, j] = rot[:, parent] @ local
-                pos[:, j] = pos[:, parent] + np.einsum("fij,fj->fi", rot[:, parent], translation)
-        return rot, pos
+                    translation[:, j, "xyz".index(axis)] = values[:, k]
+        root = int(np.flatnonzero(self.parents < 0)[0])
+        return forward_kinematics(local, translation[:, root], translation, self.parents)
 
 
 def parse_bvh(text: str) -> BVH:

@@ -1,4 +1,6 @@
-"""Kinect-v2-like IR-D sensors: 512x424 depth/IR, about 70.6 x 60 degrees field of view.
+"""Studio layouts of Kinect-v2-like IR-D sensors: 512x424 depth/IR, about 70.6 x 60 degrees field of view.
+
+The :class:`Camera` type itself is the shared floor's (tasks/shared/cameras.py).
 
 Intrinsics follow OpenCV's pinhole model with radial/tangential distortion (k1 k2 p1 p2 k3).
 Extrinsics are 4x4 camera-to-world transforms (OpenCV camera axes: x right, y down, z forward)
@@ -8,43 +10,16 @@ three sensors about 120 degrees apart, 2-3 m from the subject, 0.5-1 m high, aim
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Any, Mapping
 
-import cv2
 import numpy as np
 
-from mocapflow.tasks import geometry
+from mocapflow.tasks.shared.cameras import Camera
 
 WIDTH, HEIGHT = 512, 424
 FOV_DEG = (70.6, 60.0)
 KINECT_DIST = (0.09, -0.27, 0.0, 0.0, 0.09)
 CAPTURE_CENTRE = (0.0, 0.0, 0.9)
-
-
-@dataclass(frozen=True)
-class Camera:
-    name: str
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    dist: tuple[float, ...]
-    cam_to_world: np.ndarray = field(repr=False)
-    width: int = WIDTH
-    height: int = HEIGHT
-
-    @property
-    def K(self) -> np.ndarray:
-        return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1.0]])
-
-    @property
-    def world_to_cam(self) -> np.ndarray:
-        return np.linalg.inv(self.cam_to_world)
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy, "dist": list(self.dist),
-                "cam_to_world": self.cam_to_world, "width": self.width, "height": self.height}
 
 
 def kinect_v2(name: str, cam_to_world: np.ndarray, rng: np.random.Generator | None = None) -> Camera:
@@ -57,7 +32,7 @@ def kinect_v2(name: str, cam_to_world: np.ndarray, rng: np.random.Generator | No
         cx, cy = cx + rng.uniform(-4, 4), cy + rng.uniform(-4, 4)
         dist = dist * rng.uniform(0.8, 1.2, 5)
     return Camera(name, float(fx), float(fy), float(cx), float(cy), tuple(float(d) for d in dist),
-                  np.asarray(cam_to_world, float))
+                  np.asarray(cam_to_world, float), WIDTH, HEIGHT)
 
 
 def look_at(position, target=CAPTURE_CENTRE) -> np.ndarray:
@@ -119,30 +94,13 @@ def _sensor(i: int, s: Mapping[str, Any], target: np.ndarray) -> Camera:
     name = str(s.get("name", f"kinect{i}"))
     base = kinect_v2(name, look_at(s["position"], s.get("target", target)))
     return Camera(name, float(s.get("fx", base.fx)), float(s.get("fy", base.fy)), float(s.get("cx", base.cx)),
-                  float(s.get("cy", base.cy)), tuple(float(d) for d in s.get("dist", base.dist)), base.cam_to_world)
+                  float(s.get("cy", base.cy)), tuple(float(d) for d in s.get("dist", base.dist)), base.cam_to_world,
+                  base.width, base.height)
 
 
 def check_sees(cam: Camera, point) -> None:
     """Raise ValueError when ``point`` (world) is behind ``cam`` or outside its image."""
-    uv, z = project(cam, np.asarray(point, float)[None])
-    if z[0] <= 0.3 or not (0 <= uv[0, 0] < cam.width and 0 <= uv[0, 1] < cam.height):
+    uv, z = cam.project(np.asarray(point, float)[None])
+    if not z[0] > 0.3 or not (0 <= uv[0, 0] < cam.width and 0 <= uv[0, 1] < cam.height):
         raise ValueError(f"sensor {cam.name!r} does not see the capture centre {np.round(point, 2).tolist()} "
                          f"(it projects to {np.round(uv[0], 1).tolist()} at depth {z[0]:.2f} m); aim it at the subject")
-
-
-def to_camera(cam: Camera, points: np.ndarray) -> np.ndarray:
-    """World points (..., 3) in the camera frame."""
-    w2c = cam.world_to_cam
-    return points @ w2c[:3, :3].T + w2c[:3, 3]
-
-
-def project(cam: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Distorted pixel coordinates (n, 2) and camera depth z (n,) of world points (n, 3)."""
-    pc = to_camera(cam, points)
-    uv, _ = cv2.projectPoints(pc.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), cam.K, np.asarray(cam.dist))
-    return uv.reshape(-1, 2), pc[:, 2]
-
-
-def pixel_rays(cam: Camera) -> np.ndarray:
-    """Unit ray directions (camera frame) through every pixel centre, undistorted.  # (y, x, 3)"""
-    return geometry.pixel_rays(cam.K, cam.dist, cam.width, cam.height)

@@ -18,7 +18,8 @@ from typing import Callable
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocapflow.tasks.studio.body import JOINT_INDEX, JOINTS, Subject, forward_kinematics, rest_offsets, surface
+from mocapflow.tasks.shared.body import JOINT_INDEX, JOINTS, PARENTS, Subject, rest_offsets, surface
+from mocapflow.tasks.shared.kinematics import forward_kinematics
 
 ARMS_DOWN = np.radians(78.0)  # shoulder adduction from the T-pose to relaxed arms
 
@@ -320,7 +321,7 @@ def plant_feet(local_rot: np.ndarray, root: np.ndarray, subject: Subject) -> np.
 
 def lowest_foot_point(local_rot: np.ndarray, root: np.ndarray, subject: Subject) -> np.ndarray:
     """Height of the lowest foot surface point per frame (ankles, toes minus the foot capsule radius)."""
-    _, pos = forward_kinematics(local_rot, root, rest_offsets(subject))
+    _, pos = forward_kinematics(local_rot, root, rest_offsets(subject), PARENTS)
     radius = next(p.radii[0] for p in surface(subject) if p.name == "l_foot")
     feet = [JOINT_INDEX[j] for j in ("LeftAnkle", "LeftFoot", "RightAnkle", "RightFoot")]
     return pos[:, feet, 2].min(axis=1) - radius

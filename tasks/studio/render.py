@@ -16,9 +16,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from mocapflow.tasks.studio.body import Primitive
-from mocapflow.tasks.studio.cameras import Camera, pixel_rays
-from mocapflow.tasks.studio.reflectors import Placement, label_hits
+from mocapflow.tasks.shared.body import Primitive
+from mocapflow.tasks.shared.cameras import Camera
+from mocapflow.tasks.shared.reflectors import Placement, label_hits
 
 RANGE_M = (0.5, 4.5)  # Kinect v2 operating range
 GRAZING_COS = 0.12  # below this incidence cosine the sensor returns no depth
@@ -42,7 +42,7 @@ class View:
 
 
 def prepare_view(cam: Camera) -> View:
-    rays = pixel_rays(cam)
+    rays = cam.pixel_rays()
     w2c = cam.world_to_cam
     R, t = w2c[:3, :3], w2c[:3, 3]
     d = rays @ R  # world ray directions (y, x, 3)

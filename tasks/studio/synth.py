@@ -16,7 +16,9 @@ import xarray as xr
 from scipy.spatial.transform import Rotation
 
 from mocapflow.schemas.raw import make_raw_sequence
-from mocapflow.tasks.studio import body, bvh, cameras, motion, reflectors, render
+from mocapflow.tasks.shared import body, reflectors
+from mocapflow.tasks.shared.kinematics import forward_kinematics
+from mocapflow.tasks.studio import bvh, cameras, motion, render
 
 STUDIO_VERSION = "2"
 
@@ -93,7 +95,7 @@ def build_rig(spec: SequenceSpec, bvh_text: str | None = None) -> Rig:
         mot = motion.exercise(spec.motion, subject, n_frames=(spec.frames or 90) + 1, fps=spec.fps,
                               speed=spec.speed, amplitude=spec.amplitude, repetitions=spec.repetitions,
                               heading_deg=spec.heading_deg, variation=spec.variation, seed=spec.seed)
-    rot, pos = body.forward_kinematics(mot.local_rot, mot.root_pos, body.rest_offsets(subject))
+    rot, pos = forward_kinematics(mot.local_rot, mot.root_pos, body.rest_offsets(subject), body.PARENTS)
     return Rig(spec, subject, prims, placements, tuple(render.prepare_view(c) for c in cams), mot, rot, pos)
 
 
@@ -113,7 +115,7 @@ def synthesize(rig: Rig, start: int, stop: int) -> xr.Dataset:
     uv = np.zeros((n_views, n, len(rig.placements), 2), np.float32)
     refl3d = reflectors.world_positions(rig.placements, rig.prims, rig.joint_rot[start:stop], rig.joint_pos[start:stop])
     for v, view in enumerate(rig.views):
-        uv[v] = cameras.project(view.cam, refl3d.reshape(-1, 3))[0].reshape(n, -1, 2)
+        uv[v] = view.cam.project(refl3d.reshape(-1, 3))[0].reshape(n, -1, 2)
         for i, f in enumerate(range(start, stop)):
             frame = render.render(view, rig.prims, rig.placements, rig.pose(f), rig.pose(max(f - 1, 0)),
                                   rig.pose(f + 1), np.random.default_rng([rig.spec.seed, v, f]), rig.spec.noise)

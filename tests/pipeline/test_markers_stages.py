@@ -70,7 +70,7 @@ def test_markers_from_true_2d_are_accurate_and_export(tmp_path, monkeypatch):
 def check_refined(store: Store, plan, raw) -> None:
     """The refined copy of the mistaken 2D reflectors: kinect0's legs back under their own labels (the true
     positions), kinect1's R_ELBOW added on its region, within a few pixels of its true centre."""
-    out = {v: store.open("refined", plan.items[f"refined/jj/{v}"].key, get_schema("reflectors2d")).sel(view=v)
+    out = {v: plan.open(store, "refined", "jj", v).sel(view=v)
            for v in ("kinect0", "kinect1")}
     for view, ds in out.items():
         truth = raw.sel(view=view)

@@ -140,7 +140,7 @@ def test_lazily_registered_task_modules_are_imported_in_the_background(tmp_path,
         monkeypatch.setitem(registry._REGISTRY, name, registry.TaskSpec(
             name=name, fn=registry.Lazy(module, "f"), version="1", params=registry.NoParams, output="x",
             partition="view"))
-    items = [SimpleNamespace(stage=SimpleNamespace(task=t), weights={}) for t in ("warm_broken_task", "warm_task")]
+    items = [SimpleNamespace(spec=registry.get(t), weights={}) for t in ("warm_broken_task", "warm_task")]
     scheduler._warm_imports(items)
     for thread in [t for t in threading.enumerate() if t.name == "warm-imports"]:
         thread.join(timeout=30)

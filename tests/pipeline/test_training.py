@@ -84,8 +84,15 @@ def test_a_per_dataset_partition_reads_every_sequence(tmp_path):
 
 def test_batch_processes_draw_the_same_batches_whatever_their_number(tmp_path):
     (tmp_path / "catalog.yaml").write_text(CATALOG)
-    sha = {n: last_json(mocapflow("train", "--catalog", "catalog.yaml", "--out", f"w{n}.pt", "--json",
-                                  "--set", f"stages.weights.params.workers={n}", cwd=tmp_path, timeout=600))["sha256"]
-           for n in (2, 1, 0)}  # the first run renders its data in the process that trains (cv2 used before the fork)
-    assert sha[1] == sha[2]  # batch i is seeded (seed, i), whichever process draws it
-    assert sha[0] != sha[1]  # in-process: one stream, as the shipped weights were trained
+
+    def train(n: int, per_batch: bool) -> dict:  # each run in its own storage: nothing served from another's cache
+        return last_json(mocapflow("train", "--catalog", "catalog.yaml", "--out", f"w{n}{per_batch}.pt", "--json",
+                                   "--set", f"stages.weights.params.workers={n}",
+                                   "--set", f"stages.weights.params.per_batch_seeds={str(per_batch).lower()}",
+                                   "--set", f"storage.root=store{n}{per_batch}", cwd=tmp_path, timeout=600))
+
+    runs = {(n, per_batch): train(n, per_batch) for n, per_batch in ((2, True), (1, True), (0, True), (0, False))}
+    sha = {k: run["sha256"] for k, run in runs.items()}  # the first run renders its data in the training process
+    assert sha[2, True] == sha[1, True] == sha[0, True]  # batch i is seeded (seed, i), whichever process draws it
+    assert runs[2, True]["key"] == runs[0, True]["key"]  # workers is a run-time setting: not in the cache key
+    assert sha[0, False] != sha[0, True]  # one stream, as the shipped weights were trained

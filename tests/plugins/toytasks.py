@@ -37,14 +37,14 @@ class ScaleParams:
     sleep: float = 0.0
 
 
-def scale(frames: xr.Dataset, *, factor: float, sleep: float) -> xr.Dataset:
-    time.sleep(sleep)
-    value = frames["depth"].astype(np.float32) * np.float32(factor)
+def scale(frames: xr.Dataset, config: ScaleParams) -> xr.Dataset:
+    time.sleep(config.sleep)
+    value = frames["depth"].astype(np.float32) * np.float32(config.factor)
     return xr.Dataset({"value": value})
 
 
-def scale_plus(frames: xr.Dataset, *, factor: float, sleep: float) -> xr.Dataset:
-    return xr.Dataset({"value": frames["depth"].astype(np.float32) * np.float32(factor) + 1})
+def scale_plus(frames: xr.Dataset, config: ScaleParams) -> xr.Dataset:
+    return xr.Dataset({"value": frames["depth"].astype(np.float32) * np.float32(config.factor) + 1})
 
 
 @dataclass(frozen=True)
@@ -52,12 +52,12 @@ class NoParams:
     pass
 
 
-def diff(scaled: xr.Dataset) -> xr.Dataset:
+def diff(scaled: xr.Dataset, config: NoParams) -> xr.Dataset:
     value = scaled["value"]
     return xr.Dataset({"value": value - value.shift(frame=1).fillna(0)})
 
 
-def total(scaled: xr.Dataset) -> xr.Dataset:
+def total(scaled: xr.Dataset, config: NoParams) -> xr.Dataset:
     return xr.Dataset({"total": scaled["value"].sum("view")})
 
 
@@ -66,9 +66,9 @@ class BoomParams:
     bad_view: str = "cam1"
 
 
-def boom(frames: xr.Dataset, *, bad_view: str) -> xr.Dataset:
-    if str(frames["view"].values[0]) == bad_view:
-        raise RuntimeError(f"boom on {bad_view}")
+def boom(frames: xr.Dataset, config: BoomParams) -> xr.Dataset:
+    if str(frames["view"].values[0]) == config.bad_view:
+        raise RuntimeError(f"boom on {config.bad_view}")
     return xr.Dataset({"value": frames["depth"].astype(np.float32)})
 
 
@@ -77,10 +77,10 @@ class FlakyParams:
     bad_view: str = "cam1"
 
 
-def flaky(scaled: xr.Dataset, *, bad_view: str) -> xr.Dataset:
+def flaky(scaled: xr.Dataset, config: FlakyParams) -> xr.Dataset:
     from_frame = os.environ.get("TOY_FLAKY_FROM")  # a failure that is not part of the cache key: resume tests
-    if from_frame and str(scaled["view"].values[0]) == bad_view and int(scaled["frame"].values[-1]) >= int(from_frame):
-        raise RuntimeError(f"flaky on {bad_view} from frame {from_frame}")
+    if from_frame and str(scaled["view"].values[0]) == config.bad_view and int(scaled["frame"].values[-1]) >= int(from_frame):
+        raise RuntimeError(f"flaky on {config.bad_view} from frame {from_frame}")
     return xr.Dataset({"value": scaled["value"] + 1})
 
 
@@ -89,7 +89,7 @@ class WeightedParams:
     weights: str = ""
 
 
-def weighted(frames: xr.Dataset, *, weights) -> xr.Dataset:
+def weighted(frames: xr.Dataset, config: WeightedParams, weights) -> xr.Dataset:
     """depth * the ``gain`` tensor of a weights file (the engine hands over the loaded tensors)."""
     return xr.Dataset({"value": frames["depth"].astype(np.float32) * np.float32(weights["gain"].item())})
 
@@ -104,7 +104,7 @@ register(TaskSpec("boom", boom, "1", BoomParams, "toy_view", "view", {"frames": 
 register(TaskSpec("flaky", flaky, "1", FlakyParams, "toy_view", "view", {"scaled": "toy_view"}))
 
 
-def true_reflectors(frames: xr.Dataset) -> xr.Dataset:
+def true_reflectors(frames: xr.Dataset, config: NoParams) -> xr.Dataset:
     """The studio's ground-truth 2D reflectors (seen with >= 5 px) as a `reflectors2d` artifact: a stand-in
     for the FCN, to test the 3D stages alone."""
     seen = frames["gt_pixels"].values >= 5
@@ -123,10 +123,10 @@ register(TaskSpec("true_reflectors", true_reflectors, "1", NoParams, "reflectors
                   reads={"frames": ("gt_pixels", "gt_reflectors2d")}))
 
 
-def exchanged_reflectors(frames: xr.Dataset) -> xr.Dataset:
+def exchanged_reflectors(frames: xr.Dataset, config: NoParams) -> xr.Dataset:
     """`true_reflectors` with a side view's mistakes: view kinect0's legs (calf, ankle, foot) under the
     other side's labels, and view kinect1 missing R_ELBOW."""
-    out = true_reflectors(frames)
+    out = true_reflectors(frames, config)
     names = [str(n) for n in out["reflector"].values]
     order = np.arange(len(names))
     for part in ("CALF", "ANKLE", "FOOT"):

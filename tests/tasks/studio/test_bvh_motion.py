@@ -7,13 +7,14 @@ import numpy as np
 import pytest
 
 from conftest import SHARED
-from mocapflow.tasks.studio import body, bvh, motion
+from mocapflow.tasks.shared import body, kinematics
+from mocapflow.tasks.studio import bvh, motion
 
 CLIPS = sorted((SHARED / "motions").glob("*.bvh"))
 
 
 def joints(m, subject):
-    return body.forward_kinematics(m.local_rot, m.root_pos, body.rest_offsets(subject))[1]
+    return kinematics.forward_kinematics(m.local_rot, m.root_pos, body.rest_offsets(subject), body.PARENTS)[1]
 
 
 def test_template_has_20_joints_levels_0_to_6_and_40_dof():

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mocapflow.tasks.studio import body, cameras, motion, reflectors, render
+from mocapflow.tasks.shared import body, kinematics, reflectors
+from mocapflow.tasks.studio import cameras, motion, render
 from mocapflow.tasks.studio.synth import SequenceSpec, build_rig, synthesize
 
 NAMES = reflectors.REFLECTOR_NAMES
@@ -111,7 +112,8 @@ def test_an_arm_across_the_chest_hides_the_chest_patch():
     view = render.prepare_view(cameras.layout()[0])  # the front sensor
 
     def pixels(pose):
-        rot, pos = body.forward_kinematics(pose.rot, pose.root + body.rest_offsets(subject)[0], body.rest_offsets(subject))
+        rot, pos = kinematics.forward_kinematics(pose.rot, pose.root + body.rest_offsets(subject)[0],
+                                                  body.rest_offsets(subject), body.PARENTS)
         still = render.Pose(rot[0], pos[0])
         frame = render.render(view, prims, placements, still, still, still, np.random.default_rng(0), 0.0)
         return dict(zip(NAMES, frame.pixels))
@@ -139,7 +141,8 @@ def test_rigid_translation_gives_that_scene_flow_forward_and_backward():
     placements = reflectors.place(prims)
     view = render.prepare_view(cameras.layout()[1])
     pose = motion._Pose(1).arms_down()
-    rot, pos = body.forward_kinematics(pose.rot, pose.root + body.rest_offsets(subject)[0], body.rest_offsets(subject))
+    rot, pos = kinematics.forward_kinematics(pose.rot, pose.root + body.rest_offsets(subject)[0],
+                                                  body.rest_offsets(subject), body.PARENTS)
     step = np.array([0.02, -0.01, 0.005])
     now = render.Pose(rot[0], pos[0])
     frame = render.render(view, prims, placements, now, render.Pose(rot[0], pos[0] - 2 * step),

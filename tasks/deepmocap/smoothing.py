@@ -1,0 +1,240 @@
+"""Temporal filtering of the labelled 3D reflectors (DeepMoCap §3.4.2: "a Kalman filter stabilizes the
+tracks"). Three swappable implementations of the `smoothed` stage:
+
+- ``kalman``: first the labels of mirrored limb reflectors are kept continuous (tracks.py: a label
+  that sits on the other limb's track while that limb's own label is there too is dropped, a
+  reflector that jumps to the other side's track and back takes that side's label, and a label that
+  joins another reflector's track, far from its own, is dropped); then per
+  reflector, a filterpy Kalman filter with a constant-velocity (order 1) or constant-acceleration
+  (order 2) model; measurement noise grows as the fused confidence falls;
+  a track starts only on a measurement that the next ones confirm (reachable at a top speed);
+  Mahalanobis gating rejects outliers; gaps of up to ``max_gap`` frames inside a track are bridged, a
+  track ends at its last accepted measurement (past it a reflector is reported missing rather than
+  extrapolated); optional Rauch-Tung-Striebel smoothing for offline runs.
+- ``butterworth``: zero-phase low-pass (scipy ``filtfilt``) over each run of observed frames.
+- ``none``: the fused markers as they are.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+import xarray as xr
+
+from mocapflow.tasks.deepmocap import tracks
+
+if TYPE_CHECKING:
+    from filterpy.kalman import KalmanFilter
+
+
+@dataclass(frozen=True)
+class KalmanConfig:
+    order: int = 1  # 1: constant velocity, 2: constant acceleration
+    process_noise: float = 400.0  # variance of the white-noise highest derivative, (m/s^(order+1))^2
+    measurement_noise_m: float = 0.01  # measurement std at confidence 1; divided by the confidence
+    max_gap: int = 10  # longest gap (frames) bridged inside a track
+    gate: float = 16.27  # squared Mahalanobis distance beyond which a measurement is an outlier (chi2, 3 dof, 0.999)
+    rts: bool = True  # Rauch-Tung-Striebel smoothing over each track (offline)
+    max_speed_m_s: float = 10.0  # top reflector speed (a hand in a fast throw); farther jumps do not confirm a track
+    confirm: int = 2  # following measurements that confirm a track's start (0: start on any measurement)
+    resolve_swaps: bool = True  # keep mirrored limb reflectors' labels continuous (labels.py) first
+    swap_penalty_m: float = 0.03  # cost of an exchanged frame per measurement, against the jumps it removes
+    swap_reach: int = 5  # frames a reflector's last position is held over a gap when comparing frames
+    duplicate_m: float = 0.05  # > 0: a limb pair this close that was apart has one limb under both labels (labels.py)
+    duplicate_reach: int = 15  # frames a side's last position is kept when judging which label is the impostor
+    shared_m: float = 0.05  # > 0: two labels the body keeps apart, this close after being apart: one is dropped (labels.py)
+
+    def __post_init__(self):
+        if not self.swap_penalty_m > 0:
+            raise ValueError(f"swap_penalty_m must be > 0 metres (e.g. 0.03), got {self.swap_penalty_m}")
+        if self.duplicate_m < 0:
+            raise ValueError(f"duplicate_m must be >= 0 metres (0: off, e.g. 0.05), got {self.duplicate_m}")
+        if self.shared_m < 0:
+            raise ValueError(f"shared_m must be >= 0 metres (0: off, e.g. 0.05), got {self.shared_m}")
+        if self.duplicate_reach < 1:
+            raise ValueError(f"duplicate_reach must be >= 1 frame (e.g. 15), got {self.duplicate_reach}")
+        if self.swap_reach < 1:
+            raise ValueError(f"swap_reach must be >= 1 frame (e.g. 5), got {self.swap_reach}")
+        if not self.max_speed_m_s > 0:
+            raise ValueError(f"max_speed_m_s must be > 0 (e.g. 10.0), got {self.max_speed_m_s}")
+        if self.confirm < 0:
+            raise ValueError(f"confirm must be >= 0 measurements (0 starts a track on any), got {self.confirm}")
+
+
+@dataclass(frozen=True)
+class ButterworthConfig:
+    cutoff_hz: float = 6.0
+    order: int = 4
+
+
+@dataclass(frozen=True)
+class NoSmoothing:
+    """`none`: the fused markers unchanged."""
+
+
+def _filter(order: int, dt: float, process_noise: float) -> KalmanFilter:
+    # filterpy (and scipy.signal below) here, not at the top: they import scipy.stats, about 0.3 s of every CLI call
+    # and of every worker's start
+    from filterpy.common import Q_discrete_white_noise
+    from filterpy.kalman import KalmanFilter
+
+    n = order + 1
+    kf = KalmanFilter(dim_x=3 * n, dim_z=3)
+    step = np.eye(n)
+    for k in range(1, n):
+        step += np.diag(np.full(n - k, dt**k / np.prod(np.arange(1, k + 1))), k)  # Taylor terms of the motion model
+    kf.F = np.kron(np.eye(3), step)  # state ordered (x, x', [x''], y, ..., z, ...)
+    kf.H = np.kron(np.eye(3), np.eye(1, n))
+    kf.Q = Q_discrete_white_noise(dim=n, dt=dt, var=process_noise, block_size=3)
+    return kf
+
+
+def follows(z: np.ndarray, i: int, j: int, *, dt: float, max_speed_m_s: float, slack_m: float) -> bool:
+    """Whether measurement j (> i) is reachable from measurement i at no more than the top speed.  (frame, 3)"""
+    return bool(np.linalg.norm(z[j] - z[i]) <= max_speed_m_s * (j - i) * dt + slack_m)
+
+
+def confirmed(z: np.ndarray, i: int, *, count: int, within: int, **reach) -> bool:
+    """Track initiation: measurement i starts a track only when each of the next ``count`` measurements
+    (none more than ``within`` frames after the one before) follows from the one before.  (frame, 3)"""
+    ahead = z[i + 1:i + 1 + count * within]  # a chain of count links, each within ``within`` frames, ends here
+    seen = np.flatnonzero(np.isfinite(ahead).all(axis=1)) + i + 1
+    chain = [i, *seen[:count]]
+    if len(chain) <= count:
+        return False
+    return all(b - a <= within and follows(z, a, b, **reach) for a, b in zip(chain, chain[1:]))
+
+
+def _start(z0: np.ndarray, *, order: int, dt: float, process_noise: float, measurement_noise_m: float) -> KalmanFilter:
+    kf = _filter(order, dt, process_noise)
+    kf.x = np.zeros(kf.dim_x)
+    kf.x[::order + 1] = z0
+    kf.P = np.kron(np.eye(3), np.diag([measurement_noise_m**2] + [1.0] * order))
+    return kf
+
+
+def _gated_update(kf: KalmanFilter, z: np.ndarray, confidence: float, *, measurement_noise_m: float,
+                  gate: float) -> bool:
+    """Update with z unless its squared Mahalanobis distance exceeds the gate; whether it was used."""
+    R = np.eye(3) * (measurement_noise_m / max(confidence, 0.05)) ** 2
+    residual = z - kf.H @ kf.x
+    S = kf.H @ kf.P @ kf.H.T + R
+    if residual @ np.linalg.solve(S, residual) > gate:
+        return False
+    kf.update(z, R=R)
+    return True
+
+
+def _follow(z: np.ndarray, seen: np.ndarray, confidence: np.ndarray, first: int, *, max_gap: int, gate: float,
+            order: int, dt: float, process_noise: float, measurement_noise_m: float) -> tuple[list, int]:
+    """One track from a confirmed measurement until more than ``max_gap`` frames pass without one it accepts.
+
+    Returns its (frame, x, P, accepted) entries up to its last accepted measurement, and the frame where
+    the search for the next track resumes. ``seen`` (frame,) marks the frames with a measurement.
+    """
+    kf = _start(z[first], order=order, dt=dt, process_noise=process_noise, measurement_noise_m=measurement_noise_m)
+    segment, gap = [(first, kf.x.copy(), kf.P.copy(), True)], 0
+    for i in range(first + 1, len(z)):
+        kf.predict()
+        accepted = bool(seen[i]) and _gated_update(kf, z[i], float(confidence[i]),
+                                                  measurement_noise_m=measurement_noise_m, gate=gate)
+        gap = 0 if accepted else gap + 1
+        if gap > max_gap:
+            return _up_to_last_measurement(segment), i
+        segment.append((i, kf.x.copy(), kf.P.copy(), accepted))
+    return _up_to_last_measurement(segment), len(z)
+
+
+def _up_to_last_measurement(segment: list) -> list:
+    """A track ends at its last accepted measurement: past it, a prediction only drifts."""
+    last = max(k for k, (*_, accepted) in enumerate(segment) if accepted)
+    return segment[:last + 1]
+
+
+def kalman_track(z: np.ndarray, confidence: np.ndarray, dt: float, config: KalmanConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Filtered positions of one reflector and which frames are predictions.  (frame, 3), (frame,) -> same, bool
+
+    Tracks start on confirmed measurements (see ``confirmed``): started on a lone outlier, the gate would
+    reject the true measurements that follow. Gaps inside a track are bridged; RTS smoothing makes the
+    bridge an interpolation between the measurements on either side.
+    """
+    n, order, max_gap = len(z), config.order, config.max_gap
+    out, predicted = np.full((n, 3), np.nan), np.zeros(n, bool)
+    seen = np.isfinite(z).all(axis=1)
+    reach = {"dt": dt, "max_speed_m_s": config.max_speed_m_s, "slack_m": 3 * config.measurement_noise_m}
+    model = {"order": order, "dt": dt, "process_noise": config.process_noise}
+    i = 0
+    while i < n:
+        if not (seen[i] and confirmed(z, i, count=config.confirm, within=max_gap, **reach)):
+            i += 1
+            continue
+        segment, i = _follow(z, seen, confidence, i, max_gap=max_gap, gate=config.gate,
+                             measurement_noise_m=config.measurement_noise_m, **model)
+        frames = [k for k, *_ in segment]
+        xs, ps = np.array([x for _, x, _, _ in segment]), np.array([p for _, _, p, _ in segment])
+        if config.rts and len(segment) > 1:
+            from filterpy.kalman import rts_smoother
+
+            template = _filter(order, dt, config.process_noise)
+            xs, *_ = rts_smoother(xs, ps, Fs=[template.F] * len(segment), Qs=[template.Q] * len(segment))
+        out[frames] = xs[:, ::order + 1]
+        predicted[frames] = [not accepted for *_, accepted in segment]
+    return out, predicted
+
+
+def butterworth_track(z: np.ndarray, *, fps: float, cutoff_hz: float, order: int) -> np.ndarray:
+    """Zero-phase low-pass of each run of observed frames (runs too short to pad are kept).  (frame, 3)"""
+    from scipy import signal  # here, not at the top, as filterpy above
+
+    b, a = signal.butter(order, cutoff_hz / (fps / 2.0))
+    out = z.copy()
+    seen = np.isfinite(z).all(axis=1)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], seen.astype(int), [0]])))
+    for start, stop in zip(edges[::2], edges[1::2]):
+        if stop - start > 3 * max(len(a), len(b)):
+            out[start:stop] = signal.filtfilt(b, a, z[start:stop], axis=0)
+    return out
+
+
+def _result(markers: xr.Dataset, xyz: np.ndarray, predicted: np.ndarray, method: str) -> xr.Dataset:
+    conf = np.where(predicted | np.isnan(xyz[..., 0]), 0.0, markers["confidence"].values).astype(np.float32)
+    return xr.Dataset(
+        {"position": (("frame", "reflector", "xyz"), xyz.astype(np.float32)),
+         "confidence": (("frame", "reflector"), conf),
+         "predicted": (("frame", "reflector"), predicted)},
+        coords={k: markers[k].values for k in ("frame", "reflector", "xyz")},
+        attrs={**markers.attrs, "smoothing": method},
+    )
+
+
+def kalman(markers: xr.Dataset, config: KalmanConfig) -> xr.Dataset:
+    """`kalman` smoothing of a sequence's markers (frame, reflector, xyz), after the limb labels' continuity."""
+    xyz, conf = markers["position"].values.astype(np.float64), markers["confidence"].values
+    exchanges = dropped = 0
+    if config.resolve_swaps:
+        names = [str(n) for n in markers["reflector"].values]
+        xyz, conf, exchanges, dropped = tracks.resolve_swaps(
+            xyz, conf, names, penalty_m=config.swap_penalty_m, reach=config.swap_reach, duplicate_m=config.duplicate_m,
+            duplicate_reach=config.duplicate_reach, shared_m=config.shared_m)
+    dt = 1.0 / float(markers.attrs["fps"])
+    filtered = [kalman_track(xyz[:, r], conf[:, r], dt, config) for r in range(xyz.shape[1])]
+    out = _result(markers.assign(confidence=(markers["confidence"].dims, conf)), np.stack([t[0] for t in filtered], 1),
+                  np.stack([t[1] for t in filtered], 1), "kalman")
+    out.attrs["label_exchanges"] = exchanges
+    out.attrs["label_duplicates_dropped"] = dropped
+    return out
+
+
+def butterworth(markers: xr.Dataset, config: ButterworthConfig) -> xr.Dataset:
+    xyz = markers["position"].values.astype(np.float64)
+    out = np.stack([butterworth_track(xyz[:, r], fps=float(markers.attrs["fps"]), cutoff_hz=config.cutoff_hz,
+                                      order=config.order)
+                    for r in range(xyz.shape[1])], 1)
+    return _result(markers, out, np.zeros(out.shape[:2], bool), "butterworth")
+
+
+def no_smoothing(markers: xr.Dataset, config: NoSmoothing) -> xr.Dataset:
+    xyz = markers["position"].values.astype(np.float64)
+    return _result(markers, xyz, np.zeros(xyz.shape[:2], bool), "none")

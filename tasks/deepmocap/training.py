@@ -1,0 +1,306 @@
+"""Training the two-stream FCN on studio data (DeepMoCap §3.3.1, §5.1.1).
+
+Two tasks: ``fcn_samples`` turns one view of a studio sequence into training samples (both input
+streams at the sample scale, the subject box, ground-truth 2D at f and f-1); ``train_fcn`` draws
+augmented crops from every sample of a dataset — scale [0.6, 1.1], rotation ±40°, flips that swap
+left and right reflector labels, shifted crops around the subject (§5.1.1) — builds the targets of
+Eq. 4-6 and minimizes the loss of Eq. 2-3 with Adam, seeded, on a GPU when there is one (the forward
+pass in bfloat16 where the hardware has it; the loss and the weights stay float32). With ``workers``
+> 0, worker processes draw the augmented batches, so a GPU is not left waiting on them.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import asdict, dataclass, field
+
+import cv2
+import numpy as np
+import xarray as xr
+
+from mocapflow.tasks.deepmocap import targets
+from mocapflow.tasks.shared.reflectors import REFLECTOR_NAMES
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SampleConfig:
+    sample_scale: float = 0.5  # the network's inputs are cropped from images resized by this factor
+    box_min_area: int = 3  # reflector regions (pixels, full resolution) that define the subject box
+
+
+@dataclass(frozen=True)
+class CropConfig:
+    """How a crop is cut around the subject box (sample pixels); stored with the weights for inference."""
+
+    sample_scale: float = 0.5
+    margin: float = 1.3  # crop side = box long side x margin at scale 1
+    min_side: float = 50.0  # sample pixels, so a lone reflector still gives a body-sized crop
+    box_min_area: int = 3
+    scale: float = 0.85  # inference crop scale, inside the training range
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    # architecture (tasks/deepmocap/fcn.py FcnArchitecture)
+    input_size: int = 128
+    stream_width: int = 32
+    fused_width: int = 64
+    stage_width: int = 64
+    stages: int = 3
+    flow_stream: bool = True
+    off_branch: bool = True
+    # targets (Eq. 4-6), in output cells
+    sigma: float = 1.0
+    sigma_r: float = 1.0
+    min_pixels: int = 3  # a reflector with fewer visible pixels has no target
+    foreground_weight: float = 10.0  # L2 weight of a cell: 1 + this x the strongest reflector target there
+    # augmentation (§5.1.1)
+    scale_min: float = 0.6
+    scale_max: float = 1.1
+    rotation_deg: float = 40.0
+    shift: float = 0.08
+    flip: bool = True
+    margin: float = 1.3
+    min_side: float = 50.0
+    # optimization
+    iterations: int = 6000
+    batch: int = 16
+    learning_rate: float = 5e-3
+    bfloat16: bool = True  # forward pass in bfloat16 where the processor supports it (~1.7x faster on a CPU)
+    frame_step: int = 2  # every n-th frame of each view is a sample
+    seed: int = 0
+    # false: one generator seeded `seed` draws every batch in turn (the shipped weights were trained so);
+    # true: batch i comes from a generator seeded (seed, i), so any number of processes draws the same batches
+    per_batch_seeds: bool = False
+    # processes that draw the augmented batches (per_batch_seeds only; 0: the training process): a GPU waits
+    # on the crops otherwise (one process draws 300-500 crops/s). Which batches are drawn does not depend on it.
+    workers: int = field(default=0, metadata={"runtime": True})
+
+    def __post_init__(self):
+        if self.workers < 0:
+            raise ValueError(f"workers must be >= 0 (0 = draw batches in the training process), got {self.workers}")
+        if self.workers and not self.per_batch_seeds:
+            raise ValueError(f"workers = {self.workers} draws batches in other processes, which needs "
+                             "per_batch_seeds: true (one seeded stream cannot be shared); set both")
+
+
+def to_sample_scale(points: np.ndarray, sample_scale: float) -> np.ndarray:
+    """Image pixel coordinates -> sample-scale ones (pixel centres stay centres)."""
+    return ((points + 0.5) * sample_scale - 0.5).astype(np.float32)
+
+
+def sample_inputs(depth_image, flow_image, blob_id, blob_area, *, sample_scale: float, box_min_area: int):
+    """Both streams at the sample scale and the subject box in its pixels (training and inference alike).
+    (y, x, 3) x2, (y, x), (blob,) -> (y', x', 3) x2, (4,)"""
+    h, w = depth_image.shape[:2]
+    size = (int(round(w * sample_scale)), int(round(h * sample_scale)))
+    box = targets.subject_box(blob_id, blob_area, min_area=box_min_area)
+    return (cv2.resize(depth_image, size, interpolation=cv2.INTER_AREA),
+            cv2.resize(flow_image, size, interpolation=cv2.INTER_AREA), to_sample_scale(box, sample_scale))
+
+
+def sample_view(depth_image, flow_image, blob_id, blob_area, uv, uv_prev, pixels, *, sample_scale: float,
+                box_min_area: int):
+    """One view-frame's training sample: :func:`sample_inputs` and the 2D ground truth at f and f-1."""
+    return (*sample_inputs(depth_image, flow_image, blob_id, blob_area, sample_scale=sample_scale,
+                           box_min_area=box_min_area),
+            to_sample_scale(uv, sample_scale), to_sample_scale(uv_prev, sample_scale), pixels.astype(np.int32))
+
+
+def fcn_samples(masks: xr.Dataset, flow: xr.Dataset, frames: xr.Dataset, config: SampleConfig) -> xr.Dataset:
+    """Training samples of every view and frame (frames carries one frame before the region, for f-1)."""
+    uv_all = frames["gt_reflectors2d"]
+    out = {k: [] for k in ("depth_image", "flow_image", "box", "gt_uv", "gt_uv_prev", "gt_pixels")}
+    frame_ids = masks["frame"].values
+    for view in masks["view"].values:
+        per_view = {k: [] for k in out}
+        for frame in frame_ids:
+            prev = frame - 1 if frame - 1 in frames["frame"].values else frame  # frame 0: no motion before it
+            m = masks.sel(view=view, frame=frame)
+            sample = sample_view(m["colorized_depth"].values, flow["colorized_flow"].sel(view=view, frame=frame).values,
+                                 m["blob_id"].values, m["blob_area"].values, uv_all.sel(view=view, frame=frame).values,
+                                 uv_all.sel(view=view, frame=prev).values,
+                                 frames["gt_pixels"].sel(view=view, frame=frame).values,
+                                 sample_scale=config.sample_scale, box_min_area=config.box_min_area)
+            for key, value in zip(per_view, sample):
+                per_view[key].append(value)
+        for key in out:
+            out[key].append(np.stack(per_view[key]))
+    vf, vfr = ("view", "frame"), ("view", "frame", "reflector")
+    return xr.Dataset(
+        {"depth_image": (vf + ("y", "x", "rgb"), np.stack(out["depth_image"])),
+         "flow_image": (vf + ("y", "x", "rgb"), np.stack(out["flow_image"])),
+         "box": (vf + ("corner",), np.stack(out["box"])),
+         "gt_uv": (vfr + ("uv",), np.stack(out["gt_uv"])), "gt_uv_prev": (vfr + ("uv",), np.stack(out["gt_uv_prev"])),
+         "gt_pixels": (vfr, np.stack(out["gt_pixels"]))},
+        coords={"view": masks["view"].values, "frame": frame_ids, "reflector": list(REFLECTOR_NAMES)},
+        attrs={"sample_scale": float(config.sample_scale)},
+    )
+
+
+def augmented(sample: dict, rng: np.random.Generator, *, size: int, stride: int, crop: CropConfig,
+              config: TrainConfig):
+    """One augmented crop and its targets: streams (size, size, 3) x2, S* (27, g, g), L* (26, 2, g, g)."""
+    jitter = targets.draw_jitter(rng, scale=(config.scale_min, config.scale_max), rotation_deg=config.rotation_deg,
+                                 shift=config.shift)
+    if not config.flip:
+        jitter = targets.CropJitter(jitter.scale, jitter.rotation_deg, False, jitter.shift)
+    m = targets.crop_affine(sample["box"], size=size, margin=crop.margin, min_side=crop.min_side, jitter=jitter)
+    depth = targets.warp_depth(sample["depth_image"], m, size)
+    flow = targets.warp_flow(sample["flow_image"], m, size)
+    uv = targets.to_cells(targets.apply_affine(m, sample["gt_uv"]), stride)  # (26, 2)
+    uv_prev = targets.to_cells(targets.apply_affine(m, sample["gt_uv_prev"]), stride)
+    visible = sample["gt_pixels"] >= config.min_pixels
+    if jitter.flip:  # the subject's left now shows where a right reflector would: swap the labels
+        uv, uv_prev, visible = uv[targets.FLIP_ORDER], uv_prev[targets.FLIP_ORDER], visible[targets.FLIP_ORDER]
+    grid = (size // stride, size // stride)
+    return (depth, flow, targets.confidence_maps(uv, visible, grid, config.sigma),
+            targets.flow_fields(uv_prev, uv, visible, grid, config.sigma_r))
+
+
+def train_fcn(samples: xr.Dataset, config: TrainConfig) -> xr.Dataset:
+    """Train the network on ``samples`` (dims sample, y, x, ...); the weights as a flat vector with their layout."""
+    import torch
+
+    from mocapflow.tasks.deepmocap import fcn
+
+    arch = fcn.FcnArchitecture(input_size=config.input_size, stream_width=config.stream_width,
+                               fused_width=config.fused_width, stage_width=config.stage_width, stages=config.stages,
+                               flow_stream=config.flow_stream, off_branch=config.off_branch)
+    crop = CropConfig(sample_scale=float(samples.attrs.get("sample_scale", 0.5)), margin=config.margin,
+                      min_side=config.min_side)
+    pool = _sample_pool(samples, config)
+    torch.manual_seed(config.seed)
+    device = "cuda" if torch.cuda.is_available() else "cpu"
+    model = fcn.TwoStreamFCN(arch).to(device).train()
+    mixed = config.bfloat16 and _bfloat16_ok(device)
+    optimizer = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
+    schedule = torch.optim.lr_scheduler.OneCycleLR(optimizer, max_lr=config.learning_rate,
+                                                   total_steps=config.iterations, pct_start=0.1)
+    losses, started = [], time.perf_counter()
+    for iteration, batch in enumerate(_batches(pool, arch, crop, config)):
+        depth, flow, s_target, l_target = (torch.as_tensor(column) for column in batch)
+        with torch.autocast(device, dtype=torch.bfloat16, enabled=mixed):
+            outputs = model(fcn.to_input(depth).to(device), fcn.to_input(flow).to(device) if arch.flow_stream else None)
+        outputs = [(s.float(), None if f is None else f.float()) for s, f in outputs]  # the loss in float32
+        l_target = l_target.reshape(len(depth), -1, *l_target.shape[-2:]).to(device)  # (batch, 52, g, g)
+        s_target = s_target.to(device)
+        weight = 1.0 + config.foreground_weight * s_target[:, :fcn.N_REFLECTORS].amax(dim=1, keepdim=True)
+        loss = fcn.stage_losses(outputs, s_target, l_target, weight)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        schedule.step()
+        losses.append(loss.item())
+        if iteration % 100 == 0 or iteration == config.iterations - 1:
+            log.info("iteration %d/%d: loss %.3f (%.0f s)", iteration, config.iterations,
+                     np.mean(losses[-100:]), time.perf_counter() - started)
+    return weights_dataset(model.cpu(), crop, config, losses, n_samples=len(pool["box"]),
+                           seconds=time.perf_counter() - started, device=device + (" bfloat16" if mixed else ""))
+
+
+def _batch(pool: dict, rng: np.random.Generator, *, arch, crop: CropConfig, config: TrainConfig):
+    """One iteration's augmented crops, stacked: depth and flow (batch, size, size, 3) uint8,
+    S* (batch, 27, g, g) and L* (batch, 26, 2, g, g) float32."""
+    crops = [augmented({k: v[i] for k, v in pool.items()}, rng, size=arch.input_size, stride=arch.stride, crop=crop,
+                       config=config) for i in rng.integers(0, len(pool["box"]), config.batch)]
+    return tuple(np.stack(column) for column in zip(*crops))
+
+
+class _SeededBatches:
+    """Batch ``i`` drawn from its own generator seeded ``(seed, i)``, so any worker process draws it alike
+    (a map-style dataset of ``iterations`` batches for torch's DataLoader)."""
+
+    def __init__(self, pool: dict, arch, crop: CropConfig, config: TrainConfig):
+        self.pool, self.arch, self.crop, self.config = pool, arch, crop, config
+
+    def __len__(self) -> int:
+        return self.config.iterations
+
+    def __getitem__(self, i: int):
+        rng = np.random.default_rng([self.config.seed, i])
+        return _batch(self.pool, rng, arch=self.arch, crop=self.crop, config=self.config)
+
+
+def _one_thread(_worker: int) -> None:
+    """A batch-drawing process uses one core: the parallelism is across processes."""
+    import torch
+
+    cv2.setNumThreads(1)
+    torch.set_num_threads(1)
+
+
+def _batches(pool: dict, arch, crop: CropConfig, config: TrainConfig):
+    """The training batches in order: one seeded stream, or per-batch seeds drawn here or in ``workers`` processes."""
+    if not config.per_batch_seeds:
+        rng = np.random.default_rng(config.seed)
+        for _ in range(config.iterations):
+            yield _batch(pool, rng, arch=arch, crop=crop, config=config)
+        return
+    if not config.workers:
+        batches = _SeededBatches(pool, arch, crop, config)
+        yield from (batches[i] for i in range(len(batches)))
+        return
+    from torch.utils.data import DataLoader
+
+    # fork: the workers share the sample pool (up to a few GB) instead of each unpickling a copy. cv2's
+    # thread pool does not survive a fork (a worker's first warp would wait on it forever), so cv2 stays
+    # on one thread in this process while the workers run.
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield from DataLoader(_SeededBatches(pool, arch, crop, config), batch_size=None, shuffle=False,
+                              num_workers=config.workers, prefetch_factor=4, worker_init_fn=_one_thread,
+                              multiprocessing_context="fork")
+    finally:
+        cv2.setNumThreads(threads)
+
+
+def _bfloat16_ok(device: str) -> bool:
+    """Whether bfloat16 autocast is native here (a CUDA GPU that has it, or a CPU with AVX-512 BF16 / AMX)."""
+    import torch
+
+    if device == "cuda":
+        return torch.cuda.is_bf16_supported()
+    try:
+        return bool(torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    except (AttributeError, RuntimeError):  # a build without the query: stay in float32
+        return False
+
+
+def _sample_pool(samples: xr.Dataset, config: TrainConfig) -> dict:
+    """Every ``frame_step``-th frame of each view with at least one reflector seen, as numpy arrays."""
+    keep = (samples["frame"].values % config.frame_step == 0) & (samples["gt_pixels"].values >= config.min_pixels).any(-1)
+    if not keep.any():
+        raise ValueError("no training sample sees a reflector; check the training dataset")
+    chosen = samples.isel(sample=np.nonzero(keep)[0])
+    return {k: chosen[k].values for k in ("depth_image", "flow_image", "box", "gt_uv", "gt_uv_prev", "gt_pixels")}
+
+
+def weights_dataset(model, crop: CropConfig, config: TrainConfig, losses, *, n_samples: int, seconds: float,
+                    device: str) -> xr.Dataset:
+    state = model.state_dict()
+    layout = [[name, list(t.shape), str(t.dtype).removeprefix("torch.")] for name, t in state.items()]
+    flat = np.concatenate([t.detach().cpu().numpy().astype(np.float32).ravel() for t in state.values()])
+    return xr.Dataset(
+        {"weights": (("parameter",), flat), "loss": (("iteration",), np.asarray(losses, np.float32))},
+        attrs={"architecture": asdict(model.arch), "layout": layout,
+               "training": {"config": asdict(config), "crop": asdict(crop), "samples": int(n_samples),
+                            "seconds": round(float(seconds), 1), "device": device}},
+    )
+
+
+def weights_from_dataset(ds: xr.Dataset) -> dict:
+    """The plain-tensor weights (tasks/deepmocap/fcn.py ``unpack`` format, plus the crop) of a trained artifact."""
+    import torch
+
+    flat, state, at = ds["weights"].values, {}, 0
+    for name, shape, dtype in ds.attrs["layout"]:
+        n = int(np.prod(shape))
+        state[name] = torch.from_numpy(flat[at:at + n].reshape(shape).astype(dtype))
+        at += n
+    assert at == len(flat), (at, len(flat))
+    return {"architecture": dict(ds.attrs["architecture"]), "crop": dict(ds.attrs["training"]["crop"]), "state": state}

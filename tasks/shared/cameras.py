@@ -1,0 +1,139 @@
+"""One camera type for every system: OpenCV intrinsics and distortion, a pose, and what is done with them.
+
+Cameras follow OpenCV: intrinsics fx fy cx cy in pixels, distortion k1 k2 p1 p2 k3, camera axes x right,
+y down, z forward; the pose is a 4x4 camera-to-world transform in the world frame (Z up, metres). A
+pixel's ray is the undistorted direction through its centre, scaled to unit length; a depth value is
+the camera-frame z of the surface (Kinect convention), so a point is ``ray * z / ray_z``.
+
+A raw sequence stores each view's calibration as variables (``fx fy cx cy dist cam_to_world width
+height``); :func:`camera_of` builds the :class:`Camera` from them once, checked finite.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+CALIBRATION_VARIABLES = ("fx", "fy", "cx", "cy", "dist", "width", "height", "cam_to_world")
+_UNDISTORT = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-9)
+
+
+class CalibrationError(ValueError):
+    """A view's calibration cannot be used (not finite, wrong shape)."""
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A calibrated camera: intrinsics (pixels), distortion (k1 k2 p1 p2 k3), camera-to-world pose, image size."""
+
+    name: str
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    dist: tuple[float, ...]
+    cam_to_world: np.ndarray = field(repr=False)  # (4, 4)
+    width: int
+    height: int
+
+    @property
+    def K(self) -> np.ndarray:
+        return intrinsics(self.fx, self.fy, self.cx, self.cy)
+
+    @property
+    def world_to_cam(self) -> np.ndarray:
+        return np.linalg.inv(self.cam_to_world)
+
+    def to_camera(self, points: np.ndarray) -> np.ndarray:
+        """World points in the camera frame.  (..., 3) -> (..., 3)"""
+        w2c = self.world_to_cam
+        return points @ w2c[:3, :3].T + w2c[:3, 3]
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distorted pixels and camera-frame depth z (metres) of world points; NaN where a point is not finite
+        or lies behind the camera.  (n, 3) -> (n, 2), (n,)"""
+        return project(points, self.K, self.dist, self.cam_to_world)
+
+    def pixel_rays(self) -> np.ndarray:
+        """Unit ray directions (camera frame) through every pixel centre, undistorted.  -> (y, x, 3)"""
+        return pixel_rays(self.K, self.dist, self.width, self.height)
+
+    def backproject(self, xy: np.ndarray, depth_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World points and unit viewing rays (world) of pixels at camera-frame depths.  (n, 2), (n,) -> (n, 3), (n, 3)"""
+        norm = undistort(xy, self.K, self.dist)  # (n, 2)
+        cam = np.column_stack([norm * depth_m[:, None], depth_m])  # Kinect depth is the camera-frame z
+        rays = np.column_stack([norm, np.ones(len(norm))])
+        rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+        rot, origin = self.cam_to_world[:3, :3], self.cam_to_world[:3, 3]
+        return cam @ rot.T + origin, rays @ rot.T
+
+    def as_dict(self) -> dict[str, Any]:
+        """The calibration variables of a raw sequence (see schemas/raw.py)."""
+        return {"fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy, "dist": list(self.dist),
+                "cam_to_world": self.cam_to_world, "width": self.width, "height": self.height}
+
+
+def camera_of(frames, view) -> Camera:
+    """The camera of ``view`` from a raw sequence's calibration variables (an xarray Dataset with a view dim)."""
+    cal = frames.sel(view=view)
+    cam = Camera(str(view), *(float(cal[k]) for k in ("fx", "fy", "cx", "cy")),
+                 dist=tuple(float(d) for d in np.asarray(cal["dist"].values, np.float64).ravel()),
+                 cam_to_world=np.asarray(cal["cam_to_world"].values, np.float64),
+                 width=int(cal["width"]) if "width" in cal else 0, height=int(cal["height"]) if "height" in cal else 0)
+    if not (np.isfinite([cam.fx, cam.fy, cam.cx, cam.cy]).all() and np.isfinite(cam.dist).all()
+            and np.isfinite(cam.cam_to_world).all()):
+        raise CalibrationError(f"view {str(view)!r} has a non-finite calibration (intrinsics, distortion or extrinsics); "
+                               "fix the recording's calibration or drop the view")
+    return cam
+
+
+def intrinsics(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+
+def undistort(xy: np.ndarray, K: np.ndarray, dist) -> np.ndarray:
+    """Normalized (undistorted) image coordinates of distorted pixels.  (n, 2) -> (n, 2)"""
+    pts = np.asarray(xy, np.float64).reshape(-1, 1, 2)
+    return cv2.undistortPoints(pts, K, np.asarray(dist, np.float64), criteria=_UNDISTORT).reshape(-1, 2)
+
+
+def pixel_rays(K: np.ndarray, dist, width: int, height: int) -> np.ndarray:
+    """Unit ray directions (camera frame) through every pixel centre, undistorted.  -> (y, x, 3)
+
+    Memoized per calibration (read-only result): a view's rays are computed once per process.
+    """
+    return _pixel_rays(tuple(np.asarray(K, float).ravel()), tuple(np.asarray(dist, float).ravel()), width, height)
+
+
+@functools.lru_cache(maxsize=16)
+def _pixel_rays(K: tuple, dist: tuple, width: int, height: int) -> np.ndarray:
+    ys, xs = np.mgrid[0:height, 0:width].astype(np.float64)
+    norm = undistort(np.stack([xs.ravel(), ys.ravel()], axis=1), np.array(K).reshape(3, 3), dist)
+    rays = np.concatenate([norm, np.ones((norm.shape[0], 1))], axis=1)
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    rays = rays.reshape(height, width, 3)
+    rays.flags.writeable = False
+    return rays
+
+
+def backproject(z: np.ndarray, rays: np.ndarray) -> np.ndarray:
+    """Camera-frame points of depth ``z`` (metres, any shape S) along ``rays`` (S + (3,))."""
+    return rays * (z / rays[..., 2])[..., None]
+
+
+def project(points: np.ndarray, K: np.ndarray, dist, cam_to_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels and camera-frame depth z (metres) of world points; NaN where a point is not finite or lies
+    behind the camera.  (n, 3) -> (n, 2), (n,)"""
+    world_to_cam = np.linalg.inv(cam_to_world)
+    cam = points @ world_to_cam[:3, :3].T + world_to_cam[:3, 3]  # (n, 3)
+    ok = np.isfinite(cam).all(axis=1) & (cam[:, 2] > 0)
+    uv = np.full((len(points), 2), np.nan)
+    if ok.any():
+        found, _ = cv2.projectPoints(cam[ok].reshape(-1, 1, 3), np.zeros(3), np.zeros(3), np.asarray(K, float),
+                                     np.asarray(dist, float))
+        uv[ok] = found.reshape(-1, 2)
+    return uv, np.where(ok, cam[:, 2], np.nan)

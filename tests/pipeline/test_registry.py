@@ -1,0 +1,104 @@
+"""The registry: a task's function must take its inputs, its config and its weights, checked when it is
+registered (a Lazy one when first imported); every built-in task passes; params are checked and coerced."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import pytest
+import xarray as xr
+
+from mocapflow.pipeline import builtin_tasks, registry  # noqa: F401  (builtin_tasks registers on import)
+from mocapflow.pipeline.errors import CatalogError
+
+
+@dataclass(frozen=True)
+class Params:
+    factor: float = 2.0
+    batch: int = field(default=4, metadata={"runtime": True})
+
+
+def good(frames: xr.Dataset, config: Params) -> xr.Dataset:
+    return frames
+
+
+def spec(fn, **extra) -> registry.TaskSpec:
+    return registry.TaskSpec(name="probe", fn=fn, version="1", params=Params, output="toy", partition="view",
+                             inputs={"frames": "raw_sequence"}, **extra)
+
+
+def test_a_task_taking_its_inputs_and_config_registers(monkeypatch):
+    monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))
+    assert registry.register(spec(good)).fn is good
+    assert registry.get("probe").fn is good
+
+
+@pytest.mark.parametrize("fn", [
+    lambda frames, *, factor, batch: frames,  # config exploded into keywords
+    lambda frames, config, extra: frames,  # a parameter the engine never passes
+    lambda frame, config: frame,  # a misspelt input role
+    lambda frames, config, **kwargs: frames,  # keywords swallowed
+])
+def test_a_task_whose_signature_disagrees_is_refused_at_registration(fn):
+    with pytest.raises(CatalogError, match=r"its function takes .* engine calls it with \(frames, config\)"):
+        registry.register(spec(fn))
+
+
+def test_weight_parameters_come_after_config():
+    def weighted(frames, config, weights):
+        return frames
+
+    registry.check_signature("weighted", weighted, registry.task_parameters(spec(weighted, weights_params=("weights",))))
+    with pytest.raises(CatalogError, match="weights"):
+        registry.register(spec(good, weights_params=("weights",)))
+
+
+def test_a_lazy_task_is_checked_when_first_imported(monkeypatch):
+    monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))
+    lazy = registry.register(spec(registry.Lazy("mocapflow.tasks.deepmocap.masks", "masks"))).fn
+    assert lazy.roles == ("frames", "config")
+    with pytest.raises(CatalogError, match="masks.masks"):  # masks takes `frames`, not `depth`
+        registry.Lazy("mocapflow.tasks.deepmocap.masks", "masks", roles=("depth", "config")).resolve()
+
+
+def test_params_must_be_a_frozen_dataclass():
+    @dataclass
+    class Loose:
+        x: int = 1
+
+    with pytest.raises(CatalogError, match="frozen"):
+        registry.register(dataclasses.replace(spec(good), params=Loose))
+    with pytest.raises(CatalogError, match="frozen dataclass"):
+        registry.register(dataclasses.replace(spec(good), params=dict))
+
+
+def test_every_builtin_task_takes_its_inputs_config_and_weights():
+    for name in registry.names():
+        task = registry.get(name)
+        if task.fn is None:
+            assert task.source
+            continue
+        fn = task.fn.resolve() if isinstance(task.fn, registry.Lazy) else task.fn
+        registry.check_signature(name, fn, registry.task_parameters(task))
+
+
+def test_runtime_fields_are_the_marked_ones():
+    assert registry.runtime_fields(Params) == ("batch",)
+    assert registry.runtime_fields(registry.get("fcn_heatmaps").params) == ("batch",)
+    assert registry.runtime_fields(registry.get("train_fcn").params) == ("workers",)
+    assert registry.runtime_fields(registry.get("primal_dual").params) == ("device",)
+
+
+def test_build_params_coerces_and_names_the_bad_key():
+    built = registry.build_params(spec(good), {"factor": 3, "batch": 2}, where=lambda k: f"stages.probe.{k}")
+    assert built == Params(factor=3.0, batch=2) and isinstance(built.factor, float)
+    with pytest.raises(CatalogError, match=r"stages\.probe\.factr: .* no parameter 'factr' \(did you mean 'factor'\?\)"):
+        registry.build_params(spec(good), {"factr": 3}, where=lambda k: f"stages.probe.{k}")
+    with pytest.raises(CatalogError, match=r"batch: expected int, got True"):
+        registry.build_params(spec(good), {"batch": True})
+
+
+def test_an_unknown_task_suggests_the_nearest():
+    with pytest.raises(CatalogError, match=r"unknown task 'kalmann' \(did you mean 'kalman'\?\)"):
+        registry.get("kalmann")
