@@ -36,7 +36,10 @@ import xarray as xr
 from mocapflow.pipeline.errors import LockError, SchemaError, StorageError
 from mocapflow.schemas import ArtifactSchema, SchemaViolation
 
-
+# The zarr releases region writes are tested on (pyproject.toml pins the same range): write_zarr_region uses zarr's
+# internal zarr.core.sync.sync and AsyncArray.with_config (3.1.6 on). Widen it only after tests/pipeline/test_storage.py
+# passes on the new release.
+ZARR_RANGE = ">=3.1.6,<3.2"
 
 # Complete versions opened by this process (lazily, checked against their schema), for the many regions that read
 # them: opening one reads every array's metadata. Keyed by the completion stamp, so a version deleted and written
@@ -267,12 +270,27 @@ def write_zarr_region(target: str, ds: xr.Dataset, start: int, stop: int) -> Non
     metadata file, and each round trip waits for the GIL while the other worker threads compute: 60 ms for
     the few bytes of a reflectors2d region, against 14 ms alone. The stored chunks are the same bytes: the
     schemas' dtypes are exact and xarray's encoding of them is the identity.
-    """
-    from zarr.core.sync import sync
 
+    No public zarr API runs a coroutine on zarr's own loop, so this uses zarr's internal ``zarr.core.sync.sync``;
+    zarr's public per-array API writes the same bytes but took 1.4 to 1.6 times as long while another thread
+    computed, and 1.1 to 1.2 times alone (benchmarks/region_write.py, zarr 3.1.6). ``ZARR_RANGE`` (pinned in
+    pyproject.toml and checked by tests/pipeline/test_storage.py) is the zarr releases this is tested on.
+    """
     framed = {name: var for name, var in ds.variables.items() if "frame" in var.dims}
     if framed:
-        sync(_write_arrays(target, framed, start, stop))
+        _zarr_sync()(_write_arrays(target, framed, start, stop))
+
+
+def _zarr_sync():
+    """zarr's internal ``sync`` (runs a coroutine on zarr's event loop), or a StorageError naming the zarr installed."""
+    try:
+        from zarr.core.sync import sync
+    except ImportError as exc:
+        import zarr
+
+        raise StorageError(f"zarr {zarr.__version__} has no zarr.core.sync.sync, which region writes use; "
+                           f"install a zarr release in the tested range: pip install 'zarr{ZARR_RANGE}'") from exc
+    return sync
 
 
 async def _write_arrays(target: str, framed: dict, start: int, stop: int) -> None:

@@ -81,3 +81,47 @@ def test_an_opened_version_is_reused_until_it_is_written_again(tmp_path):
     fresh = Store(str(tmp_path)).open("s", "k", SCHEMA).load()
     assert not np.array_equal(fresh["label"].values, loaded["label"].values)
     np.testing.assert_array_equal(fresh["label"].values[:, :4], dataset(range(0, 4), seed=100)["label"].values)
+
+
+def test_a_region_equal_to_the_fill_value_still_writes_its_chunks(tmp_path):
+    store = Store(str(tmp_path))
+    for start in range(0, N, 4):
+        ds = dataset(range(start, start + 4))
+        if start == 4:
+            for name in ("pos", "seen", "label", "half"):
+                ds[name] = xr.zeros_like(ds[name])
+        store.write_region("s", "k", SCHEMA, ds, N, start, start + 4)
+    store.commit("s", "k", {"partition": "s"})
+    data = tmp_path / "s" / "k" / "data.zarr"
+    for name in ("pos", "seen", "label", "half"):
+        frame_chunks = sorted(p.relative_to(data / name / "c").parts[1] for p in (data / name / "c").rglob("*") if p.is_file())
+        assert frame_chunks == ["0", "1", "2"], name  # the zero region's chunk is on disk, as xarray writes it
+    back = store.open("s", "k", SCHEMA).load()
+    assert not back["label"].values[:, 4:8].any()
+    np.testing.assert_array_equal(back["label"].values[:, 8:], dataset(range(8, 12))["label"].values)
+
+
+def test_the_installed_zarr_is_one_region_writes_are_tested_on():
+    """write_zarr_region runs on zarr internals: a zarr outside the pinned range (or without them) fails here."""
+    import tomllib
+    from pathlib import Path
+
+    import zarr
+    from packaging.requirements import Requirement
+    from packaging.specifiers import SpecifierSet
+
+    from mocapflow.pipeline.storage import ZARR_RANGE
+
+    pyproject = tomllib.loads((Path(__file__).resolve().parents[2] / "pyproject.toml").read_text())
+    pinned = next(r.specifier for r in map(Requirement, pyproject["project"]["dependencies"]) if r.name == "zarr")
+    assert pinned == SpecifierSet(ZARR_RANGE), f"pyproject.toml pins zarr{pinned}, storage.ZARR_RANGE says {ZARR_RANGE}"
+    assert zarr.__version__ in pinned, (f"zarr {zarr.__version__} is outside the tested range {ZARR_RANGE}: run this "
+                                        "module and benchmarks/region_write.py on it before widening the pin")
+
+    from zarr.core.sync import sync
+
+    async def answer():
+        return 42
+
+    assert sync(answer()) == 42
+    assert callable(zarr.AsyncArray.with_config)
