@@ -126,7 +126,10 @@ class Store:
         marker records the ``seconds`` it took."""
         check(schema, ds, f"output of stage {stage!r} frames {start}-{stop}")
         frames = ds["frame"].values if "frame" in ds.coords else None
-        assert frames is None or np.array_equal(frames, np.arange(start, stop)), (stage, start, stop)
+        if frames is not None and not np.array_equal(frames, np.arange(start, stop)):
+            raise SchemaError(f"output of stage {stage!r} for frames {start}-{stop} ({self.version_dir(stage, key)}) "
+                              f"has frame coordinate {_frames_text(frames)}, expected {start}..{stop - 1}; "
+                              "the task must return exactly the frames of its region, in order")
         target = self._zarr_target(stage, key)
         if not self.fs.exists(self._marker(stage, key, "_init")):
             if self.fs.exists(self._marker(stage, key, "_regions")):
@@ -300,10 +303,16 @@ async def _write_arrays(target: str, framed: dict, start: int, stop: int) -> Non
     import zarr.api.asynchronous as zarr_async
 
     group = await zarr_async.open_group(target, mode="r+", zarr_format=3)
+    arrays = dict(zip(framed, await asyncio.gather(*(group.getitem(name) for name in framed))))
+    for name, var in framed.items():  # every array checked before any is written
+        stored = tuple(arrays[name].metadata.dimension_names or ())
+        if stored != var.dims:
+            raise StorageError(f"{target}: array {name!r} is stored with dims {stored}, but the region of frames "
+                               f"{start}-{stop} to write has dims {var.dims}; this store was initialized with another "
+                               f"layout: delete {target} (for an artifact, its version folder) and run again")
 
     async def one(name: str, var: xr.Variable) -> None:
-        array = (await group.getitem(name)).with_config({"write_empty_chunks": True})
-        assert tuple(array.metadata.dimension_names or ()) == var.dims, (name, array.metadata.dimension_names)
+        array = arrays[name].with_config({"write_empty_chunks": True})
         await array.setitem(tuple(slice(start, stop) if d == "frame" else slice(None) for d in var.dims), var.values)
 
     await asyncio.gather(*(one(n, v) for n, v in framed.items()))
@@ -341,6 +350,14 @@ def _template(schema: ArtifactSchema, ds: xr.Dataset, n_frames: int) -> tuple[xr
     if "frame" in ds.dims:
         coords["frame"] = xr.Variable(("frame",), np.arange(n_frames, dtype=np.int64))
     return xr.Dataset(variables, coords=coords, attrs=ds.attrs), encoding
+
+
+def _frames_text(frames: np.ndarray) -> str:
+    """A frame coordinate for a message: all of it when short, else its ends and length."""
+    values = np.asarray(frames).tolist()
+    if len(values) <= 8:
+        return str(values)
+    return f"[{values[0]}, {values[1]}, ..., {values[-1]}] ({len(values)} frames)"
 
 
 def _variable_strings(var: xr.Variable) -> xr.Variable:

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from mocapflow.pipeline.errors import StorageError
-from mocapflow.pipeline.storage import Store, init_zarr
+from mocapflow.pipeline.errors import SchemaError, StorageError
+from mocapflow.pipeline.storage import Store, init_zarr, write_zarr_region
 from mocapflow.schemas import ArtifactSchema, VarSpec
 
 SCHEMA = ArtifactSchema("storage_test", 1, {
@@ -125,3 +125,33 @@ def test_the_installed_zarr_is_one_region_writes_are_tested_on():
 
     assert sync(answer()) == 42
     assert callable(zarr.AsyncArray.with_config)
+
+
+def test_a_region_whose_frames_are_not_the_regions_is_refused_naming_stage_frames_and_fix(tmp_path):
+    store = Store(str(tmp_path))
+    shifted = dataset(range(0, 4)).assign_coords(frame=np.arange(1, 5))
+    with pytest.raises(SchemaError, match=r"stage 's' for frames 0-4 .* frame coordinate \[1, 2, 3, 4\], "
+                                          r"expected 0\.\.3; the task must return exactly the frames"):
+        store.write_region("s", "k", SCHEMA, shifted, N, 0, 4)
+    long = dataset(range(0, 12)).assign_coords(frame=np.arange(12)[::-1])
+    with pytest.raises(SchemaError, match=r"\[11, 10, \.\.\., 0\] \(12 frames\), expected 0\.\.11"):
+        store.write_region("s", "k", SCHEMA, long, N, 0, 12)
+    assert not (tmp_path / "s" / "k" / "data.zarr").exists()  # refused before anything was written
+    store.write_region("s", "k", SCHEMA, dataset(range(0, 4)), N, 0, 4)  # the right frames are written
+    assert store.region_done("s", "k", 0, 4)
+
+
+def test_a_region_whose_dims_differ_from_the_stored_arrays_is_refused_before_any_write(tmp_path):
+    target = str(tmp_path / "t.zarr")
+    init_zarr(target, SCHEMA, dataset(range(0, 4)), N)
+    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*") if p.is_file())
+    region = dataset(range(4, 8))
+    region["label"] = region["label"].transpose("frame", "view", "y", "x")
+    with pytest.raises(StorageError, match=r"t\.zarr: array 'label' is stored with dims \('view', 'frame', 'y', 'x'\), "
+                                           r"but the region of frames 4-8 to write has dims \('frame', 'view', 'y', 'x'\);"
+                                           r".* delete .*t\.zarr"):
+        write_zarr_region(target, region, 4, 8)
+    after = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*") if p.is_file())
+    assert after == before  # no array of the region was written
+    write_zarr_region(target, dataset(range(4, 8)), 4, 8)
+    assert len([p for p in tmp_path.rglob("*") if p.is_file()]) > len(before)
