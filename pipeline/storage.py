@@ -20,10 +20,8 @@ import json
 import multiprocessing
 import os
 import socket
-import threading
 import time
 import uuid
-from collections import OrderedDict
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Iterator
@@ -35,6 +33,7 @@ import xarray as xr
 
 from mocapflow.pipeline.errors import LockError, SchemaError, StorageError
 from mocapflow.schemas import ArtifactSchema, SchemaViolation
+from mocapflow.tasks.shared.cache import BoundedCache
 
 # The zarr releases region writes are tested on (pyproject.toml pins the same range): write_zarr_region uses zarr's
 # internal zarr.core.sync.sync and AsyncArray.with_config (3.1.6 on). Widen it only after tests/pipeline/test_storage.py
@@ -44,8 +43,7 @@ ZARR_RANGE = ">=3.1.6,<3.2"
 # Complete versions opened by this process (lazily, checked against their schema), for the many regions that read
 # them: opening one reads every array's metadata. Keyed by the completion stamp, so a version deleted and written
 # again is opened afresh; (zarr target, schema name, stamp) -> Dataset.
-_OPENED: OrderedDict[tuple[str, str, str], xr.Dataset] = OrderedDict()
-_OPENED_LOCK = threading.Lock()
+_OPENED: BoundedCache[tuple[str, str, str], xr.Dataset] = BoundedCache(64)
 
 
 @dataclass(frozen=True)
@@ -179,21 +177,20 @@ class Store:
             raise StorageError(f"artifact {stage}/{key} is not complete in {self.root}; "
                                f"run `mocapflow run --until {stage}` to produce it")
         target = self._zarr_target(stage, key)
-        with _OPENED_LOCK:
-            ds = _OPENED.get((target, schema.name, stamp)) if stamp is not None else None
-        if ds is None:
-            try:
-                ds = xr.open_zarr(target, consolidated=False, chunks=None, zarr_format=3)
-            except (OSError, ValueError, KeyError) as exc:
-                raise StorageError(f"artifact {stage}/{key} in {self.root} is unreadable ({exc}); "
-                                   f"delete {self.version_dir(stage, key)} and rerun") from exc
-            check(schema, ds, f"stored artifact {stage}/{key}")
-            if stamp is not None:
-                with _OPENED_LOCK:
-                    _OPENED[(target, schema.name, stamp)] = ds
-                    while len(_OPENED) > 64:
-                        _OPENED.popitem(last=False)
+        if stamp is None:  # a version still being written is opened afresh each time
+            ds = self._open_checked(stage, key, schema, target)
+        else:
+            ds = _OPENED.get_or_make((target, schema.name, stamp), lambda: self._open_checked(stage, key, schema, target))
         return ds.copy(deep=False)  # loading the caller's copy leaves the kept one lazy
+
+    def _open_checked(self, stage: str, key: str, schema: ArtifactSchema, target: str) -> xr.Dataset:
+        try:
+            ds = xr.open_zarr(target, consolidated=False, chunks=None, zarr_format=3)
+        except (OSError, ValueError, KeyError) as exc:
+            raise StorageError(f"artifact {stage}/{key} in {self.root} is unreadable ({exc}); "
+                               f"delete {self.version_dir(stage, key)} and rerun") from exc
+        check(schema, ds, f"stored artifact {stage}/{key}")
+        return ds
 
     def _completed(self, stage: str, key: str) -> str | None:
         """The ``_COMPLETE`` marker's time stamp, None while the version is not complete."""

@@ -155,3 +155,30 @@ def test_a_region_whose_dims_differ_from_the_stored_arrays_is_refused_before_any
     assert after == before  # no array of the region was written
     write_zarr_region(target, dataset(range(4, 8)), 4, 8)
     assert len([p for p in tmp_path.rglob("*") if p.is_file()]) > len(before)
+
+
+def test_threads_opening_one_complete_version_open_it_once(tmp_path, monkeypatch):
+    import threading
+    import time
+
+    store = Store(str(tmp_path))
+    write(store, "k")
+    opened, real = [], xr.open_zarr
+
+    def slow_open(*args, **kwargs):
+        opened.append(args[0])
+        time.sleep(0.05)  # every other thread asks for the version meanwhile
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(xr, "open_zarr", slow_open)
+    labels = []
+    threads = [threading.Thread(target=lambda: labels.append(store.open("s", "k", SCHEMA)["label"].values))
+               for _ in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=30)
+    assert opened == [str(tmp_path / "s" / "k" / "data.zarr")]
+    assert len(labels) == 8
+    for label in labels:
+        np.testing.assert_array_equal(label[:, :4], dataset(range(0, 4))["label"].values)
