@@ -17,7 +17,7 @@ import yaml
 
 from mocapflow.pipeline import registry
 from mocapflow.pipeline.errors import CatalogError
-from mocapflow.schemas import get_schema
+from mocapflow.schemas import UnknownSchema, get_schema
 
 TOP_KEYS = ("data_roots", "plugins", "storage", "datasets", "stages", "evaluation")
 STORAGE_KEYS = ("root", "region_frames")
@@ -203,6 +203,7 @@ class _Validator:
                 spec = registry.get(str(body["task"]))
             except CatalogError as exc:
                 raise CatalogError(f"{self.where('stages', name, 'task')}: {exc}") from None
+            self.check_schemas(name, spec)
             params = registry.build_params(spec, self.mapping(body.get("params"), "stages", name, "params"),
                                            lambda key, name=name: self.where("stages", name, "params", key))
             inputs = self.inputs(name, spec, body.get("inputs"))
@@ -243,6 +244,16 @@ class _Validator:
             raise CatalogError(f"{self.where('stages', stage, 'dataset')}: unknown dataset {raw!r}"
                                f"{registry.did_you_mean(str(raw), datasets)}; declared: {sorted(datasets)}")
         return str(raw)
+
+    def check_schemas(self, stage: str, spec: registry.TaskSpec) -> None:
+        """Every schema the stage's task writes or reads is registered (the engine looks each up by name)."""
+        named = [("writes its output as", spec.output)] + [(f"reads input {role!r} as", s) for role, s in spec.inputs.items()]
+        for what, schema in named:
+            try:
+                get_schema(schema)
+            except UnknownSchema as exc:
+                raise CatalogError(f"{self.where('stages', stage, 'task')}: task {spec.name!r} {what} schema {schema!r}, "
+                                   f"which is not registered: {exc}; or choose another task") from exc
 
     def check_inputs(self, stages: dict[str, StageConfig]) -> None:
         for name, stage in stages.items():
