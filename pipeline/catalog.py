@@ -27,7 +27,8 @@ DEFAULT_REGION_FRAMES = 32
 
 @dataclass(frozen=True)
 class DatasetConfig:
-    """Where raw sequences come from; ``options`` are checked by the dataset reader of ``kind``."""
+    """Where raw sequences come from. ``options``' keys are the ones the reader of ``kind`` names in its
+    ``options`` (checked when the catalog is loaded); their values are checked by that reader."""
 
     name: str
     kind: str
@@ -188,6 +189,12 @@ class _Validator:
             if kind not in DATASET_KINDS:
                 raise CatalogError(f"{self.where('datasets', name, 'kind')}: unknown dataset kind {kind!r}"
                                    f"{registry.did_you_mean(str(kind), DATASET_KINDS)}; use one of {sorted(DATASET_KINDS)}")
+            options = getattr(DATASET_KINDS[kind], "options", None)  # a plugin's reader may leave its own unchecked
+            for key in body if options is not None else ():
+                if key not in options:
+                    raise CatalogError(f"{self.where('datasets', name, key)}: unknown option {key!r} for a {kind!r} "
+                                       f"dataset{registry.did_you_mean(str(key), options)}; its options are "
+                                       f"{['kind', *options]}")
             out[name] = DatasetConfig(name, kind, body, self.where("datasets", name))
         return out
 

@@ -130,11 +130,7 @@ def variation_ranges() -> dict:
 def discover(catalog, dataset) -> list:
     from mocapflow.pipeline.datasets import SequenceInfo
 
-    opts = dataset.options
-    for key in opts:
-        if key not in ("sequences", "defaults", "layout"):
-            raise CatalogError(f"{dataset.where}: unknown key {key!r}{did_you_mean(key, ('sequences', 'defaults', 'layout'))} "
-                               "for a studio dataset; use sequences, defaults, layout")
+    opts = dataset.options  # its keys were checked against StudioReader.options when the catalog was loaded
     layout = None
     if opts.get("layout"):
         layout = read_layout(catalog.resolve_data_path(str(opts["layout"]), dataset.where), dataset.where)
