@@ -17,7 +17,7 @@ import yaml
 
 from mocapflow.pipeline import registry
 from mocapflow.pipeline.errors import CatalogError
-from mocapflow.schemas import ArtifactSchema, get_schema
+from mocapflow.schemas import ArtifactSchema, UnknownSchema, get_schema
 
 TOP_KEYS = ("data_roots", "plugins", "storage", "datasets", "stages", "evaluation")
 STORAGE_KEYS = ("root", "region_frames")
@@ -27,7 +27,8 @@ DEFAULT_REGION_FRAMES = 32
 
 @dataclass(frozen=True)
 class DatasetConfig:
-    """Where raw sequences come from; ``options`` are checked by the dataset reader of ``kind``."""
+    """Where raw sequences come from. ``options``' keys are the ones the reader of ``kind`` names in its
+    ``options`` (checked when the catalog is loaded); their values are checked by that reader."""
 
     name: str
     kind: str
@@ -195,6 +196,12 @@ class _Validator:
             if kind not in DATASET_KINDS:
                 raise CatalogError(f"{self.where('datasets', name, 'kind')}: unknown dataset kind {kind!r}"
                                    f"{registry.did_you_mean(str(kind), DATASET_KINDS)}; use one of {sorted(DATASET_KINDS)}")
+            options = getattr(DATASET_KINDS[kind], "options", None)  # a plugin's reader may leave its own unchecked
+            for key in body if options is not None else ():
+                if key not in options:
+                    raise CatalogError(f"{self.where('datasets', name, key)}: unknown option {key!r} for a {kind!r} "
+                                       f"dataset{registry.did_you_mean(str(key), options)}; its options are "
+                                       f"{['kind', *options]}")
             out[name] = DatasetConfig(name, kind, body, self.where("datasets", name))
         return out
 
@@ -210,6 +217,7 @@ class _Validator:
                 spec = registry.get(str(body["task"]))
             except CatalogError as exc:
                 raise CatalogError(f"{self.where('stages', name, 'task')}: {exc}") from None
+            self.check_schemas(name, spec)
             params = registry.build_params(spec, self.mapping(body.get("params"), "stages", name, "params"),
                                            lambda key, name=name: self.where("stages", name, "params", key))
             inputs = self.inputs(name, spec, body.get("inputs"))
@@ -250,6 +258,16 @@ class _Validator:
             raise CatalogError(f"{self.where('stages', stage, 'dataset')}: unknown dataset {raw!r}"
                                f"{registry.did_you_mean(str(raw), datasets)}; declared: {sorted(datasets)}")
         return str(raw)
+
+    def check_schemas(self, stage: str, spec: registry.TaskSpec) -> None:
+        """Every schema the stage's task writes or reads is registered (the engine looks each up by name)."""
+        named = [("writes its output as", spec.output)] + [(f"reads input {role!r} as", s) for role, s in spec.inputs.items()]
+        for what, schema in named:
+            try:
+                get_schema(schema)
+            except UnknownSchema as exc:
+                raise CatalogError(f"{self.where('stages', stage, 'task')}: task {spec.name!r} {what} schema {schema!r}, "
+                                   f"which is not registered: {exc}; or choose another task") from exc
 
     def check_inputs(self, stages: dict[str, StageConfig]) -> None:
         for name, stage in stages.items():

@@ -7,7 +7,9 @@ Kinds:
           ``<id>/calibration.yaml`` and ``<id>/<view>/{depth,ir}/<frame:06d>.png``
 
 Each reader discovers sequences (id, views, frame count, fingerprint of the raw input) on the
-driver, and reads a frame region on a worker. Only this module touches raw-input files.
+driver, and reads a frame region on a worker. Only this module touches raw-input files. A reader's
+``options`` names the catalog keys a dataset of its kind takes besides ``kind``; the catalog refuses
+any other key when it is loaded.
 """
 
 from __future__ import annotations

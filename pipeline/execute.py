@@ -17,7 +17,6 @@ from __future__ import annotations
 import logging
 import os
 import socket
-import threading
 import time
 import traceback
 from contextlib import contextmanager, nullcontext
@@ -33,6 +32,7 @@ from mocapflow.pipeline.errors import MocapflowError, StorageError
 from mocapflow.pipeline.models import load_weights
 from mocapflow.pipeline.plan import WorkItem, now
 from mocapflow.pipeline.storage import Store
+from mocapflow.tasks.shared.cache import BoundedCache
 
 log = logging.getLogger(__name__)
 
@@ -202,8 +202,8 @@ class _UnitInputs:
                 reads = spec.reads.get(role)
                 names = None if names is None or reads is None else tuple(dict.fromkeys(names + tuple(reads)))
                 self.wanted[source] = (names, min(a, lo), max(b, hi))
-        with _TAILS_LOCK:  # the previous region's last frames, before this unit replaces them
-            self.tails = {i.partition.stage: _TAILS.get((i.partition.stage, i.key)) for i in unit.items}
+        # the previous region's last frames, before this unit replaces them
+        self.tails = {i.partition.stage: _TAILS.get((i.partition.stage, i.key)) for i in unit.items}
 
     def keep(self, item: WorkItem, out: xr.Dataset) -> None:
         """``item``'s output of this region, for the members after it; its last frames also for the group's next
@@ -211,10 +211,7 @@ class _UnitInputs:
         self.memory[item.partition.stage] = out
         halo = self.halos.get(item.partition.stage, 0)
         if halo and not self.unit.last and "frame" in out.dims:
-            with _TAILS_LOCK:
-                _TAILS[(item.partition.stage, item.key)] = out.isel(frame=slice(-halo, None))
-                while len(_TAILS) > 32:
-                    _TAILS.pop(next(iter(_TAILS)))
+            _TAILS.put((item.partition.stage, item.key), out.isel(frame=slice(-halo, None)))
 
     def for_member(self, item: WorkItem):
         view = item.partition.view
@@ -249,8 +246,7 @@ class _UnitInputs:
                          join="override")
 
 
-_TAILS: dict[tuple[str, str], xr.Dataset] = {}  # (stage, key) -> the last frames of its latest region, this process
-_TAILS_LOCK = threading.Lock()
+_TAILS: BoundedCache[tuple[str, str], xr.Dataset] = BoundedCache(32)  # (stage, key) -> its latest region's last frames
 
 
 def _upstream_id(up) -> tuple:

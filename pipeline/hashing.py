@@ -19,7 +19,7 @@ def canonical(obj: Any) -> Any:
     if isinstance(obj, (list, tuple)):
         return [canonical(v) for v in obj]
     if isinstance(obj, float):
-        return float(repr(obj)) if obj == obj else "nan"
+        return float(obj) if obj == obj else "nan"  # float(): a plain float also of a subclass such as np.float64
     if hasattr(obj, "item") and callable(obj.item):  # numpy scalar
         return canonical(obj.item())
     return obj

@@ -10,24 +10,24 @@ from __future__ import annotations
 
 import pickle
 import threading
-from collections import OrderedDict
 
 from mocapflow.pipeline.errors import StorageError
 from mocapflow.pipeline.hashing import file_digest
+from mocapflow.tasks.shared.cache import BoundedCache
 
-_CACHE: OrderedDict[str, dict] = OrderedDict()
-_LOCK = threading.Lock()
 _MAX_MODELS = 4
+_CACHE: BoundedCache[str, dict] = BoundedCache(_MAX_MODELS)  # sha256 -> state dict
+_LOADS_LOCK = threading.Lock()
 loads = 0  # files actually read by this process (for tests and logs)
 
 
 def load_weights(path: str, digest: str) -> dict:
     """The tensors in ``path``, whose sha256 must be ``digest`` (as planned); cached per process."""
+    return _CACHE.get_or_make(digest, lambda: _load(path, digest))
+
+
+def _load(path: str, digest: str) -> dict:
     global loads
-    with _LOCK:
-        if digest in _CACHE:
-            _CACHE.move_to_end(digest)
-            return _CACHE[digest]
     import torch
 
     actual = file_digest(path)
@@ -38,9 +38,6 @@ def load_weights(path: str, digest: str) -> dict:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except (OSError, RuntimeError, ValueError, pickle.UnpicklingError) as exc:
         raise StorageError(f"cannot load weights {path}: {exc}; it must hold plain tensors (a state dict)") from exc
-    with _LOCK:
+    with _LOADS_LOCK:
         loads += 1
-        _CACHE[digest] = state
-        while len(_CACHE) > _MAX_MODELS:
-            _CACHE.popitem(last=False)
     return state

@@ -20,10 +20,8 @@ import json
 import multiprocessing
 import os
 import socket
-import threading
 import time
 import uuid
-from collections import OrderedDict
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Iterator
@@ -35,14 +33,17 @@ import xarray as xr
 
 from mocapflow.pipeline.errors import LockError, SchemaError, StorageError
 from mocapflow.schemas import ArtifactSchema, SchemaViolation
+from mocapflow.tasks.shared.cache import BoundedCache
 
-
+# The zarr releases region writes are tested on (pyproject.toml pins the same range): write_zarr_region uses zarr's
+# internal zarr.core.sync.sync and AsyncArray.with_config (3.1.6 on). Widen it only after tests/pipeline/test_storage.py
+# passes on the new release.
+ZARR_RANGE = ">=3.1.6,<3.2"
 
 # Complete versions opened by this process (lazily, checked against their schema), for the many regions that read
 # them: opening one reads every array's metadata. Keyed by the completion stamp, so a version deleted and written
 # again is opened afresh; (zarr target, schema name, stamp) -> Dataset.
-_OPENED: OrderedDict[tuple[str, str, str], xr.Dataset] = OrderedDict()
-_OPENED_LOCK = threading.Lock()
+_OPENED: BoundedCache[tuple[str, str, str], xr.Dataset] = BoundedCache(64)
 
 
 @dataclass(frozen=True)
@@ -123,7 +124,10 @@ class Store:
         marker records the ``seconds`` it took."""
         check(schema, ds, f"output of stage {stage!r} frames {start}-{stop}")
         frames = ds["frame"].values if "frame" in ds.coords else None
-        assert frames is None or np.array_equal(frames, np.arange(start, stop)), (stage, start, stop)
+        if frames is not None and not np.array_equal(frames, np.arange(start, stop)):
+            raise SchemaError(f"output of stage {stage!r} for frames {start}-{stop} ({self.version_dir(stage, key)}) "
+                              f"has frame coordinate {_frames_text(frames)}, expected {start}..{stop - 1}; "
+                              "the task must return exactly the frames of its region, in order")
         target = self._zarr_target(stage, key)
         if not self.fs.exists(self._marker(stage, key, "_init")):
             if self.fs.exists(self._marker(stage, key, "_regions")):
@@ -173,21 +177,20 @@ class Store:
             raise StorageError(f"artifact {stage}/{key} is not complete in {self.root}; "
                                f"run `mocapflow run --until {stage}` to produce it")
         target = self._zarr_target(stage, key)
-        with _OPENED_LOCK:
-            ds = _OPENED.get((target, schema.name, stamp)) if stamp is not None else None
-        if ds is None:
-            try:
-                ds = xr.open_zarr(target, consolidated=False, chunks=None, zarr_format=3)
-            except (OSError, ValueError, KeyError) as exc:
-                raise StorageError(f"artifact {stage}/{key} in {self.root} is unreadable ({exc}); "
-                                   f"delete {self.version_dir(stage, key)} and rerun") from exc
-            check(schema, ds, f"stored artifact {stage}/{key}")
-            if stamp is not None:
-                with _OPENED_LOCK:
-                    _OPENED[(target, schema.name, stamp)] = ds
-                    while len(_OPENED) > 64:
-                        _OPENED.popitem(last=False)
+        if stamp is None:  # a version still being written is opened afresh each time
+            ds = self._open_checked(stage, key, schema, target)
+        else:
+            ds = _OPENED.get_or_make((target, schema.name, stamp), lambda: self._open_checked(stage, key, schema, target))
         return ds.copy(deep=False)  # loading the caller's copy leaves the kept one lazy
+
+    def _open_checked(self, stage: str, key: str, schema: ArtifactSchema, target: str) -> xr.Dataset:
+        try:
+            ds = xr.open_zarr(target, consolidated=False, chunks=None, zarr_format=3)
+        except (OSError, ValueError, KeyError) as exc:
+            raise StorageError(f"artifact {stage}/{key} in {self.root} is unreadable ({exc}); "
+                               f"delete {self.version_dir(stage, key)} and rerun") from exc
+        check(schema, ds, f"stored artifact {stage}/{key}")
+        return ds
 
     def _completed(self, stage: str, key: str) -> str | None:
         """The ``_COMPLETE`` marker's time stamp, None while the version is not complete."""
@@ -267,12 +270,27 @@ def write_zarr_region(target: str, ds: xr.Dataset, start: int, stop: int) -> Non
     metadata file, and each round trip waits for the GIL while the other worker threads compute: 60 ms for
     the few bytes of a reflectors2d region, against 14 ms alone. The stored chunks are the same bytes: the
     schemas' dtypes are exact and xarray's encoding of them is the identity.
-    """
-    from zarr.core.sync import sync
 
+    No public zarr API runs a coroutine on zarr's own loop, so this uses zarr's internal ``zarr.core.sync.sync``;
+    zarr's public per-array API writes the same bytes but took 1.4 to 1.6 times as long while another thread
+    computed, and 1.1 to 1.2 times alone (benchmarks/region_write.py, zarr 3.1.6). ``ZARR_RANGE`` (pinned in
+    pyproject.toml and checked by tests/pipeline/test_storage.py) is the zarr releases this is tested on.
+    """
     framed = {name: var for name, var in ds.variables.items() if "frame" in var.dims}
     if framed:
-        sync(_write_arrays(target, framed, start, stop))
+        _zarr_sync()(_write_arrays(target, framed, start, stop))
+
+
+def _zarr_sync():
+    """zarr's internal ``sync`` (runs a coroutine on zarr's event loop), or a StorageError naming the zarr installed."""
+    try:
+        from zarr.core.sync import sync
+    except ImportError as exc:
+        import zarr
+
+        raise StorageError(f"zarr {zarr.__version__} has no zarr.core.sync.sync, which region writes use; "
+                           f"install a zarr release in the tested range: pip install 'zarr{ZARR_RANGE}'") from exc
+    return sync
 
 
 async def _write_arrays(target: str, framed: dict, start: int, stop: int) -> None:
@@ -282,10 +300,16 @@ async def _write_arrays(target: str, framed: dict, start: int, stop: int) -> Non
     import zarr.api.asynchronous as zarr_async
 
     group = await zarr_async.open_group(target, mode="r+", zarr_format=3)
+    arrays = dict(zip(framed, await asyncio.gather(*(group.getitem(name) for name in framed))))
+    for name, var in framed.items():  # every array checked before any is written
+        stored = tuple(arrays[name].metadata.dimension_names or ())
+        if stored != var.dims:
+            raise StorageError(f"{target}: array {name!r} is stored with dims {stored}, but the region of frames "
+                               f"{start}-{stop} to write has dims {var.dims}; this store was initialized with another "
+                               f"layout: delete {target} (for an artifact, its version folder) and run again")
 
     async def one(name: str, var: xr.Variable) -> None:
-        array = (await group.getitem(name)).with_config({"write_empty_chunks": True})
-        assert tuple(array.metadata.dimension_names or ()) == var.dims, (name, array.metadata.dimension_names)
+        array = arrays[name].with_config({"write_empty_chunks": True})
         await array.setitem(tuple(slice(start, stop) if d == "frame" else slice(None) for d in var.dims), var.values)
 
     await asyncio.gather(*(one(n, v) for n, v in framed.items()))
@@ -323,6 +347,14 @@ def _template(schema: ArtifactSchema, ds: xr.Dataset, n_frames: int) -> tuple[xr
     if "frame" in ds.dims:
         coords["frame"] = xr.Variable(("frame",), np.arange(n_frames, dtype=np.int64))
     return xr.Dataset(variables, coords=coords, attrs=ds.attrs), encoding
+
+
+def _frames_text(frames: np.ndarray) -> str:
+    """A frame coordinate for a message: all of it when short, else its ends and length."""
+    values = np.asarray(frames).tolist()
+    if len(values) <= 8:
+        return str(values)
+    return f"[{values[0]}, {values[1]}, ..., {values[-1]}] ({len(values)} frames)"
 
 
 def _variable_strings(var: xr.Variable) -> xr.Variable:

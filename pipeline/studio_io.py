@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import threading
 import typing
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -29,6 +28,7 @@ import yaml
 from mocapflow.pipeline.errors import CatalogError, InputError
 from mocapflow.pipeline.hashing import digest
 from mocapflow.pipeline.registry import coerce, did_you_mean
+from mocapflow.tasks.shared.cache import BoundedCache
 from mocapflow.tasks.studio import bvh as bvh_mod
 from mocapflow.tasks.studio.cameras import layout as camera_layout
 from mocapflow.tasks.studio import motion as motion_mod
@@ -36,8 +36,7 @@ from mocapflow.tasks.studio.motion import EXERCISES
 from mocapflow.tasks.studio.synth import STUDIO_VERSION, Rig, SequenceSpec, build_rig, synthesize
 
 SPEC_FIELDS = {f.name: f for f in dataclasses.fields(SequenceSpec)}
-_RIGS: dict[str, Rig] = {}
-_RIG_LOCK = threading.Lock()
+_RIGS: BoundedCache[str, Rig] = BoundedCache(4)  # fingerprint -> rig, this process
 
 
 def make_spec(raw: Mapping[str, Any], where: str, resolve: Callable[[str], Path],
@@ -131,11 +130,7 @@ def variation_ranges() -> dict:
 def discover(catalog, dataset) -> list:
     from mocapflow.pipeline.datasets import SequenceInfo
 
-    opts = dataset.options
-    for key in opts:
-        if key not in ("sequences", "defaults", "layout"):
-            raise CatalogError(f"{dataset.where}: unknown key {key!r}{did_you_mean(key, ('sequences', 'defaults', 'layout'))} "
-                               "for a studio dataset; use sequences, defaults, layout")
+    opts = dataset.options  # its keys were checked against StudioReader.options when the catalog was loaded
     layout = None
     if opts.get("layout"):
         layout = read_layout(catalog.resolve_data_path(str(opts["layout"]), dataset.where), dataset.where)
@@ -155,16 +150,11 @@ def discover(catalog, dataset) -> list:
 
 def rig_for(info) -> Rig:
     """The sequence's rig, built once per worker process (cameras' rays and the room are reused)."""
-    with _RIG_LOCK:
-        rig = _RIGS.get(info.fingerprint)
-    if rig is None:
+    def build() -> Rig:
         path = info.spec["bvh_path"]
-        rig = build_rig(info.spec["spec"], Path(path).read_text() if path else None)
-        with _RIG_LOCK:
-            if len(_RIGS) >= 4:
-                _RIGS.pop(next(iter(_RIGS)))
-            _RIGS[info.fingerprint] = rig
-    return rig
+        return build_rig(info.spec["spec"], Path(path).read_text() if path else None)
+
+    return _RIGS.get_or_make(info.fingerprint, build)
 
 
 def read(dataset, seq, start: int, stop: int):

@@ -7,16 +7,33 @@ sees an array with the wrong dims, dtype or missing attrs.
 
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass, field
 from typing import Mapping
 
 import numpy as np
 
-__all__ = ["VarSpec", "ArtifactSchema", "register_schema", "get_schema", "SCHEMAS", "SchemaViolation"]
+__all__ = ["VarSpec", "ArtifactSchema", "register_schema", "get_schema", "SCHEMAS", "SchemaViolation", "UnknownSchema"]
 
 
 class SchemaViolation(ValueError):
     """Raised by :meth:`ArtifactSchema.validate`; the engine wraps it into its own error."""
+
+
+class UnknownSchema(LookupError):
+    """Raised by :func:`get_schema` for a name no schema is registered under; the engine wraps it into its own error.
+
+    ``name`` is the name asked for, ``registered`` the names known at the time.
+    """
+
+    def __init__(self, name: str, registered) -> None:
+        self.name = name
+        self.registered = tuple(sorted(registered))
+        close = difflib.get_close_matches(str(name), self.registered, n=1, cutoff=0.5)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        super().__init__(f"unknown schema {name!r}{hint}; registered schemas: {list(self.registered)}; "
+                         "a schema is registered by importing the module that calls register_schema for it "
+                         "(a catalog's plugins are imported when it is loaded)")
 
 
 @dataclass(frozen=True)
@@ -101,11 +118,12 @@ def register_schema(schema: ArtifactSchema) -> ArtifactSchema:
 
 
 def get_schema(name: str) -> ArtifactSchema:
+    """The schema registered under ``name``; :class:`UnknownSchema` (a LookupError) names the registered ones."""
     _load_builtin()
     try:
         return SCHEMAS[name]
     except KeyError as exc:
-        raise KeyError(f"unknown schema {name!r}; known: {sorted(SCHEMAS)}") from exc
+        raise UnknownSchema(name, SCHEMAS) from exc
 
 
 def _load_builtin() -> None:

@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import functools
 import logging
-import threading
 from dataclasses import dataclass, field
 
 import numpy as np
 import xarray as xr
 
 from mocapflow.tasks.deepmocap import targets
+from mocapflow.tasks.shared.cache import BoundedCache
 from mocapflow.tasks.shared.reflectors import REFLECTOR_NAMES
 from mocapflow.tasks.deepmocap.training import CropConfig, sample_inputs
 
@@ -22,8 +22,7 @@ from mocapflow.tasks.deepmocap.training import CropConfig, sample_inputs
 log = logging.getLogger(__name__)
 
 PRECISIONS = ("float32", "bfloat16")
-_MODELS: dict[int, tuple] = {}  # id(weights) -> (weights, model), see inference_model
-_MODELS_LOCK = threading.Lock()
+_MODELS: BoundedCache[int, tuple] = BoundedCache(4)  # id(weights) -> (weights, model), see inference_model
 
 
 @dataclass(frozen=True)
@@ -94,13 +93,10 @@ def inference_model(weights: dict):
     weights: a worker's regions share it (the weights dicts themselves are cached per process, pipeline/models.py)."""
     from mocapflow.tasks.deepmocap.fcn import for_inference, unpack
 
-    with _MODELS_LOCK:
-        kept = _MODELS.get(id(weights))
-        if kept is None or kept[0] is not weights:
-            kept = (weights, for_inference(unpack(weights)))  # holding the dict keeps its id from being reused
-            while len(_MODELS) >= 4:
-                _MODELS.pop(next(iter(_MODELS)))
-            _MODELS[id(weights)] = kept
+    kept = _MODELS.get(id(weights))
+    if kept is None or kept[0] is not weights:
+        kept = (weights, for_inference(unpack(weights)))  # holding the dict keeps its id from being reused
+        _MODELS.put(id(weights), kept)
     return kept[1]
 
 

@@ -113,3 +113,27 @@ def test_bad_catalog_in_cli_leaves_artifacts_untouched(toy_project):
     after = read_artifacts(project / "storage")
     assert before.keys() == after.keys()
     assert last_json(mocapflow("run", "--json", cwd=project))["executed"] == []
+
+
+def test_a_task_naming_an_unregistered_schema_is_refused_at_load(toy_project, monkeypatch):
+    import dataclasses
+
+    from mocapflow.pipeline import registry
+    from mocapflow.schemas import UnknownSchema
+
+    project = toy_project()
+    load_catalog(project / "catalog.yaml")  # imports the toy plugin, which registers scale and toy_view
+    scale = registry.get("scale")
+    monkeypatch.setitem(registry._REGISTRY, "scale_out", dataclasses.replace(scale, name="scale_out", output="toy_veiw"))
+    monkeypatch.setitem(registry._REGISTRY, "scale_in", dataclasses.replace(scale, name="scale_in",
+                                                                            inputs={"frames": "raw_sequense"}))
+    with pytest.raises(CatalogError) as err:
+        load_catalog(project / "catalog.yaml", ("stages.scaled.task=scale_out",))
+    assert str(err.value).startswith(
+        "catalog.yaml (--set): stages.scaled.task: task 'scale_out' writes its output as schema 'toy_veiw', which is "
+        "not registered: unknown schema 'toy_veiw' (did you mean 'toy_view'?); registered schemas: [")
+    assert "'toy_sequence', 'toy_view'" in str(err.value)
+    assert isinstance(err.value.__cause__, UnknownSchema)
+    with pytest.raises(CatalogError, match=r"task 'scale_in' reads input 'frames' as schema 'raw_sequense', which is not "
+                                           r"registered: unknown schema 'raw_sequense' \(did you mean 'raw_sequence'\?\)"):
+        load_catalog(project / "catalog.yaml", ("stages.scaled.task=scale_in",))

@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 import xarray as xr
 import yaml
 
-from conftest import last_json, mocapflow, read_artifacts, write_raw_zarr
+from conftest import ROOT, last_json, mocapflow, read_artifacts, write_raw_zarr
+from mocapflow.pipeline.catalog import load_catalog
+from mocapflow.pipeline.datasets import DATASET_KINDS, discover
+from mocapflow.pipeline.errors import CatalogError
 
 
 def write_png_sequence(folder, views=("k0", "k1"), frames=6, size=(10, 14)):
@@ -71,3 +75,57 @@ def test_missing_dataset_folder(toy_project):
     (project / "catalog.yaml").write_text((project / "catalog.yaml").read_text().replace("path: data", "path: nowhere"))
     proc = mocapflow("run", cwd=project, check=False)
     assert proc.returncode == 2 and "nowhere is not a folder" in proc.stderr
+
+
+DATASET_ONLY = "data_roots: [.]\ndatasets:\n  rec:\n    kind: {kind}\n{options}"
+
+
+@pytest.mark.parametrize("kind,options,typo,right,line", [
+    ("zarr", "    path: data\n    patern: '*.zarr'\n", "patern", "pattern", 6),
+    ("zarr", "    pth: data\n", "pth", "path", 5),
+    ("images", "    path: recs\n    pattrn: 'take*'\n", "pattrn", "pattern", 6),
+    ("images", "    paths: recs\n", "paths", "path", 5),
+    ("studio", "    defaults: {frames: 30}\n    sequnces: {a: {motion: jumping_jack}}\n", "sequnces", "sequences", 6),
+    ("studio", "    default: {frames: 30}\n    sequences: {a: {motion: jumping_jack}}\n", "default", "defaults", 5),
+    ("studio", "    layuot: layout.yaml\n    sequences: {a: {motion: jumping_jack}}\n", "layuot", "layout", 5),
+])
+def test_a_misspelt_dataset_option_is_refused_at_load_naming_key_line_and_the_right_one(tmp_path, kind, options, typo,
+                                                                                        right, line):
+    path = tmp_path / "catalog.yaml"
+    path.write_text(DATASET_ONLY.format(kind=kind, options=options))
+    with pytest.raises(CatalogError) as err:
+        load_catalog(path)
+    allowed = ["kind", *DATASET_KINDS[kind].options]
+    assert str(err.value) == (f"catalog.yaml (line {line}): datasets.rec.{typo}: unknown option {typo!r} for a {kind!r} "
+                              f"dataset (did you mean {right!r}?); its options are {allowed}")
+    path.write_text(DATASET_ONLY.format(kind=kind, options=options.replace(f"{typo}:", f"{right}:")))
+    dataset = load_catalog(path).datasets["rec"]  # spelt right, the same catalog loads with its options
+    assert dataset.kind == kind and right in dataset.options and typo not in dataset.options
+
+
+def test_a_misspelt_dataset_option_stops_the_run_before_any_stage(toy_project):
+    project = toy_project()
+    catalog = project / "catalog.yaml"
+    catalog.write_text(catalog.read_text().replace("path: data}", "path: data, patern: '*.zarr'}"))
+    proc = mocapflow("run", "--json", cwd=project, check=False)
+    assert proc.returncode == 2
+    assert "datasets.rec.patern: unknown option 'patern' for a 'zarr' dataset (did you mean 'pattern'?)" in proc.stderr
+    assert not (project / "storage").exists()
+
+
+@pytest.mark.parametrize("name", ["catalog.yaml", "benchmarks/catalog.yaml", "training/catalog.yaml",
+                                  "training/validation.yaml", "demo"])
+def test_the_shipped_catalogs_still_load_and_discover_their_sequences(tmp_path, name):
+    if name == "demo":
+        from mocapflow.pipeline.demo import DemoOptions, prepare
+
+        catalog = prepare(tmp_path, DemoOptions())
+    else:
+        catalog = load_catalog(ROOT / name)
+    assert catalog.datasets
+    for dataset in catalog.datasets.values():
+        assert set(dataset.options) <= set(DATASET_KINDS[dataset.kind].options)
+        found = discover(catalog, dataset)
+        assert found and all(s.n_frames > 0 and s.views for s in found)
+    if name == "demo":
+        assert sorted(s.id for s in found) == ["classic_squat_s2", "elbow_flexion_s3", "jumping_jack_s1"]

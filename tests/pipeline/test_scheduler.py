@@ -127,25 +127,39 @@ def _copy_inputs(src, dst):
     return dst
 
 
-def test_lazily_registered_task_modules_are_imported_in_the_background(tmp_path, monkeypatch):
+def test_lazily_registered_task_modules_are_imported_in_the_background(tmp_path, monkeypatch, caplog):
+    """The warm-up imports every lazily registered task's module before any task runs; one that fails to import is
+    logged and passed over (the modules after it still load), and the task's own import still raises its error."""
+    import logging
     import sys
     import threading
     from types import SimpleNamespace
 
-    (tmp_path / "warm_me.py").write_text("LOADED = True\n")
-    (tmp_path / "warm_broken.py").write_text("raise ImportError('a missing dependency')\n")
+    import pytest
+
+    (tmp_path / "warm_order.py").write_text("TRIED = []\n")
+    (tmp_path / "warm_me.py").write_text("import warm_order\nwarm_order.TRIED.append('warm_me')\nLOADED = True\n")
+    (tmp_path / "warm_broken.py").write_text("import warm_order\nwarm_order.TRIED.append('warm_broken')\n"
+                                             "raise ImportError('a missing dependency')\n")
     monkeypatch.syspath_prepend(str(tmp_path))
-    monkeypatch.delitem(sys.modules, "warm_me", raising=False)
+    for module in ("warm_order", "warm_me", "warm_broken"):
+        monkeypatch.delitem(sys.modules, module, raising=False)
     for name, module in (("warm_task", "warm_me"), ("warm_broken_task", "warm_broken")):
         monkeypatch.setitem(registry._REGISTRY, name, registry.TaskSpec(
             name=name, fn=registry.Lazy(module, "f"), version="1", params=registry.NoParams, output="x",
             partition="view"))
+    caplog.set_level(logging.DEBUG, logger=scheduler.__name__)
     items = [SimpleNamespace(spec=registry.get(t), weights={}) for t in ("warm_broken_task", "warm_task")]
     scheduler._warm_imports(items)
     for thread in [t for t in threading.enumerate() if t.name == "warm-imports"]:
         thread.join(timeout=30)
-    assert sys.modules["warm_me"].LOADED  # imported before any task ran, past the module that failed
-    assert "warm_broken" not in sys.modules
+    assert sys.modules["warm_order"].TRIED == ["warm_broken", "warm_me"]  # the broken module first, then past it
+    assert sys.modules["warm_me"].LOADED  # imported before any task ran
+    warm_logs = [r.getMessage() for r in caplog.records if r.name == scheduler.__name__ and "warm-up" in r.getMessage()]
+    assert warm_logs == ["warm-up import of warm_broken failed: a missing dependency"]
+    with pytest.raises(ImportError, match="a missing dependency"):  # left for the task's own import to report
+        registry._REGISTRY["warm_broken_task"].fn()
+    assert sys.modules["warm_order"].TRIED == ["warm_broken", "warm_me", "warm_broken"]  # imported afresh, not a stub
 
 
 def test_one_worker_runs_the_ready_task_with_the_earliest_frames_first(toy_project, monkeypatch):
