@@ -1,0 +1,60 @@
+"""Template motion carried onto the mesh body: bone directions, the floor, determinism (a real CMU clip)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import SHARED
+from mocapflow.tasks.shared import mesh_body as mb
+from mocapflow.tasks.shared.body import JOINT_INDEX, PARENTS, Subject, rest_offsets
+from mocapflow.tasks.shared.kinematics import forward_kinematics
+from mocapflow.tasks.studio import bvh, mesh_motion, motion
+
+WALK = SHARED / "motions" / "cmu_12_01_walk.bvh"
+
+
+@pytest.fixture(scope="module")
+def walk():
+    body = mb.mesh_body(mb.random_phenotype(np.random.default_rng(21), 1.80))
+    subject = Subject(height=body.height)
+    clip = bvh.retarget(bvh.parse_bvh(WALK.read_text()), subject, fps=30.0, n_frames=40)
+    return body, subject, clip, mesh_motion.retarget(body, subject, clip)
+
+
+def test_every_mapped_bone_points_where_its_template_segment_points(walk):
+    body, subject, clip, take = walk
+    _, pos = forward_kinematics(clip.local_rot, clip.root_pos, rest_offsets(subject), PARENTS)
+    checked = 0
+    for bone, (joint, end_bone, end_joint) in mesh_motion.SEGMENTS.items():
+        if end_bone is None:
+            continue
+        mesh = take.posed.heads[:, body.bone(end_bone)] - take.posed.heads[:, body.bone(bone)]
+        tmpl = pos[:, JOINT_INDEX[end_joint]] - pos[:, JOINT_INDEX[joint]]
+        cos = np.einsum("fi,fi->f", mesh, tmpl) / np.linalg.norm(mesh, axis=1) / np.linalg.norm(tmpl, axis=1)
+        assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() < 0.01, bone
+        checked += 1
+    assert checked == 16
+
+
+def test_the_hips_follow_the_template_and_the_feet_meet_its_floor(walk):
+    body, subject, clip, take = walk
+    _, pos = forward_kinematics(clip.local_rot, clip.root_pos, rest_offsets(subject), PARENTS)
+    hips_tmpl = pos[:, [JOINT_INDEX["LeftHip"], JOINT_INDEX["RightHip"]]].mean(axis=1)
+    hips_mesh = take.posed.heads[:, [body.bone("upperleg01.L"), body.bone("upperleg01.R")]].mean(axis=1)
+    lift = motion.lowest_foot_point(clip.local_rot, clip.root_pos, subject)
+    np.testing.assert_allclose(hips_mesh[:, :2], hips_tmpl[:, :2], atol=1e-9)  # only lifted, never moved across
+    soles = body.vertices[:, 2] < mesh_motion.SOLE_HEIGHT_M
+    np.testing.assert_allclose(take.posed.vertices[:, soles, 2].min(axis=1), lift, atol=1e-9)
+    assert lift.min() == pytest.approx(0.0, abs=1e-9)  # the take's lowest contact is on the floor, never below
+    # the subject walks: the hips travel, and the mesh's joints stay within a body's proportions of the template's
+    assert np.linalg.norm(hips_mesh[-1, :2] - hips_mesh[0, :2]) > 0.3
+    joints = take.posed.heads[:, body.joint_bones()]
+    assert np.median(np.linalg.norm(joints - pos, axis=2)) < 0.15
+
+
+def test_the_same_clip_gives_the_same_bytes(walk):
+    body, subject, clip, take = walk
+    again = mesh_motion.retarget(body, subject, clip)
+    assert np.array_equal(again.posed.vertices, take.posed.vertices)
+    assert np.array_equal(again.rotations, take.rotations)
