@@ -313,8 +313,10 @@ def evaluate(catalog_path, overrides, sequences, workers, threads, as_json):
 @click.option("--noise", default=1.0, show_default=True, help="sensor noise level (0 = clean)")
 @click.option("--layout", "layout_file", default=None, type=click.Path(dir_okay=False, exists=True),
               help="camera layout YAML (ring: {count, radius, height} or sensors: [{name, position}])")
+@click.option("--body", type=click.Choice(["capsule", "mesh"]), default="capsule", show_default=True,
+              help="the subject: the template's capsules or the Anny mesh body")
 @click.option("--force", is_flag=True, help="overwrite existing sequences in --out")
-def synth(out_dir, motions, views, frames, fps, seed, subject_height, noise, layout_file, force):
+def synth(out_dir, motions, views, frames, fps, seed, subject_height, noise, layout_file, body, force):
     """Render studio sequences (raw-sequence zarr stores with ground truth)."""
     from mocapflow.pipeline.studio_io import build_rig, make_spec, read_layout, write_sequence
 
@@ -322,7 +324,7 @@ def synth(out_dir, motions, views, frames, fps, seed, subject_height, noise, lay
     out = Path(out_dir)
     jobs = []
     for motion in motions:
-        raw = {"motion": motion, "views": views, "fps": fps, "seed": seed, "noise": noise,
+        raw = {"motion": motion, "views": views, "fps": fps, "seed": seed, "noise": noise, "body": body,
                "subject_height": subject_height, **({"frames": frames} if frames is not None else {})}
         spec, text, _ = make_spec(raw, f"--motion {motion}", lambda p: Path(p).resolve(), layout)
         name = Path(motion).stem if text is not None else motion

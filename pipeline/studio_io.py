@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import typing
+from importlib.metadata import version
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
@@ -33,6 +34,7 @@ from mocapflow.tasks.studio import bvh as bvh_mod
 from mocapflow.tasks.studio.cameras import layout as camera_layout
 from mocapflow.tasks.studio import motion as motion_mod
 from mocapflow.tasks.studio.motion import EXERCISES
+from mocapflow.tasks.studio.mesh_synth import MESH_STUDIO_VERSION
 from mocapflow.tasks.studio.synth import STUDIO_VERSION, Rig, SequenceSpec, build_rig, synthesize
 
 SPEC_FIELDS = {f.name: f for f in dataclasses.fields(SequenceSpec)}
@@ -108,7 +110,7 @@ def view_names(spec: SequenceSpec) -> tuple[str, ...]:
 
 # Spec fields added after a studio version enter the fingerprint only when set, so caches of sequences
 # that leave them at their default stay valid.
-LATER_FIELDS = ("variation",)
+LATER_FIELDS = ("variation", "body")
 
 
 def fingerprint(spec: SequenceSpec, bvh_text: str | None) -> str:
@@ -118,6 +120,8 @@ def fingerprint(spec: SequenceSpec, bvh_text: str | None) -> str:
     content = {"spec": fields, "bvh": bvh_hash, "studio": STUDIO_VERSION}
     if spec.variation:
         content["variation"] = variation_ranges()
+    if spec.body == "mesh":
+        content["mesh"] = {"studio": MESH_STUDIO_VERSION, "anny": version("anny")}
     return digest(content)
 
 

@@ -48,6 +48,12 @@ RAW_SEQUENCE = register_schema(
             ),
             "gt_joint_rotations": VarSpec(("frame", "joint", "quat"), "float32", "", required=False,
                                           description="local joint rotations, quaternions x y z w"),
+            "gt_bone_rotations": VarSpec(("frame", "bone", "quat"), "float64", "", required=False,
+                                         description="mesh body: each bone's world rotation from its rest "
+                                                     "orientation, quaternions x y z w"),
+            "gt_root": VarSpec(("frame", "xyz"), "float64", "m", required=False,
+                               description="mesh body: the root bone's head (with the bone rotations and the "
+                                           "phenotype attribute, every vertex)"),
             "gt_body": VarSpec(("view", "frame", "y", "x"), "bool", required=False,
                                description="the subject's body is the visible surface"),
             "gt_scene_flow": VarSpec(

@@ -36,7 +36,7 @@ JOINT_BONES = {
 }
 assert tuple(JOINT_BONES) == JOINT_NAMES
 
-# Body parts for surface-point layouts, from the fine parts a bone belongs to (``_part_of_bone``).
+# Body parts for surface-point layouts, from the fine parts a bone belongs to (``part_of_bone``).
 _SIDES = {"left": ".L", "right": ".R"}
 _FINE = ("head", "torso", "hips") + tuple(f"{side}_{limb}" for side in _SIDES for limb in
                                          ("upper_arm", "forearm", "hand", "thigh", "shank", "foot"))
@@ -52,7 +52,7 @@ _SKIN_EXCLUDED = ("tongue", "mouth_cavity", "eye_cavity.L", "eye_cavity.R", "eye
 _MODELS: BoundedCache[str, object] = BoundedCache(1)
 
 
-def _part_of_bone(name: str) -> str:
+def part_of_bone(name: str) -> str:
     """The fine part (``_FINE``) a bone's vertices belong to."""
     if name.startswith(("neck", "head", "eye")):
         return "head"
@@ -114,7 +114,7 @@ class MeshBody:
         """Skin faces of a named part (PARTS), by the bone that moves their vertices most.  # (face,) bool"""
         if part not in PARTS:
             raise MeshBodyError(f"unknown body part {part!r}; parts are {', '.join(PARTS)}")
-        bones = np.array([_part_of_bone(n) in PARTS[part] for n in self.bone_names])
+        bones = np.array([part_of_bone(n) in PARTS[part] for n in self.bone_names])
         return self.skin & bones[self.vertex_bone[self.faces]].all(axis=1)
 
     def joint_bones(self) -> np.ndarray:

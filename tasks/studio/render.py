@@ -222,10 +222,10 @@ def _sensor(view, prims, placements, t_buf, prim_buf, normal_buf, local_buf, pos
     z = t_buf * view.rays[..., 2]
     flow = _scene_flow(view, prims, prim_buf, local_buf, pose, nxt)
     flow_prev = -_scene_flow(view, prims, prim_buf, local_buf, pose, prev)
-    depth = _depth(z, cos, reflector, rng, noise)
+    depth = kinect_depth(z, cos, reflector, rng, noise)
     albedo = view.bg_albedo.copy()
     albedo[body] = ALBEDO["body"] * cloth_texture(prim_buf[body], local_buf[body])
-    ir = _ir(t_buf, cos, albedo, reflector, rng, noise)
+    ir = kinect_ir(t_buf, cos, albedo, reflector, rng, noise)
     pixels = np.bincount(rid[reflector].astype(np.int64), minlength=len(placements)).astype(np.int32)
     return Frame(depth, ir, rid, body, flow, flow_prev, pixels)
 
@@ -261,7 +261,7 @@ def _scene_flow(view, prims, prim_buf, local_buf, pose: Pose, other: Pose):
     return flow
 
 
-def _depth(z, cos, reflector, rng, noise) -> np.ndarray:
+def kinect_depth(z, cos, reflector, rng, noise) -> np.ndarray:
     """Kinect-like depth in mm: noise, edge artifacts, quantization, 0 where invalid."""
     sigma = noise * (0.0006 + 0.00035 * z**2)  # axial noise grows with range
     noisy = z + rng.standard_normal(z.shape) * sigma
@@ -280,7 +280,7 @@ def _depth(z, cos, reflector, rng, noise) -> np.ndarray:
     return np.where(valid, np.clip(mm, 1, 65535), 0).astype(np.uint16)
 
 
-def _ir(t, cos, albedo, reflector, rng, noise) -> np.ndarray:
+def kinect_ir(t, cos, albedo, reflector, rng, noise) -> np.ndarray:
     """Active-IR intensity: albedo * cos / d^2, saturated retro-reflectors with a little bloom, sensor noise."""
     ir = IR_GAIN * albedo * cos / np.maximum(t, 0.3) ** 2
     bloom = cv2.GaussianBlur(reflector.astype(np.float32), (0, 0), 1.0)

@@ -18,9 +18,10 @@ from scipy.spatial.transform import Rotation
 from mocapflow.schemas.raw import make_raw_sequence
 from mocapflow.tasks.shared import body, reflectors
 from mocapflow.tasks.shared.kinematics import forward_kinematics
-from mocapflow.tasks.studio import bvh, cameras, motion, render
+from mocapflow.tasks.studio import bvh, cameras, mesh_synth, motion, render
 
 STUDIO_VERSION = "2"
+BODIES = ("capsule", "mesh")
 
 
 @dataclass(frozen=True)
@@ -44,6 +45,7 @@ class SequenceSpec:
     random_layout: bool = False
     layout: Mapping[str, Any] | None = None
     label: str = ""  # the motion's name in the ground truth (defaults to ``motion``)
+    body: str = "capsule"  # the subject: "capsule" (the template's primitives) or "mesh" (Anny, tasks/studio/mesh_synth.py)
 
     def __post_init__(self):
         if self.frames is not None and self.frames <= 0:
@@ -52,6 +54,8 @@ class SequenceSpec:
             raise ValueError(f"fps ({self.fps}) and views ({self.views}) must be positive, noise ({self.noise}) >= 0")
         if self.variation < 0:
             raise ValueError(f"variation must be >= 0 (0 = the textbook exercise), got {self.variation}")
+        if self.body not in BODIES:
+            raise ValueError(f"body must be one of {', '.join(BODIES)}, got {self.body!r}")
         if self.variation and self.motion == "bvh":
             raise ValueError(f"variation ({self.variation}) applies to the procedural exercises; a BVH clip is "
                              "played as recorded, so leave variation out")
@@ -76,10 +80,12 @@ class Rig:
         return render.Pose(self.joint_rot[f], self.joint_pos[f])
 
 
-def build_rig(spec: SequenceSpec, bvh_text: str | None = None) -> Rig:
+def build_rig(spec: SequenceSpec, bvh_text: str | None = None) -> Rig | mesh_synth.MeshRig:
     """Everything fixed by ``spec``: the subject, placements, cameras and the whole motion."""
     rng = np.random.default_rng([spec.seed, 1])
     subject = body.random_subject(rng, spec.subject_height)
+    if spec.body == "mesh":  # the template of the mesh's height performs the motion; the draws above stay
+        mesh, subject = mesh_synth.mesh_subject(spec)
     prims = body.surface(subject)
     placements = reflectors.place(prims, rng, spec.jitter)
     layout_spec = spec.layout or (cameras.random_ring(rng, spec.views) if spec.random_layout else None)
@@ -95,12 +101,17 @@ def build_rig(spec: SequenceSpec, bvh_text: str | None = None) -> Rig:
         mot = motion.exercise(spec.motion, subject, n_frames=(spec.frames or 90) + 1, fps=spec.fps,
                               speed=spec.speed, amplitude=spec.amplitude, repetitions=spec.repetitions,
                               heading_deg=spec.heading_deg, variation=spec.variation, seed=spec.seed)
+    views = tuple(render.prepare_view(c) for c in cams)
+    if spec.body == "mesh":
+        return mesh_synth.build_mesh_rig(spec, mesh, subject, prims, placements, views, mot)
     rot, pos = forward_kinematics(mot.local_rot, mot.root_pos, body.rest_offsets(subject), body.PARENTS)
-    return Rig(spec, subject, prims, placements, tuple(render.prepare_view(c) for c in cams), mot, rot, pos)
+    return Rig(spec, subject, prims, placements, views, mot, rot, pos)
 
 
-def synthesize(rig: Rig, start: int, stop: int) -> xr.Dataset:
+def synthesize(rig: Rig | mesh_synth.MeshRig, start: int, stop: int) -> xr.Dataset:
     """Frames [start, stop) of the sequence in the raw-sequence schema, with ground truth."""
+    if isinstance(rig, mesh_synth.MeshRig):
+        return mesh_synth.synthesize_mesh(rig, start, stop)
     if not 0 <= start < stop <= rig.n_frames:
         raise ValueError(f"frames [{start}, {stop}) are outside the sequence's 0-{rig.n_frames}")
     n_views, n = len(rig.views), stop - start

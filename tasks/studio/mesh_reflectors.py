@@ -1,0 +1,142 @@
+"""DeepMoCap's 26 reflectors on the mesh body: patches of tape on the skin, straps around the limbs.
+
+Each reflector keeps its place on the template body (tasks/shared/reflectors.py, jittered per subject):
+its position relative to its segment (how far along it, which way round it) is carried onto the mesh's
+matching bone through the rest alignment of tasks/studio/mesh_motion.py. A patch is the 2-inch square of
+skin faces around the point where a ray from the segment's axis, in the patch's direction, leaves the
+body; its ground truth is that surface point (face, barycentric) on the posed mesh. A strap is the
+2-inch band of the limb's skin faces across the segment's axis; its ground truth is the mean of the band's
+posed vertices, the limb's centre at the strap.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mocapflow.tasks.shared.body import JOINT_NAMES, PARENTS, Primitive, Subject, rest_offsets
+from mocapflow.tasks.shared.mesh_body import MeshBody
+from mocapflow.tasks.shared.reflectors import TAPE_WIDTH, Placement
+from mocapflow.tasks.studio.mesh_motion import SEGMENTS, rest_alignment
+from mocapflow.tasks.studio.mesh_render import MeshScene
+
+# the template primitive a reflector sits on -> the mesh bone that carries it
+PRIM_BONES = {"torso": "spine05", "head": "head", "pelvis": "root", "l_clavicle": "clavicle.L", "r_clavicle": "clavicle.R",
+              "l_forearm": "lowerarm01.L", "r_forearm": "lowerarm01.R", "l_hand": "wrist.L", "r_hand": "wrist.R",
+              "l_shin": "lowerleg01.L", "r_shin": "lowerleg01.R", "l_foot": "foot.L", "r_foot": "foot.R"}
+STRAP_REACH_M = 0.10  # a strap takes the limb's skin within this distance of its axis
+
+
+class MeshPlacementError(ValueError):
+    """A reflector that cannot be placed on the mesh."""
+
+
+@dataclass(frozen=True)
+class MeshPlacement:
+    name: str
+    kind: str  # "patch" | "strap"
+    face: int  # patch: the face of its centre (-1 for a strap)
+    bary: np.ndarray  # patch: barycentric (u, v) of its centre
+    ring: np.ndarray  # strap: vertex indices of the band (empty for a patch)
+
+
+def _rest_positions(subject: Subject) -> np.ndarray:
+    """Template joints in the rest T-pose (every joint frame aligned with the world).  # (joint, 3)"""
+    offsets = rest_offsets(subject)
+    pos = np.zeros_like(offsets)
+    for j, parent in enumerate(PARENTS):
+        pos[j] = offsets[j] + (pos[parent] if parent >= 0 else 0.0)
+    return pos
+
+
+def _segment(body: MeshBody, subject: Subject, bone: str, tmpl_rest: np.ndarray):
+    """(template origin, template unit axis, template length, mesh origin, mesh unit axis, mesh length)."""
+    joint, end_bone, end_joint = SEGMENTS[bone]
+    o_t, o_m = tmpl_rest[JOINT_NAMES.index(joint)], body.rest_heads[body.bone(bone)]
+    if end_bone is None:
+        up = np.array([0.0, 0.0, 1.0])
+        return o_t, up, 1.0, o_m, up, 1.0
+    a_t = tmpl_rest[JOINT_NAMES.index(end_joint)] - o_t
+    a_m = body.rest_heads[body.bone(end_bone)] - o_m
+    return o_t, a_t / np.linalg.norm(a_t), np.linalg.norm(a_t), o_m, a_m / np.linalg.norm(a_m), np.linalg.norm(a_m)
+
+
+def place_on_mesh(body: MeshBody, subject: Subject, prims: tuple[Primitive, ...],
+                  placements: tuple[Placement, ...]) -> tuple[tuple[MeshPlacement, ...], np.ndarray]:
+    """The template ``placements`` (on ``prims`` of ``subject``) carried onto ``body``.
+
+    Returns the mesh placements and each face's reflector index (-1 for none).  # (face,) int8
+    """
+    tmpl_rest = _rest_positions(subject)
+    align = rest_alignment(body, subject)
+    skin = np.flatnonzero(body.skin)
+    scene = MeshScene(body.vertices, body.faces[skin])
+    centroids = body.vertices[body.faces].mean(axis=1)  # (face, 3)
+    face_reflector = np.full(len(body.faces), -1, np.int8)
+    out = []
+    for r, p in enumerate(placements):
+        prim = prims[p.prim]
+        bone = PRIM_BONES.get(prim.name)
+        if bone is None:
+            raise MeshPlacementError(f"reflector {p.name} sits on template primitive {prim.name!r}, which no mesh bone "
+                                     f"carries; add it to PRIM_BONES ({', '.join(PRIM_BONES)})")
+        o_t, a_t, l_t, o_m, a_m, l_m = _segment(body, subject, bone, tmpl_rest)
+        centre = tmpl_rest[prim.joint] + p.centre  # template rest world position
+        along = (centre - o_t) @ a_t / l_t  # fraction of the segment (of a metre where it has no end)
+        origin = o_m + along * l_m * a_m
+        if p.kind == "strap":
+            band = _band(body, origin, a_m, bone)
+            face_reflector[band] = r
+            out.append(MeshPlacement(p.name, "strap", -1, np.zeros(2), np.unique(body.faces[band])))
+            continue
+        radial = centre - o_t - ((centre - o_t) @ a_t) * a_t
+        direction = radial if np.linalg.norm(radial) > 1e-6 else p.normal
+        direction = align[body.bone(bone)][1].T @ (direction / np.linalg.norm(direction))  # template -> mesh rest
+        face, bary, t = scene.cast(origin[None], direction[None])
+        if face[0] < 0:
+            raise MeshPlacementError(f"reflector {p.name}: no skin found from {bone} in direction {direction.round(2)}")
+        face_id = int(skin[face[0]])
+        point = origin + t[0] * direction
+        normal = np.cross(*(body.vertices[body.faces[face_id, 1:]] - body.vertices[body.faces[face_id, 0]]))
+        face_reflector[_square(centroids, point, normal / np.linalg.norm(normal)) & body.skin] = r
+        out.append(MeshPlacement(p.name, "patch", face_id, bary[0].astype(np.float64), np.zeros(0, np.int64)))
+    return tuple(out), face_reflector
+
+
+def _band(body: MeshBody, origin: np.ndarray, axis: np.ndarray, bone: str) -> np.ndarray:
+    """Faces of the limb's skin whose centre lies within half a tape width of the plane through ``origin`` across
+    ``axis`` (and near the axis: this side's limb only).  # (face,) bool"""
+    side = bone[-2:]
+    limb = np.array([n.endswith(side) for n in body.bone_names])[body.vertex_bone[body.faces]].all(axis=1)
+    rel = body.vertices[body.faces].mean(axis=1) - origin
+    along = rel @ axis
+    across = np.linalg.norm(rel - np.outer(along, axis), axis=1)
+    band = body.skin & limb & (np.abs(along) <= TAPE_WIDTH / 2) & (across <= STRAP_REACH_M)
+    if band.sum() < 8:
+        raise MeshPlacementError(f"a strap on {bone} found only {band.sum()} skin faces around its limb")
+    return band
+
+
+def _square(centroids: np.ndarray, centre: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Faces whose centroid lies in the 2-inch square of tape around ``centre`` on the plane of ``normal``."""
+    helper = np.array([0.0, 0.0, 1.0]) if abs(normal[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    u = np.cross(helper, normal)
+    u /= np.linalg.norm(u)
+    v = np.cross(normal, u)
+    rel = centroids - centre
+    half = TAPE_WIDTH / 2
+    return (np.abs(rel @ u) <= half) & (np.abs(rel @ v) <= half) & (np.abs(rel @ normal) <= half)
+
+
+def reflector_positions(body: MeshBody, placements: tuple[MeshPlacement, ...], vertices: np.ndarray) -> np.ndarray:
+    """Ground-truth reflector positions on posed meshes: (frame, vertex, 3) -> (frame, reflector, 3)."""
+    out = np.empty((vertices.shape[0], len(placements), 3))
+    for r, p in enumerate(placements):
+        if p.kind == "strap":
+            out[:, r] = vertices[:, p.ring].mean(axis=1)
+        else:
+            corners = vertices[:, body.faces[p.face]]  # (frame, 3, 3)
+            u, v = p.bary
+            out[:, r] = (1 - u - v) * corners[:, 0] + u * corners[:, 1] + v * corners[:, 2]
+    return out

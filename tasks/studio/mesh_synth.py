@@ -1,0 +1,161 @@
+"""A studio sequence filmed on the mesh body: the Kinect-like sensors of the capsule studio, Anny as the subject.
+
+``mesh_subject`` draws the Anny phenotype from the seed (its own random stream, so the capsule studio's draws,
+and with them its placements' jitter and camera layouts, stay the same for the same seed) and the template
+subject of the same height that performs the motion; ``build_mesh_rig`` carries the template's reflectors onto
+the mesh and retargets and skins the whole motion. ``synthesize_mesh`` ray-casts frames [start, stop) of every
+view (one Embree scene per frame, shared by the views) into the raw-sequence schema: depth and IR from the
+capsule studio's sensor model, reflector ids from the faces the reflectors cover, scene flow from each hit's
+surface point on the neighbouring frames' meshes. Ground truth: the 20 template joints (the mesh bones at them), the
+reflectors, and what reproduces every vertex exactly (the phenotype in the attributes, each bone's rotation
+and the root's position per frame).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import xarray as xr
+from scipy.spatial.transform import Rotation
+
+from mocapflow.schemas.raw import make_raw_sequence
+from mocapflow.tasks.shared import body, reflectors
+from mocapflow.tasks.shared.mesh_body import PARTS, MeshBody, mesh_body, part_of_bone, random_phenotype
+from mocapflow.tasks.studio import mesh_motion, mesh_reflectors, render
+from mocapflow.tasks.studio.mesh_render import MeshScene, cast_view, interpolate, vertex_normals
+
+MESH_STUDIO_VERSION = "1"
+_FINE_PARTS = tuple(p for p in PARTS if PARTS[p] == (p,))
+
+
+@dataclass(frozen=True)
+class MeshRig:
+    spec: object  # synth.SequenceSpec
+    body: MeshBody
+    subject: body.Subject  # the template body of the same height that performs the motion
+    placements: tuple  # mesh_reflectors.MeshPlacement, in REFLECTOR_NAMES order
+    face_reflector: np.ndarray  # (face,) int8
+    face_part: np.ndarray  # (face,) int16 fine body part, for the cloth texture
+    views: tuple  # render.View per camera
+    motion: object  # motion.Motion of the template, n_frames + 1 frames
+    take: mesh_motion.MeshTake  # n_frames + 1 frames
+
+    @property
+    def n_frames(self) -> int:
+        return self.take.root.shape[0] - 1
+
+
+def build_mesh_rig(spec, body_: MeshBody, subject: body.Subject, prims: tuple, placements: tuple, views: tuple,
+                   mot) -> MeshRig:
+    """The mesh rig: ``mot`` (the template ``subject``'s motion, n_frames + 1 frames) performed by ``body_``, and the
+    template's reflector ``placements`` on ``prims`` carried onto the mesh."""
+    mesh_placements, face_reflector = mesh_reflectors.place_on_mesh(body_, subject, prims, placements)
+    fine = {name: i for i, name in enumerate(_FINE_PARTS)}
+    bone_part = np.array([fine[part_of_bone(n)] for n in body_.bone_names], np.int16)
+    face_part = bone_part[body_.vertex_bone[body_.faces[:, 0]]]
+    return MeshRig(spec, body_, subject, mesh_placements, face_reflector, face_part, views, mot,
+                   mesh_motion.retarget(body_, subject, mot))
+
+
+def mesh_subject(spec) -> tuple[MeshBody, body.Subject]:
+    """The sequence's Anny body (from its own random stream, so the capsule studio's draws are untouched) and the
+    template subject of the same height that performs its motion."""
+    body_ = mesh_body(random_phenotype(np.random.default_rng([spec.seed, 2]), spec.subject_height))
+    return body_, body.Subject(height=body_.height)
+
+
+def _view_frame(rig: MeshRig, view: render.View, scene: MeshScene, f: int, normals: np.ndarray,
+                rng: np.random.Generator) -> render.Frame:
+    """One view at frame ``f`` (the posed meshes of f - 1, f and f + 1 are in rig.take)."""
+    hits = cast_view(scene, view.cam, view.rays)
+    body_mask = hits.face >= 0
+    t_body = np.where(body_mask, hits.depth / np.maximum(view.rays[..., 2], 1e-9), np.inf)
+    body_mask &= t_body < view.bg_t
+    t = np.where(body_mask, t_body, view.bg_t)
+    face, bary = hits.face[body_mask], hits.bary[body_mask]
+    faces = rig.body.faces
+    verts = rig.take.posed.vertices
+    n = interpolate(normals[faces], face, bary)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    cos = view.bg_cos.copy()
+    cos[body_mask] = np.abs(np.einsum("ni,ni->n", n @ view.R.T, view.rays[body_mask]))
+    rid = np.full(body_mask.shape, -1, np.int8)
+    rid[body_mask] = rig.face_reflector[face]
+    reflector = rid >= 0
+    here = interpolate(verts[f][faces], face, bary)
+    flow = np.zeros(body_mask.shape + (3,), np.float32)
+    flow_prev = np.zeros_like(flow)
+    flow[body_mask] = (interpolate(verts[f + 1][faces], face, bary) - here) @ view.R.T
+    flow_prev[body_mask] = (here - interpolate(verts[max(f - 1, 0)][faces], face, bary)) @ view.R.T
+    depth = render.kinect_depth(t * view.rays[..., 2], cos, reflector, rng, rig.spec.noise)
+    albedo = view.bg_albedo.copy()
+    rest = interpolate(rig.body.vertices[faces], face, bary)
+    albedo[body_mask] = render.ALBEDO["body"] * render.cloth_texture(rig.face_part[face], rest)
+    ir = render.kinect_ir(t, cos, albedo, reflector, rng, rig.spec.noise)
+    pixels = np.bincount(rid[reflector].astype(np.int64), minlength=len(rig.placements)).astype(np.int32)
+    return render.Frame(depth, ir, rid, body_mask, flow, flow_prev, pixels)
+
+
+def synthesize_mesh(rig: MeshRig, start: int, stop: int) -> xr.Dataset:
+    """Frames [start, stop) of the sequence in the raw-sequence schema, with ground truth."""
+    if not 0 <= start < stop <= rig.n_frames:
+        raise ValueError(f"frames [{start}, {stop}) are outside the sequence's 0-{rig.n_frames}")
+    n_views, n = len(rig.views), stop - start
+    h, w = rig.views[0].bg_t.shape
+    depth = np.zeros((n_views, n, h, w), np.uint16)
+    ir = np.zeros_like(depth)
+    rid = np.zeros((n_views, n, h, w), np.int8)
+    flow = np.zeros((n_views, n, h, w, 3), np.float16)
+    flow_prev = np.zeros_like(flow)
+    body_mask = np.zeros((n_views, n, h, w), bool)
+    pixels = np.zeros((n_views, n, len(rig.placements)), np.int32)
+    posed = rig.take.posed
+    refl3d = mesh_reflectors.reflector_positions(rig.body, rig.placements, posed.vertices[start:stop])
+    uv = np.zeros((n_views, n, len(rig.placements), 2), np.float32)
+    for v, view in enumerate(rig.views):
+        uv[v] = view.cam.project(refl3d.reshape(-1, 3))[0].reshape(n, -1, 2)
+    for i, f in enumerate(range(start, stop)):
+        scene = MeshScene(posed.vertices[f], rig.body.faces)
+        normals = vertex_normals(posed.vertices[f], rig.body.faces)
+        for v, view in enumerate(rig.views):
+            frame = _view_frame(rig, view, scene, f, normals, np.random.default_rng([rig.spec.seed, v, f]))
+            depth[v, i], ir[v, i], rid[v, i], body_mask[v, i], pixels[v, i] = (
+                frame.depth, frame.ir, frame.reflector_id, frame.body, frame.pixels)
+            flow[v, i], flow_prev[v, i] = frame.scene_flow, frame.scene_flow_prev
+    joint_quats = Rotation.from_matrix(rig.motion.local_rot[start:stop].reshape(-1, 3, 3)).as_quat()
+    bone_quats = Rotation.from_matrix(rig.take.rotations[start:stop].reshape(-1, 3, 3)).as_quat()
+    gt = {
+        "gt_joints": (("frame", "joint", "xyz"), posed.heads[start:stop][:, rig.body.joint_bones()].astype(np.float32)),
+        "gt_joint_rotations": (("frame", "joint", "quat"), joint_quats.reshape(n, -1, 4).astype(np.float32)),
+        "gt_bone_rotations": (("frame", "bone", "quat"), bone_quats.reshape(n, -1, 4)),
+        "gt_root": (("frame", "xyz"), rig.take.root[start:stop]),
+        "gt_reflectors": (("frame", "reflector", "xyz"), refl3d.astype(np.float32)),
+        "gt_reflectors2d": (("view", "frame", "reflector", "uv"), uv),
+        "gt_visible": (("view", "frame", "reflector"), pixels > 0),
+        "gt_pixels": (("view", "frame", "reflector"), pixels),
+        "gt_reflector_id": (("view", "frame", "y", "x"), rid),
+        "gt_body": (("view", "frame", "y", "x"), body_mask),
+        "gt_scene_flow": (("view", "frame", "y", "x", "xyz"), flow),
+        "gt_scene_flow_prev": (("view", "frame", "y", "x", "xyz"), flow_prev),
+    }
+    ds = make_raw_sequence(depth, ir, {view.cam.name: view.cam.as_dict() for view in rig.views}, rig.spec.fps,
+                           start, gt)
+    ds = ds.assign_coords(joint=np.array(body.JOINT_NAMES, dtype=object),
+                          reflector=np.array(reflectors.REFLECTOR_NAMES, dtype=object),
+                          bone=np.array(rig.body.bone_names, dtype=object),
+                          xyz=np.array(["x", "y", "z"], dtype=object), uv=np.array(["u", "v"], dtype=object),
+                          quat=np.array(["x", "y", "z", "w"], dtype=object))
+    ds.attrs.update(body="mesh", body_model=f"anny {_anny_version()}", phenotype=asdict(rig.body.phenotype),
+                    mesh_studio_version=MESH_STUDIO_VERSION, exercise=rig.motion.label,
+                    subject=asdict(rig.subject), seed=rig.spec.seed, noise=rig.spec.noise,
+                    reflector_kinds=[p.kind for p in rig.placements],
+                    joint_parents=[int(p) for p in body.PARENTS],
+                    bone_parents=[int(p) for p in rig.body.bone_parents])
+    return ds
+
+
+def _anny_version() -> str:
+    from importlib.metadata import version
+
+    return version("anny")
