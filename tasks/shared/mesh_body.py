@@ -14,6 +14,7 @@ joints, so every system is scored on the same joints.
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -149,11 +150,25 @@ def anny_model():
     return _MODELS.get_or_make("anny", build)
 
 
+@contextmanager
+def _one_torch_thread():
+    """Anny's sums run in one thread, so a body is the same to the last bit whatever a process's thread count
+    (torch splits its reductions by thread, and the studio's output must not depend on where it was rendered)."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
+
+
 def _rest(phenotype: Phenotype) -> dict:
     import torch
 
     model = anny_model()
-    with torch.no_grad():
+    with torch.no_grad(), _one_torch_thread():
         out = model(phenotype_kwargs={k: torch.tensor([v], dtype=torch.float64) for k, v in asdict(phenotype).items()})
     return {k: v[0].numpy() for k, v in out.items() if k.startswith("rest_")}
 
@@ -234,7 +249,7 @@ def pose_mesh(body: MeshBody, rotations: np.ndarray, root: np.ndarray) -> PosedM
     delta[..., :3, :3] = native
     delta[..., 3, 3] = 1.0
     delta[:, 0, :3, 3] = (root - lift) @ FACING  # the root head, in Anny's frame before the lift
-    with torch.no_grad():
+    with torch.no_grad(), _one_torch_thread():
         out = model(pose_parameters=torch.from_numpy(delta),
                     phenotype_kwargs={k: torch.tensor([v], dtype=torch.float64)
                                       for k, v in asdict(body.phenotype).items()})

@@ -97,11 +97,32 @@ def test_synth_refuses_to_overwrite_and_reports_bad_inputs(tmp_path):
     assert proc.returncode == 2 and "frames must be positive" in proc.stderr
 
 
-def test_variation_enters_the_fingerprint_only_when_set():
+def test_later_fields_enter_the_fingerprint_only_when_set():
     plain = SequenceSpec("classic_squat", seed=3)
-    before_the_field = {k: v for k, v in dataclasses.asdict(plain).items() if k != "variation"}
-    assert fingerprint(plain, None) == digest({"spec": before_the_field, "bvh": None, "studio": STUDIO_VERSION})
+    before_the_fields = {k: v for k, v in dataclasses.asdict(plain).items() if k not in ("variation", "body")}
+    assert fingerprint(plain, None) == digest({"spec": before_the_fields, "bvh": None, "studio": STUDIO_VERSION})
     assert fingerprint(SequenceSpec("classic_squat", seed=3, variation=0.5), None) != fingerprint(plain, None)
+    assert fingerprint(SequenceSpec("classic_squat", seed=3, body="mesh"), None) != fingerprint(plain, None)
+
+
+def test_a_mesh_body_sequence_runs_through_the_engine_and_through_synth(tmp_path):
+    text = CATALOG.format(shared=SHARED).replace("defaults: {frames: 10, noise: 0.5}",
+                                                 "defaults: {frames: 3, noise: 0.5, body: mesh, views: 2}")
+    (tmp_path / "catalog.yaml").write_text(text)
+    summary = last_json(mocapflow("run", "--json", "--sequences", "squat", cwd=tmp_path))
+    assert summary["executed"] == ["frames/squat"]
+    stored = {pid: arrays for (pid, _), arrays in read_artifacts(tmp_path / "storage").items()}["frames/squat"]
+    direct = synthesize(build_rig(SequenceSpec("classic_squat", frames=3, seed=3, subject_height=1.62, noise=0.5,
+                                               body="mesh", views=2)), 0, 3)
+    for var in ("depth", "ir", "gt_reflector_id", "gt_joints", "gt_bone_rotations"):
+        np.testing.assert_array_equal(stored[var], direct[var].values)
+    mocapflow("synth", "--out", tmp_path / "m", "--motion", "side_jumps", "--frames", "2", "--views", "1",
+              "--body", "mesh", "--subject-height", "1.58", cwd=tmp_path)
+    ds = xr.open_zarr(tmp_path / "m" / "side_jumps.zarr", consolidated=False)
+    assert ds.attrs["body"] == "mesh" and ds.sizes["bone"] == 104 and ds.attrs["subject"]["height"] == 1.58
+    (tmp_path / "catalog.yaml").write_text(text.replace("body: mesh", "body: mess"))
+    proc = mocapflow("run", cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and "body must be one of capsule, mesh, got 'mess'" in proc.stderr
 
 
 def test_a_varied_sequence_is_rerendered_when_the_variation_ranges_change(monkeypatch):

@@ -94,3 +94,19 @@ def test_surface_layouts_cover_a_named_part_uniformly_by_area(body):
         assert body.part_faces(limb)[faces].any()
     with pytest.raises(mb.MeshBodyError, match="unknown body part 'tail'"):
         mb.random_surface_points(body, np.random.default_rng(0), 3, "tail")
+
+
+def test_a_body_is_the_same_to_the_last_bit_whatever_the_thread_count(body):
+    torch = pytest.importorskip("torch")
+    threads = torch.get_num_threads()
+    rot = np.tile(np.eye(3), (2, len(body.bone_names), 1, 1))
+    rot[:, body.bone("lowerarm01.R")] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
+    out = []
+    try:
+        for n in (1, 3):
+            torch.set_num_threads(n)
+            again = mb.mesh_body(body.phenotype)
+            out.append((again.vertices, mb.pose_mesh(again, rot, np.tile(again.rest_heads[:1], (2, 1))).vertices))
+    finally:
+        torch.set_num_threads(threads)
+    assert np.array_equal(out[0][0], out[1][0]) and np.array_equal(out[0][1], out[1][1])
