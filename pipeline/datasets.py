@@ -70,23 +70,30 @@ def check_sequence(dataset, seq: SequenceInfo) -> None:
     """Refuse a sequence whose id or view names break ``NAME_RULE``, whose views repeat, or that has no frame."""
     source = f" ({seq.spec['path']})" if isinstance(seq.spec, Mapping) and "path" in seq.spec else ""
     error = InputError if source else CatalogError
-    where = f"{dataset.where}: sequence {seq.id!r}{source}"
-    if not _NAME.fullmatch(seq.id):
-        raise error(f"{dataset.where}: sequence id {seq.id!r}{source} is not a valid name: ids become file names, so "
-                    f"they must match {NAME_RULE} (letters, digits, _ - ., not starting with '.'); rename it")
-    for view in seq.views:
+    check_names(dataset.where, seq.id, seq.views, source)
+    if seq.n_frames <= 0:
+        raise error(f"{dataset.where}: sequence {seq.id!r}{source} has no frames ({seq.n_frames}); record or render "
+                    "at least one frame, or remove the sequence")
+
+
+def check_names(where: str, seq_id: str, views, source: str = "") -> None:
+    """A sequence id and its view names follow ``NAME_RULE`` (they become parts of paths), the views distinct.
+    ``source``: the file they come from (then the error is an InputError, else a CatalogError)."""
+    error = InputError if source else CatalogError
+    if not _NAME.fullmatch(seq_id):
+        raise error(f"{where}: sequence id {seq_id!r}{source} is not a valid name: ids become file names, so they must "
+                    f"match {NAME_RULE} (letters, digits, _ - ., not starting with '.'); rename it")
+    where = f"{where}: sequence {seq_id!r}{source}"
+    for view in views:
         if not _NAME.fullmatch(view):
             raise error(f"{where}: view name {view!r} is not a valid name: view names become partition names, so "
                         f"they must match {NAME_RULE}; rename the view")
-    repeated = sorted({v for v in seq.views if seq.views.count(v) > 1})
+    repeated = sorted({v for v in views if list(views).count(v) > 1})
     if repeated:
-        raise error(f"{where}: view name(s) {repeated} appear more than once in {list(seq.views)}; "
+        raise error(f"{where}: view name(s) {repeated} appear more than once in {list(views)}; "
                     "give every sensor its own name")
-    if not seq.views:
+    if not views:
         raise error(f"{where}: has no views; a sequence needs at least one sensor")
-    if seq.n_frames <= 0:
-        raise error(f"{where}: has no frames ({seq.n_frames}); record or render at least one frame, "
-                    "or remove the sequence")
 
 
 def _pattern(dataset, default: str) -> str:
@@ -117,6 +124,8 @@ class ZarrReader:
         out = []
         for store in sorted(folder.glob(pattern)):
             ds = _open_raw(store)
+            check_names(dataset.where, store.name.removesuffix(".zarr"), [str(v) for v in ds["view"].values],
+                        f" ({store})")
             check_raw_header(ds, store)
             files = sorted((p.relative_to(store).as_posix(), p.stat().st_size, p.stat().st_mtime_ns)
                            for p in store.rglob("*") if p.is_file())
@@ -206,6 +215,7 @@ class ImageFolderReader:
         for seq_dir in sorted(p for p in folder.glob(pattern) if (p / "calibration.yaml").is_file()):
             calib = _calibration(seq_dir)
             views = tuple(calib["views"])
+            check_names(dataset.where, seq_dir.name, views, f" ({seq_dir})")  # before any view's folder is read
             numbers = {v: _view_frames(seq_dir, v, calib["cameras"][v]) for v in views}
             counts = {v: len(n) for v, n in numbers.items()}
             if len({(n[0], len(n)) if n else None for n in numbers.values()}) != 1:
