@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
+import fsspec
 import yaml
 
 from mocapflow.pipeline import registry
@@ -167,9 +168,7 @@ class _Validator:
         registry.import_plugins(plugins)
         storage = self.mapping(data.get("storage"), "storage")
         self.known_keys(storage, STORAGE_KEYS, "storage")
-        root = str(storage.get("root", "storage/"))
-        if "://" not in root:
-            root = str((self.path.parent / root).resolve())
+        root = self.storage_root(str(storage.get("root", "storage/")))
         region = storage.get("region_frames", DEFAULT_REGION_FRAMES)
         self.positive_int(region, "storage", "region_frames")
         roots = data.get("data_roots") or ["."]
@@ -180,6 +179,24 @@ class _Validator:
         stages = self.stages(self.mapping(data.get("stages"), "stages"), datasets, region)
         evaluation = self.mapping(data.get("evaluation"), "evaluation")
         return Catalog(self.path, root, data_roots, plugins, datasets, stages, evaluation)
+
+    def storage_root(self, root: str) -> str:
+        """The storage root: a local folder (resolved against the catalog; not a file) or a URL of a filesystem
+        fsspec can open here."""
+        if "://" in root:
+            protocol = root.split("://", 1)[0]
+            try:
+                fsspec.get_filesystem_class(protocol)
+            except (ValueError, ImportError) as exc:
+                raise CatalogError(f"{self.where('storage', 'root')}: cannot store artifacts at {root!r}: {exc}; use a "
+                                   "folder or the URL of an installed fsspec filesystem (e.g. s3:// with s3fs)") from exc
+            return root
+        path = (self.path.parent / root).resolve()
+        existing = next(p for p in (path, *path.parents) if p.exists())
+        if not existing.is_dir():
+            raise CatalogError(f"{self.where('storage', 'root')}: {root!r} resolves to {path}, but {existing} is a file; "
+                               "point storage.root at a folder")
+        return str(path)
 
     def positive_int(self, value, *keys) -> int:
         if isinstance(value, bool) or not isinstance(value, int) or value <= 0:

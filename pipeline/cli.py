@@ -11,8 +11,8 @@ from pathlib import Path
 import click
 
 from mocapflow.pipeline.catalog import load_catalog
-from mocapflow.pipeline.errors import MocapflowError
-from mocapflow.pipeline.plan import Plan, WorkItem, build_plan, select, status
+from mocapflow.pipeline.errors import MocapflowError, PlanError
+from mocapflow.pipeline.plan import Partition, Plan, WorkItem, build_plan, select, status
 from mocapflow.pipeline.storage import Store
 
 catalog_option = click.option("--catalog", "catalog_path", default="catalog.yaml", show_default=True,
@@ -20,7 +20,7 @@ catalog_option = click.option("--catalog", "catalog_path", default="catalog.yaml
 set_option = click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
                           help="override a catalog value, e.g. --set stages.flow.task=dis (repeatable)")
 sequences_option = click.option("--sequences", default=None, metavar="GLOB", help="only sequences whose id matches")
-workers_option = click.option("--workers", default=2, show_default=True,
+workers_option = click.option("--workers", default=2, show_default=True, type=click.IntRange(min=1),
                               help="local worker processes, one task at a time each")
 threads_option = click.option("--threads", is_flag=True,
                               help="run the local workers as threads of this process: they start sooner, but the "
@@ -79,10 +79,11 @@ def run(catalog_path, overrides, sequences, only, until, dry_run, workers, threa
         return
     results = run_items(todo, workers=workers, processes=not threads, address=address, keep_going=keep_going,
                         progress=not no_progress and sys.stderr.isatty())
-    by_status = {s: [r for r in results if r.status == s] for s in ("executed", "failed", "skipped")}
+    by_status = {s: [r for r in results if r.status == s] for s in ("executed", "cached", "failed", "skipped")}
     elapsed = time.perf_counter() - started
-    click.echo(f"{len(by_status['executed'])} executed, {len(cached)} cached, {len(by_status['failed'])} failed, "
-               f"{len(by_status['skipped'])} skipped in {elapsed:.2f} s")
+    found_complete = len(by_status["cached"])  # complete when a worker reached them (another run wrote them)
+    click.echo(f"{len(by_status['executed'])} executed, {len(cached) + found_complete} cached, "
+               f"{len(by_status['failed'])} failed, {len(by_status['skipped'])} skipped in {elapsed:.2f} s")
     for r in by_status["failed"]:
         click.echo(f"FAILED {r.partition}: {r.error}", err=True)
         if r.detail:
@@ -90,7 +91,7 @@ def run(catalog_path, overrides, sequences, only, until, dry_run, workers, threa
     if as_json:
         click.echo(json.dumps({
             "executed": [r.partition for r in by_status["executed"]],
-            "cached": [i.partition.id for i in cached] + [r.partition for r in results if r.status == "cached"],
+            "cached": [i.partition.id for i in cached] + [r.partition for r in by_status["cached"]],
             "failed": [r.partition for r in by_status["failed"]],
             "skipped": [r.partition for r in by_status["skipped"]],
             "errors": {r.partition: r.error for r in by_status["failed"]},
@@ -127,21 +128,50 @@ def explain(catalog_path, overrides, stage, sequence, view):
     """Why STAGE of SEQUENCE [VIEW] would run: which key component changed, old vs new."""
     catalog = load_catalog(catalog_path, overrides)
     store = Store(catalog.root)
-    plan = build_plan(catalog, sequence)
-    pid = "/".join(p for p in (stage, sequence, view) if p)
-    item = plan.items.get(pid)
-    if item is None:
-        candidates = [p for p in plan.items if p.startswith(f"{stage}/{sequence}")]
-        raise MocapflowError(f"no partition {pid!r} in the catalog's plan; partitions of that stage and sequence: "
-                             f"{candidates or 'none'} (per-view stages need the VIEW argument)")
-    click.echo(_explain(item, store))
+    plan = build_plan(catalog)
+    click.echo(_explain(_explained_item(catalog, plan, stage, sequence, view), store))
+
+
+def _explained_item(catalog, plan: Plan, stage: str, sequence: str, view: str | None) -> WorkItem:
+    """The work item `explain STAGE SEQUENCE [VIEW]` names; an unknown name is refused with the nearest known one."""
+    from mocapflow.pipeline.registry import did_you_mean
+
+    if stage not in catalog.stages:
+        raise PlanError(f"explain: no stage {stage!r}{did_you_mean(stage, catalog.stages)}; "
+                        f"stages: {list(catalog.stages)}")
+    partition = catalog.stages[stage].spec.partition
+    names = sorted(plan.dataset_of.values() if partition == "dataset" else plan.dataset_of)
+    what = "dataset" if partition == "dataset" else "sequence"
+    if sequence not in names:
+        raise PlanError(f"explain: no {what} {sequence!r}{did_you_mean(sequence, names)}; {what}s: {names}")
+    if partition == "view":
+        views = list(next(s for s in plan.sequences if s.id == sequence).views)
+        if view is None:
+            raise PlanError(f"explain: stage {stage!r} runs per view; add the VIEW argument, one of {views}")
+        if view not in views:
+            raise PlanError(f"explain: sequence {sequence!r} has no view {view!r}{did_you_mean(view, views)}; "
+                            f"its views: {views}")
+    elif view is not None:
+        raise PlanError(f"explain: stage {stage!r} runs per {partition}; drop the VIEW argument {view!r}")
+    pid = Partition(stage, sequence, view if partition == "view" else None).id
+    if pid not in plan.items:
+        raise PlanError(f"explain: stage {stage!r} does not run on {sequence!r}: it reads another dataset "
+                        f"(`mocapflow status` lists its partitions)")
+    return plan.items[pid]
 
 
 def _explain(item: WorkItem, store: Store) -> str:
     stage = item.partition.stage
     if store.is_complete(stage, item.key):
         return f"{item.partition.id} is fresh (key {item.key}); nothing would run"
-    others = [v for v in store.versions(stage) if v.partition == item.partition.id and v.key != item.key]
+    done = store.regions_done(stage, item.key)
+    if done:
+        return (f"{item.partition.id} is partial: {done} region(s) of key {item.key} are written, the rest are not; "
+                "a run resumes it at the first missing region")
+    versions = [v for v in store.versions(stage) if v.partition == item.partition.id]
+    if any(v.key == item.key for v in versions):
+        return f"{item.partition.id} was started (key {item.key}) but no region was written; it would run"
+    others = [v for v in versions if v.key != item.key]
     if not others:
         return f"{item.partition.id} was never computed (key {item.key}); it would run"
     prev = max(others, key=lambda v: (v.complete, v.lineage.get("finished") or v.lineage.get("started") or ""))

@@ -7,16 +7,26 @@ Kinds:
           ``<id>/calibration.yaml`` and ``<id>/<view>/{depth,ir}/<frame:06d>.png``
 
 Each reader discovers sequences (id, views, frame count, fingerprint of the raw input) on the
-driver, and reads a frame region on a worker. Only this module touches raw-input files. A reader's
-``options`` names the catalog keys a dataset of its kind takes besides ``kind``; the catalog refuses
-any other key when it is loaded.
+driver, and reads a frame region on a worker. Discovery checks the raw input before any stage runs:
+names, frame numbering and counts, image sizes, timestamps, fps and calibration, each failure an
+error naming the file, the key or the frame and the fix.
+
+Sequence ids and view names become parts of paths (partitions, export files), so both must match
+``NAME_RULE``: letters, digits, ``_``, ``-`` and ``.``, not starting with ``.``; a sequence's view
+names are distinct, and a sequence has at least one frame. A zarr or image dataset's ``pattern``
+matches names inside its ``path`` and may not leave it (no ``..``, not absolute).
+
+Only this module touches raw-input files. A reader's ``options`` names the catalog keys a dataset
+of its kind takes besides ``kind``; the catalog refuses any other key when it is loaded.
 """
 
 from __future__ import annotations
 
 import fnmatch
+import re
+import struct
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any, Mapping
 
 import numpy as np
@@ -28,6 +38,12 @@ from mocapflow.pipeline.hashing import digest
 from mocapflow.pipeline.storage import check
 from mocapflow.schemas import get_schema
 from mocapflow.schemas.raw import make_raw_sequence
+from mocapflow.tasks.shared.cameras import CalibrationError, calibrated_camera
+
+NAME_RULE = "[A-Za-z0-9_-][A-Za-z0-9_.-]*"  # sequence ids and view names: they become parts of paths
+_NAME = re.compile(NAME_RULE)
+CALIBRATION_HELP = ("'fps' (frames per second, > 0) and 'views: {name: {fx, fy, cx, cy, dist: [k1, k2, p1, p2, k3], "
+                    "cam_to_world: 4x4, width, height}}'")
 
 
 @dataclass(frozen=True)
@@ -40,12 +56,56 @@ class SequenceInfo:
 
 
 def discover(catalog, dataset, pattern: str | None = None) -> list[SequenceInfo]:
-    """The sequences of ``dataset`` (optionally filtered by a glob on their ids)."""
+    """The sequences of ``dataset`` (optionally filtered by a glob on their ids), their names checked."""
     reader = DATASET_KINDS[dataset.kind]
     found = reader.discover(catalog, dataset)
     if pattern:
         found = [s for s in found if fnmatch.fnmatchcase(s.id, pattern)]
+    for seq in found:
+        check_sequence(dataset, seq)
     return sorted(found, key=lambda s: s.id)
+
+
+def check_sequence(dataset, seq: SequenceInfo) -> None:
+    """Refuse a sequence whose id or view names break ``NAME_RULE``, whose views repeat, or that has no frame."""
+    source = f" ({seq.spec['path']})" if isinstance(seq.spec, Mapping) and "path" in seq.spec else ""
+    error = InputError if source else CatalogError
+    check_names(dataset.where, seq.id, seq.views, source)
+    if seq.n_frames <= 0:
+        raise error(f"{dataset.where}: sequence {seq.id!r}{source} has no frames ({seq.n_frames}); record or render "
+                    "at least one frame, or remove the sequence")
+
+
+def check_names(where: str, seq_id: str, views, source: str = "") -> None:
+    """A sequence id and its view names follow ``NAME_RULE`` (they become parts of paths), the views distinct.
+    ``source``: the file they come from (then the error is an InputError, else a CatalogError)."""
+    error = InputError if source else CatalogError
+    if not _NAME.fullmatch(seq_id):
+        raise error(f"{where}: sequence id {seq_id!r}{source} is not a valid name: ids become file names, so they must "
+                    f"match {NAME_RULE} (letters, digits, _ - ., not starting with '.'); rename it")
+    where = f"{where}: sequence {seq_id!r}{source}"
+    for view in views:
+        if not _NAME.fullmatch(view):
+            raise error(f"{where}: view name {view!r} is not a valid name: view names become partition names, so "
+                        f"they must match {NAME_RULE}; rename the view")
+    repeated = sorted({v for v in views if list(views).count(v) > 1})
+    if repeated:
+        raise error(f"{where}: view name(s) {repeated} appear more than once in {list(views)}; "
+                    "give every sensor its own name")
+    if not views:
+        raise error(f"{where}: has no views; a sequence needs at least one sensor")
+
+
+def _pattern(dataset, default: str) -> str:
+    """A dataset's ``pattern``: a glob of names inside its folder, never leaving it."""
+    pattern = str(dataset.options.get("pattern", default))
+    parts = PurePosixPath(pattern.replace("\\", "/")).parts
+    if not pattern or PurePosixPath(pattern).is_absolute() or Path(pattern).is_absolute() or ".." in parts \
+            or pattern.startswith("~"):
+        raise CatalogError(f"{dataset.where}.pattern: {pattern!r} leaves the dataset's folder; a pattern matches names "
+                           f"inside 'path' (e.g. {default!r}): drop the '..', or point 'path' at the other folder "
+                           "(inside data_roots)")
+    return pattern
 
 
 def read_frames(dataset, seq: SequenceInfo, start: int, stop: int) -> xr.Dataset:
@@ -60,10 +120,13 @@ class ZarrReader:
     @staticmethod
     def discover(catalog, dataset) -> list[SequenceInfo]:
         folder = _folder(catalog, dataset)
-        pattern = dataset.options.get("pattern", "*.zarr")
+        pattern = _pattern(dataset, "*.zarr")
         out = []
         for store in sorted(folder.glob(pattern)):
             ds = _open_raw(store)
+            check_names(dataset.where, store.name.removesuffix(".zarr"), [str(v) for v in ds["view"].values],
+                        f" ({store})")
+            check_raw_header(ds, store)
             files = sorted((p.relative_to(store).as_posix(), p.stat().st_size, p.stat().st_mtime_ns)
                            for p in store.rglob("*") if p.is_file())
             out.append(SequenceInfo(store.name.removesuffix(".zarr"), tuple(str(v) for v in ds["view"].values),
@@ -88,26 +151,80 @@ def _open_raw(store: Path) -> xr.Dataset:
     return ds
 
 
+def check_raw_header(ds: xr.Dataset, store: Path) -> None:
+    """A raw-sequence store's fps, timestamps and calibration (finite, image size as its arrays'), read without
+    reading its frames."""
+    fps = ds.attrs.get("fps")
+    _check_fps(fps, f"{store}: attribute 'fps'")
+    stamps = np.asarray(ds["timestamp"].values, dtype=np.float64)
+    bad = np.flatnonzero(~np.isfinite(stamps))
+    if bad.size:
+        raise InputError(f"{store}: timestamp of frame {int(bad[0])} is {stamps[bad[0]]}; every frame needs a finite "
+                         "time in seconds")
+    back = np.flatnonzero(np.diff(stamps) <= 0)
+    if back.size:
+        f = int(back[0]) + 1
+        raise InputError(f"{store}: timestamps must increase strictly, but frame {f} is at {stamps[f]} s after frame "
+                         f"{f - 1} at {stamps[f - 1]} s; fix the recording's timestamps")
+    calib = ds[["fx", "fy", "cx", "cy", "dist", "cam_to_world", "width", "height"]].load()
+    for view in ds["view"].values:
+        cam = _camera(str(view), {k: calib[k].sel(view=view).values for k in calib.data_vars}, f"{store}")
+        if (cam.width, cam.height) != (ds.sizes["x"], ds.sizes["y"]):
+            raise InputError(f"{store}: view {str(view)!r} is calibrated for {cam.width}x{cam.height} px but its images "
+                             f"are {ds.sizes['x']}x{ds.sizes['y']}; fix 'width'/'height' or the images")
+
+
+def _check_fps(fps, where: str) -> float:
+    try:
+        value = float(fps)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{where} must be a number of frames per second, got {fps!r}") from exc
+    if not np.isfinite(value) or value <= 0:
+        raise InputError(f"{where} is {fps!r}; the frame rate must be a positive number of frames per second")
+    return value
+
+
+def _camera(view: str, values: Mapping[str, Any], where: str):
+    """The checked camera of one view's calibration values (``CALIBRATION_VARIABLES``)."""
+    try:
+        return calibrated_camera(view, **{k: values[k] for k in ("fx", "fy", "cx", "cy", "dist", "cam_to_world",
+                                                                 "width", "height")})
+    except KeyError as exc:
+        raise InputError(f"{where}: view {view!r} has no {exc.args[0]!r}; expected {CALIBRATION_HELP}") from None
+    except CalibrationError as exc:
+        raise InputError(f"{where}: {exc}; expected {CALIBRATION_HELP}") from exc
+
+
 # ---- images -------------------------------------------------------------------------------
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_FRAME_NAME = re.compile(r"([0-9]+)\.png")
+
+
 class ImageFolderReader:
+    """``<id>/calibration.yaml`` and ``<id>/<view>/{depth,ir}/<frame>.png``: 16-bit grayscale PNGs of the size the
+    calibration gives, numbered consecutively (``000000.png``, ``000001.png``, ...; any first number, no gap),
+    the same numbers for depth and IR and for every view. Frames are ordered by number, never by name."""
+
     options = ("path", "pattern")
 
     @staticmethod
     def discover(catalog, dataset) -> list[SequenceInfo]:
         folder = _folder(catalog, dataset)
-        pattern = dataset.options.get("pattern", "*")
+        pattern = _pattern(dataset, "*")
         out = []
         for seq_dir in sorted(p for p in folder.glob(pattern) if (p / "calibration.yaml").is_file()):
             calib = _calibration(seq_dir)
             views = tuple(calib["views"])
-            counts = {v: len(list((seq_dir / v / "depth").glob("*.png"))) for v in views}
-            n_frames = min(counts.values())
-            if n_frames == 0 or len(set(counts.values())) != 1:
-                raise InputError(f"{seq_dir}: views have different or zero frame counts {counts}; "
-                                 "every view needs the same number of depth and IR PNGs")
+            check_names(dataset.where, seq_dir.name, views, f" ({seq_dir})")  # before any view's folder is read
+            numbers = {v: _view_frames(seq_dir, v, calib["cameras"][v]) for v in views}
+            counts = {v: len(n) for v, n in numbers.items()}
+            if len({(n[0], len(n)) if n else None for n in numbers.values()}) != 1:
+                raise InputError(f"{seq_dir}: views have different frames {_spans(numbers)}; every view needs the "
+                                 "same frame numbers")
             files = sorted((p.relative_to(seq_dir).as_posix(), p.stat().st_size, p.stat().st_mtime_ns)
                            for p in seq_dir.rglob("*") if p.is_file())
-            out.append(SequenceInfo(seq_dir.name, views, n_frames, digest(files), {"path": str(seq_dir)}))
+            out.append(SequenceInfo(seq_dir.name, views, counts[views[0]] if views else 0, digest(files),
+                                    {"path": str(seq_dir)}))
         if not out:
             raise InputError(f"{dataset.where}: no sequence folders with calibration.yaml in {folder}")
         return out
@@ -120,26 +237,119 @@ class ImageFolderReader:
         calib = _calibration(seq_dir)
         depth, ir = [], []
         for view in seq.views:
+            cam = calib["cameras"][view]
             for kind, sink in (("depth", depth), ("ir", ir)):
-                files = sorted((seq_dir / view / kind).glob("*.png"))[start:stop]
+                files = [path for _, path in _numbered_pngs(seq_dir / view / kind)][start:stop]
                 frames = [cv2.imread(str(f), cv2.IMREAD_UNCHANGED) for f in files]
-                if any(f is None or f.dtype != np.uint16 for f in frames):
-                    raise InputError(f"{seq_dir / view / kind}: every frame must be a readable 16-bit PNG")
+                for f, img in zip(files, frames):
+                    if img is None or img.dtype != np.uint16 or img.shape != (cam.height, cam.width):
+                        raise InputError(f"{f}: not a readable 16-bit {cam.width}x{cam.height} grayscale PNG (the "
+                                         "calibration's size); re-export the frame")
                 sink.append(np.stack(frames))
-        fps = float(calib["fps"])
-        return make_raw_sequence(np.stack(depth), np.stack(ir), calib["views"], fps, start)
+        cameras = {view: cam.as_dict() for view, cam in calib["cameras"].items()}
+        return make_raw_sequence(np.stack(depth), np.stack(ir), cameras, calib["fps"], start)
+
+
+def _numbered_pngs(folder: Path) -> list[tuple[int, Path]]:
+    """The PNG frames of ``folder`` as (number, path), by number; a name that is not a number is refused."""
+    if not folder.is_dir():
+        raise InputError(f"{folder} is missing; each view needs depth/ and ir/ folders of numbered PNGs")
+    out = []
+    for path in folder.iterdir():
+        if path.suffix.lower() != ".png":
+            continue
+        match = _FRAME_NAME.fullmatch(path.name)
+        if match is None:
+            raise InputError(f"{path}: a frame's name must be its number, e.g. 000000.png; rename it")
+        out.append((int(match.group(1)), path))
+    out.sort()
+    for (a, pa), (b, pb) in zip(out, out[1:]):
+        if a == b:
+            raise InputError(f"{pa} and {pb} have the same frame number {a}; keep one")
+    return out
+
+
+def _view_frames(seq_dir: Path, view: str, cam) -> list[int]:
+    """The frame numbers of one view, checked: consecutive, the same for depth and IR, every PNG 16-bit grayscale
+    of the calibrated size."""
+    numbered = {kind: _numbered_pngs(seq_dir / view / kind) for kind in ("depth", "ir")}
+    for kind, frames in numbered.items():
+        for (a, _), (b, _) in zip(frames, frames[1:]):
+            if b != a + 1:
+                raise InputError(f"{seq_dir / view / kind}: frame {a + 1:06d}.png is missing (frames jump from {a} to "
+                                 f"{b}); frames must be numbered consecutively: renumber them or fill the gap")
+        for _, path in frames:
+            _check_png(path, cam)
+    depth, ir = ([n for n, _ in numbered[k]] for k in ("depth", "ir"))
+    if depth != ir:
+        raise InputError(f"{seq_dir / view}: {len(depth)} depth frames {_span(depth)} but {len(ir)} IR frames "
+                         f"{_span(ir)}; every frame needs both a depth and an IR PNG of the same number")
+    return depth
+
+
+def _check_png(path: Path, cam) -> None:
+    """A PNG's header (no pixels read): 16-bit grayscale of the camera's size."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(26)
+    except OSError as exc:
+        raise InputError(f"cannot read {path}: {exc.strerror}") from exc
+    if len(head) < 26 or head[:8] != PNG_SIGNATURE or head[12:16] != b"IHDR":
+        raise InputError(f"{path} is not a PNG file; frames must be 16-bit grayscale PNGs")
+    width, height, bits, color = *struct.unpack(">II", head[16:24]), head[24], head[25]
+    if bits != 16 or color != 0:
+        raise InputError(f"{path} is a {bits}-bit {'grayscale' if color == 0 else 'colour'} PNG; frames must be "
+                         "16-bit grayscale (depth in mm, IR counts)")
+    if (width, height) != (cam.width, cam.height):
+        raise InputError(f"{path} is {width}x{height} px but view {cam.name!r} is calibrated for {cam.width}x"
+                         f"{cam.height}; fix the calibration's width/height or the image")
+
+
+def _span(numbers: list[int]) -> str:
+    return f"{numbers[0]}-{numbers[-1]}" if numbers else "(none)"
+
+
+def _spans(numbers: Mapping[str, list[int]]) -> dict[str, str]:
+    return {view: _span(n) for view, n in numbers.items()}
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """yaml.safe_load that refuses a mapping naming a key twice (a second view of the same name would replace the
+    first)."""
+
+
+def _unique_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool = False) -> dict:
+    seen = set()
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=True)
+        if key in seen:
+            raise yaml.constructor.ConstructorError(None, None, f"key {key!r} appears twice", key_node.start_mark)
+        seen.add(key)
+    return loader.construct_mapping(node, deep=deep)
+
+
+_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _unique_mapping)
 
 
 def _calibration(seq_dir: Path) -> dict:
+    """calibration.yaml of a sequence folder, checked: ``fps``, and per view a checked Camera (``cameras``)."""
     path = seq_dir / "calibration.yaml"
     try:
-        calib = yaml.safe_load(path.read_text())
-        calib["views"] = {str(k): v for k, v in calib["views"].items()}
-        float(calib["fps"])
-    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError) as exc:
-        raise InputError(f"{path}: expected 'fps' and 'views: {{name: {{fx, fy, cx, cy, dist, cam_to_world, "
-                         f"width, height}}}}' ({exc})") from exc
-    return calib
+        calib = yaml.load(path.read_text(), Loader=_UniqueKeyLoader)
+    except OSError as exc:
+        raise InputError(f"cannot read {path}: {exc.strerror}") from exc
+    except yaml.YAMLError as exc:
+        raise InputError(f"{path}: not valid YAML ({exc}); expected {CALIBRATION_HELP}") from exc
+    if not isinstance(calib, dict) or "fps" not in calib or not isinstance(calib.get("views"), dict) \
+            or not calib["views"]:
+        raise InputError(f"{path}: expected {CALIBRATION_HELP}")
+    fps = _check_fps(calib["fps"], f"{path}: fps")
+    cameras = {}
+    for name, values in calib["views"].items():
+        if not isinstance(values, dict):
+            raise InputError(f"{path}: views.{name} must be a mapping; expected {CALIBRATION_HELP}")
+        cameras[str(name)] = _camera(str(name), values, str(path))
+    return {"fps": fps, "views": {str(k): v for k, v in calib["views"].items()}, "cameras": cameras}
 
 
 # ---- studio -------------------------------------------------------------------------------

@@ -199,7 +199,16 @@ def export_files(catalog, sequences: str | None, fmt: str, stage: str | None, ou
                     what="cannot export")
     written = []
     for item in plan.for_stages([stage]):
-        path = out_dir / f"{item.partition.sequence}.{fmt}"
+        path = _inside(out_dir, f"{item.partition.sequence}.{fmt}")
         WRITERS[fmt](store.open(stage, item.key, item.stage.schema).load(), path)
         written.append(path)
     return written
+
+
+def _inside(out_dir: Path, name: str) -> Path:
+    """``out_dir / name``, refused unless it is a file directly inside ``out_dir``."""
+    path = out_dir / name
+    if path.resolve().parent != out_dir.resolve() or Path(name).name != name:
+        raise PlanError(f"export file name {name!r} would be written outside --out {out_dir}; a sequence id must be a "
+                        "plain name (see the naming rule in the README): rename the sequence")
+    return path

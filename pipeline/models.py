@@ -36,7 +36,7 @@ def _load(path: str, digest: str) -> dict:
                            f"{digest[:12]}); rerun to plan with the new file")
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
-    except (OSError, RuntimeError, ValueError, pickle.UnpicklingError) as exc:
+    except (OSError, EOFError, RuntimeError, ValueError, pickle.UnpicklingError) as exc:
         raise StorageError(f"cannot load weights {path}: {exc}; it must hold plain tensors (a state dict)") from exc
     with _LOADS_LOCK:
         loads += 1

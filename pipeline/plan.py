@@ -114,7 +114,7 @@ class Plan:
 def build_plan(catalog: Catalog, sequences: str | None = None) -> Plan:
     """Keys for every stage x partition of the catalog (for the sequences matching the glob)."""
     plan = Plan()
-    seqs_by_dataset = {name: discover(catalog, ds, sequences) for name, ds in catalog.datasets.items()}
+    seqs_by_dataset = _discover_all(catalog, sequences)
     source_of = _source_datasets(catalog)
     weights = {stage.name: _weights(catalog, stage) for stage in catalog.stages.values()}
     for dataset_name, seqs in seqs_by_dataset.items():
@@ -138,6 +138,24 @@ def build_plan(catalog: Catalog, sequences: str | None = None) -> Plan:
             item = _dataset_item(catalog, stage, dataset_name, seqs, all_keys, weights[stage.name])
             plan.items[item.partition.id] = item
     return plan
+
+
+def _discover_all(catalog: Catalog, sequences: str | None) -> dict[str, list[SequenceInfo]]:
+    """Every dataset's sequences matching ``sequences``; a glob matching none, or one id in two datasets, is refused."""
+    found = {name: discover(catalog, ds, sequences) for name, ds in catalog.datasets.items()}
+    if sequences and catalog.datasets and not any(found.values()):
+        every = sorted(s.id for name, ds in catalog.datasets.items() for s in discover(catalog, ds))
+        raise PlanError(f"--sequences {sequences!r} matches none of the catalog's sequences "
+                        f"{every[:20]}{' ...' if len(every) > 20 else ''}; give a glob matching their ids, e.g. "
+                        f"{every[0] + '*' if every else 'take*'!r}")
+    owner: dict[str, str] = {}
+    for name, seqs in found.items():
+        for seq in seqs:
+            if seq.id in owner:
+                raise PlanError(f"sequence id {seq.id!r} is in both datasets {owner[seq.id]!r} and {name!r}; partitions "
+                                "are named by sequence, so rename one of them")
+            owner[seq.id] = name
+    return found
 
 
 def _dataset_item(catalog, stage, dataset_name, seqs, all_keys, weights) -> WorkItem:
@@ -213,6 +231,9 @@ def _weights(catalog, stage) -> dict[str, tuple[str, str]]:
         if not path.is_file():
             raise PlanError(f"stages.{stage.name}.params.{name}: weights file {path} does not exist; "
                             "train it first (`mocapflow train`) or point the parameter at an existing file")
+        if path.stat().st_size == 0:
+            raise PlanError(f"stages.{stage.name}.params.{name}: weights file {path} is empty; train it again "
+                            "(`mocapflow train`) or point the parameter at a complete weights file")
         out[name] = (str(path), file_digest(str(path)))
     return out
 

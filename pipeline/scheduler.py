@@ -55,6 +55,9 @@ def dask_client(workers: int, address: str | None, *, processes: bool = True) ->
     if address:
         try:
             client = Client(address, timeout="15s")
+        except ValueError as exc:
+            raise PlanError(f"--scheduler {address!r} is not a Dask scheduler address ({exc}); pass the address "
+                            "`dask scheduler` prints, e.g. tcp://10.0.0.5:8786") from exc
         except (OSError, TimeoutError) as exc:
             raise PlanError(f"cannot reach the Dask scheduler at {address!r} ({exc}); start one with "
                             "`dask scheduler` and pass the address it prints") from exc
@@ -74,9 +77,13 @@ def dask_client(workers: int, address: str | None, *, processes: bool = True) ->
         config.update({"distributed.worker.daemon": False,
                        "distributed.nanny.pre-spawn-environ": thread_limits(workers)})
     n_workers, threads = (max(1, workers), 1) if processes else (1, max(1, workers))
+    # No dashboard; the scheduler still serves its HTTP routes, by default on port 8787 with a warning where that
+    # port is taken: a free local port instead.
+    no_dashboard = {"dashboard": False, "dashboard_address": "127.0.0.1:0"}
     with dask.config.set(config), \
             LocalCluster(n_workers=n_workers, threads_per_worker=threads, processes=processes, memory_limit=0,
-                         dashboard_address=None, silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+                         dashboard_address=None, scheduler_kwargs=no_dashboard, silence_logs=logging.ERROR) as cluster, \
+            Client(cluster) as client:
         yield client
 
 

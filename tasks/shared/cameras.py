@@ -6,7 +6,7 @@ pixel's ray is the undistorted direction through its centre, scaled to unit leng
 the camera-frame z of the surface (Kinect convention), so a point is ``ray * z / ray_z``.
 
 A raw sequence stores each view's calibration as variables (``fx fy cx cy dist cam_to_world width
-height``); :func:`camera_of` builds the :class:`Camera` from them once, checked finite.
+height``); :func:`camera_of` builds the :class:`Camera` from them once, checked (:func:`calibrated_camera`).
 """
 
 from __future__ import annotations
@@ -80,15 +80,54 @@ class Camera:
 def camera_of(frames, view) -> Camera:
     """The camera of ``view`` from a raw sequence's calibration variables (an xarray Dataset with a view dim)."""
     cal = frames.sel(view=view)
-    cam = Camera(str(view), *(float(cal[k]) for k in ("fx", "fy", "cx", "cy")),
-                 dist=tuple(float(d) for d in np.asarray(cal["dist"].values, np.float64).ravel()),
-                 cam_to_world=np.asarray(cal["cam_to_world"].values, np.float64),
-                 width=int(cal["width"]) if "width" in cal else 0, height=int(cal["height"]) if "height" in cal else 0)
-    if not (np.isfinite([cam.fx, cam.fy, cam.cx, cam.cy]).all() and np.isfinite(cam.dist).all()
-            and np.isfinite(cam.cam_to_world).all()):
-        raise CalibrationError(f"view {str(view)!r} has a non-finite calibration (intrinsics, distortion or extrinsics); "
+    return calibrated_camera(str(view), **{k: np.asarray(cal[k].values) for k in ("fx", "fy", "cx", "cy", "dist")},
+                             cam_to_world=np.asarray(cal["cam_to_world"].values),
+                             width=int(cal["width"]) if "width" in cal else 0,
+                             height=int(cal["height"]) if "height" in cal else 0)
+
+
+def calibrated_camera(name: str, *, fx, fy, cx, cy, dist, cam_to_world, width, height) -> Camera:
+    """A :class:`Camera` from raw calibration values, checked: finite numbers (``fx``, ``fy`` positive), five
+    distortion coefficients, a 4x4 pose, a whole image size (0 where unknown); raise CalibrationError naming the
+    view, the value and what it must be."""
+    intr = [_number(name, key, value) for key, value in (("fx", fx), ("fy", fy), ("cx", cx), ("cy", cy))]
+    if intr[0] <= 0 or intr[1] <= 0:
+        raise CalibrationError(f"view {name!r}: focal lengths fx, fy must be positive pixels, got {intr[0]}, {intr[1]}")
+    coefs = _array(name, "dist", dist, (5,), "five distortion coefficients [k1, k2, p1, p2, k3]")
+    pose = _array(name, "cam_to_world", cam_to_world, (4, 4), "a 4x4 camera-to-world transform (4 rows of 4)")
+    size = [_pixels(name, key, value) for key, value in (("width", width), ("height", height))]
+    return Camera(name, *intr, dist=tuple(float(d) for d in coefs), cam_to_world=pose, width=size[0], height=size[1])
+
+
+def _number(view: str, key: str, value) -> float:
+    try:
+        number = float(np.asarray(value, dtype=np.float64).item())
+    except (TypeError, ValueError) as exc:
+        raise CalibrationError(f"view {view!r}: {key} must be a number, got {value!r}") from exc
+    if not np.isfinite(number):
+        raise CalibrationError(f"view {view!r} has a non-finite calibration: {key} = {number}; "
                                "fix the recording's calibration or drop the view")
-    return cam
+    return number
+
+
+def _array(view: str, key: str, value, shape: tuple[int, ...], what: str) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise CalibrationError(f"view {view!r}: {key} must be {what}, got {value!r}") from exc
+    if arr.shape != shape:
+        raise CalibrationError(f"view {view!r}: {key} must be {what}, got shape {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise CalibrationError(f"view {view!r} has a non-finite calibration: {key} = {arr.tolist()}; "
+                               "fix the recording's calibration or drop the view")
+    return arr
+
+
+def _pixels(view: str, key: str, value) -> int:
+    number = _number(view, key, value)
+    if number < 0 or number != int(number):
+        raise CalibrationError(f"view {view!r}: {key} must be a whole number of pixels, got {value!r}")
+    return int(number)
 
 
 def intrinsics(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:

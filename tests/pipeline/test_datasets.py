@@ -11,7 +11,7 @@ import yaml
 from conftest import ROOT, last_json, mocapflow, read_artifacts, write_raw_zarr
 from mocapflow.pipeline.catalog import load_catalog
 from mocapflow.pipeline.datasets import DATASET_KINDS, discover
-from mocapflow.pipeline.errors import CatalogError
+from mocapflow.pipeline.errors import CatalogError, InputError
 
 
 def write_png_sequence(folder, views=("k0", "k1"), frames=6, size=(10, 14)):
@@ -129,3 +129,168 @@ def test_the_shipped_catalogs_still_load_and_discover_their_sequences(tmp_path, 
         assert found and all(s.n_frames > 0 and s.views for s in found)
     if name == "demo":
         assert sorted(s.id for s in found) == ["classic_squat_s2", "elbow_flexion_s3", "jumping_jack_s1"]
+
+
+# ---- raw input checked at the door: names, numbering, sizes, calibration, timing ------------------------------
+IMAGES_CATALOG = "data_roots: [.]\ndatasets:\n  rec:\n    kind: images\n    path: recs\n"
+
+
+def discover_images(tmp_path):
+    (tmp_path / "catalog.yaml").write_text(IMAGES_CATALOG)
+    catalog = load_catalog(tmp_path / "catalog.yaml")
+    return discover(catalog, catalog.datasets["rec"])
+
+
+def edit_calibration(seq_dir, change):
+    calib = yaml.safe_load((seq_dir / "calibration.yaml").read_text())
+    change(calib)
+    (seq_dir / "calibration.yaml").write_text(yaml.safe_dump(calib))
+
+
+def test_png_frames_are_read_in_numeric_order(tmp_path):
+    seq_dir = tmp_path / "recs" / "take1"
+    data = write_png_sequence(seq_dir, views=("k0",), frames=12)
+    for kind in ("depth", "ir"):  # unpadded numbers: by name, 10.png and 11.png would come before 2.png
+        for f in range(12):
+            (seq_dir / "k0" / kind / f"{f:06d}.png").rename(seq_dir / "k0" / kind / f"{f}.png")
+    [seq] = discover_images(tmp_path)
+    frames = DATASET_KINDS["images"].read(None, seq, 0, 12)
+    np.testing.assert_array_equal(frames["depth"].values[0], data["k0", "depth"])
+    np.testing.assert_array_equal(frames["ir"].sel(frame=[2, 10]).values[0], data["k0", "ir"][[2, 10]])
+
+
+def test_a_gap_in_png_frame_numbers_is_refused_not_reordered(tmp_path):
+    seq_dir = tmp_path / "recs" / "take1"
+    write_png_sequence(seq_dir, frames=16)
+    (seq_dir / "k0" / "depth" / "000004.png").rename(seq_dir / "k0" / "depth" / "000099.png")
+    with pytest.raises(InputError) as err:
+        discover_images(tmp_path)
+    assert str(err.value) == (f"{seq_dir / 'k0' / 'depth'}: frame 000004.png is missing (frames jump from 3 to 5); "
+                              "frames must be numbered consecutively: renumber them or fill the gap")
+
+
+def _png(path, shape, dtype=np.uint16):
+    cv2.imwrite(str(path), np.full(shape, 7, dtype))
+
+
+@pytest.mark.parametrize("breaks,message", [
+    (lambda d: _png(d / "k1" / "ir" / "000002.png", (12, 14)),
+     "k1/ir/000002.png is 14x12 px but view 'k1' is calibrated for 14x10; fix the calibration's width/height or the image"),
+    (lambda d: _png(d / "k0" / "depth" / "000001.png", (10, 14), np.uint8),
+     "k0/depth/000001.png is a 8-bit grayscale PNG; frames must be 16-bit grayscale"),
+    (lambda d: (d / "k0" / "ir" / "000005.png").unlink(),
+     "k0: 6 depth frames 0-5 but 5 IR frames 0-4; every frame needs both a depth and an IR PNG of the same number"),
+    (lambda d: (d / "k1" / "depth" / "frame_3.png").write_bytes(b""),
+     "k1/depth/frame_3.png: a frame's name must be its number, e.g. 000000.png; rename it"),
+    (lambda d: edit_calibration(d, lambda c: c["views"]["k0"].update(dist=[0.0, 0.0, 0.0, 0.0])),
+     "view 'k0': dist must be five distortion coefficients [k1, k2, p1, p2, k3], got shape (4,)"),
+    (lambda d: edit_calibration(d, lambda c: c["views"]["k1"].update(cam_to_world=np.eye(3).tolist())),
+     "view 'k1': cam_to_world must be a 4x4 camera-to-world transform (4 rows of 4), got shape (3, 3)"),
+    (lambda d: edit_calibration(d, lambda c: c["views"]["k0"].update(fx="abc")),
+     "view 'k0': fx must be a number, got 'abc'"),
+    (lambda d: edit_calibration(d, lambda c: c["views"]["k0"].update(cy=float("nan"))),
+     "view 'k0' has a non-finite calibration: cy = nan"),
+    (lambda d: edit_calibration(d, lambda c: c["views"]["k1"].update(width=15)),
+     "k1/depth/000000.png is 14x10 px but view 'k1' is calibrated for 15x10"),
+    (lambda d: edit_calibration(d, lambda c: c.update(fps=0)),
+     "calibration.yaml: fps is 0; the frame rate must be a positive number of frames per second"),
+    (lambda d: edit_calibration(d, lambda c: c.pop("fps")),
+     "calibration.yaml: expected 'fps' (frames per second, > 0) and 'views:"),
+    (lambda d: (d / "calibration.yaml").write_text((d / "calibration.yaml").read_text() + "  k0: {fx: 1}\n"),
+     "key 'k0' appears twice"),
+    (lambda d: edit_calibration(d, lambda c: c["views"].update({"../k2": c["views"]["k0"]})),
+     "view name '../k2' is not a valid name: view names become partition names, so they must match "
+     "[A-Za-z0-9_-][A-Za-z0-9_.-]*; rename the view"),
+])
+def test_bad_png_sequences_are_refused_at_discovery_naming_file_key_and_fix(tmp_path, breaks, message):
+    seq_dir = tmp_path / "recs" / "take1"
+    write_png_sequence(seq_dir)
+    breaks(seq_dir)
+    with pytest.raises((InputError, CatalogError)) as err:
+        discover_images(tmp_path)
+    assert message in str(err.value)
+
+
+def _zarr_variant(tmp_path, change, **kwargs):
+    """data/seqA.zarr, a tiny raw sequence changed by ``change`` (an xarray Dataset -> Dataset)."""
+    write_raw_zarr(tmp_path / "orig.zarr", **kwargs)
+    ds = change(xr.open_zarr(tmp_path / "orig.zarr", consolidated=False).load())
+    (tmp_path / "data").mkdir(exist_ok=True)
+    ds.to_zarr(tmp_path / "data" / "seqA.zarr", zarr_format=3, consolidated=False, mode="w")
+    (tmp_path / "catalog.yaml").write_text("data_roots: [.]\ndatasets:\n  rec:\n    kind: zarr\n    path: data\n")
+    catalog = load_catalog(tmp_path / "catalog.yaml")
+    return lambda: discover(catalog, catalog.datasets["rec"])
+
+
+def _set(ds, name, index, value):
+    values = ds[name].values.copy()
+    values[index] = value
+    return ds.assign({name: (ds[name].dims, values)})
+
+
+@pytest.mark.parametrize("change,kwargs,message", [
+    (lambda ds: ds.assign_attrs(fps=0.0), {}, "seqA.zarr: attribute 'fps' is 0.0; the frame rate must be a positive"),
+    (lambda ds: _set(ds, "fx", 1, np.nan), {}, "seqA.zarr: view 'cam1' has a non-finite calibration: fx = nan"),
+    (lambda ds: _set(ds, "cam_to_world", (0, 0, 3), np.inf), {}, "view 'cam0' has a non-finite calibration: cam_to_world"),
+    (lambda ds: _set(ds, "timestamp", 5, 4 / 30), {},
+     "seqA.zarr: timestamps must increase strictly, but frame 5 is at 0.1333"),
+    (lambda ds: _set(ds, "width", 0, 20), {},
+     "seqA.zarr: view 'cam0' is calibrated for 20x12 px but its images are 16x12; fix 'width'/'height' or the images"),
+    (lambda ds: ds, {"frames": 0}, "sequence 'seqA' ("),
+    (lambda ds: ds.assign_coords(view=np.array(["cam0", "cam0"], object)), {},
+     "view name(s) ['cam0'] appear more than once in ['cam0', 'cam0']; give every sensor its own name"),
+    (lambda ds: ds.assign_coords(view=np.array(["cam0", "../up"], object)), {}, "view name '../up' is not a valid name"),
+])
+def test_bad_zarr_recordings_are_refused_at_discovery(tmp_path, change, kwargs, message):
+    found = _zarr_variant(tmp_path, change, **kwargs)
+    with pytest.raises((InputError, CatalogError)) as err:
+        found()
+    assert message in str(err.value)
+    if kwargs:
+        assert "has no frames (0); record or render at least one frame, or remove the sequence" in str(err.value)
+
+
+def test_a_good_zarr_recording_passes_the_door(tmp_path):
+    [seq] = _zarr_variant(tmp_path, lambda ds: ds)()
+    assert (seq.id, seq.views, seq.n_frames) == ("seqA", ("cam0", "cam1"), 20)
+
+
+@pytest.mark.parametrize("kind,store", [("zarr", "x.zarr"), ("images", "x")])
+def test_a_dataset_pattern_may_not_leave_its_folder(tmp_path, kind, store):
+    if kind == "zarr":
+        write_raw_zarr(tmp_path / "outside" / store)
+    else:
+        write_png_sequence(tmp_path / "outside" / store)
+    project = tmp_path / "a" / "b"
+    (project / "data").mkdir(parents=True)
+    pattern = "../../../outside/*" + (".zarr" if kind == "zarr" else "")
+    (project / "catalog.yaml").write_text(f"data_roots: [.]\ndatasets:\n  rec:\n    kind: {kind}\n    path: data\n"
+                                          f"    pattern: '{pattern}'\n")
+    catalog = load_catalog(project / "catalog.yaml")
+    with pytest.raises(CatalogError) as err:
+        discover(catalog, catalog.datasets["rec"])
+    assert str(err.value).startswith(f"catalog.yaml (line 3): datasets.rec.pattern: {pattern!r} leaves the dataset's "
+                                     "folder; a pattern matches names inside 'path'")
+
+
+def test_a_studio_sequence_id_that_is_not_a_plain_name_is_refused(tmp_path):
+    (tmp_path / "catalog.yaml").write_text("datasets:\n  default:\n    kind: studio\n    defaults: {frames: 4}\n"
+                                           "    sequences:\n      '../../x': {motion: jumping_jack}\n")
+    catalog = load_catalog(tmp_path / "catalog.yaml")
+    with pytest.raises(CatalogError) as err:
+        discover(catalog, catalog.datasets["default"])
+    assert str(err.value) == ("catalog.yaml (line 2): datasets.default: sequence id '../../x' is not a valid name: ids "
+                              "become file names, so they must match [A-Za-z0-9_-][A-Za-z0-9_.-]* (letters, digits, "
+                              "_ - ., not starting with '.'); rename it")
+
+
+def test_a_png_gap_stops_the_run_before_any_stage(tmp_path):
+    seq_dir = tmp_path / "recs" / "take1"
+    write_png_sequence(seq_dir)
+    (seq_dir / "k1" / "ir" / "000002.png").unlink()
+    mocapflow("init", tmp_path / "recs", cwd=tmp_path)
+    proc = mocapflow("run", "--catalog", tmp_path / "recs" / "catalog.yaml", cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip() == (f"error: {seq_dir / 'k1' / 'ir'}: frame 000002.png is missing (frames jump from 1 "
+                                   "to 3); frames must be numbered consecutively: renumber them or fill the gap")
+    assert not (tmp_path / "recs" / "storage").exists()

@@ -44,3 +44,13 @@ def test_unknown_extension_is_refused(tmp_path):
     with pytest.raises(InputError, match="must end in .c3d, .trc or .bvh"):
         write_trc(_markers(), tmp_path / "take.csv")
     assert not list(tmp_path.iterdir())
+
+
+def test_an_export_file_name_may_not_leave_the_out_folder(tmp_path):
+    from mocapflow.pipeline.errors import PlanError
+    from mocapflow.pipeline.export import _inside
+
+    assert _inside(tmp_path / "out", "take1.trc") == tmp_path / "out" / "take1.trc"
+    for name in ("../../x.trc", "sub/x.trc", "/etc/x.trc"):
+        with pytest.raises(PlanError, match="would be written outside --out"):
+            _inside(tmp_path / "out", name)

@@ -202,3 +202,23 @@ def test_thread_limits_share_the_cores_between_the_workers(monkeypatch):
     monkeypatch.setenv("MKL_NUM_THREADS", "5")
     assert scheduler.thread_limits(2) == {"OMP_NUM_THREADS": "4", "MKL_NUM_THREADS": "5", "OPENBLAS_NUM_THREADS": "4",
                                           "OPENCV_FOR_THREADS_NUM": "4"}
+
+
+def test_a_local_cluster_without_dashboard_leaves_port_8787_alone():
+    import socket
+    import warnings
+
+    holder = socket.socket()
+    try:
+        holder.bind(("127.0.0.1", 8787))  # as another cluster's dashboard would
+        holder.listen()
+    except OSError:
+        pass  # already taken, which is the case this test is about
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with scheduler.dask_client(1, None, processes=False) as client:
+                assert sum(client.nthreads().values()) == 1
+        assert not [w for w in caught if "already in use" in str(w.message)]
+    finally:
+        holder.close()

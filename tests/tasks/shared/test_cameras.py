@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from conftest import plane_sequence
-from mocapflow.tasks.shared.cameras import Camera, CalibrationError, camera_of
+from mocapflow.tasks.shared.cameras import Camera, CalibrationError, calibrated_camera, camera_of
 
 
 def camera(dist=(0.05, -0.1, 0.001, -0.002, 0.02)) -> Camera:
@@ -51,3 +51,17 @@ def test_a_raw_sequence_gives_its_camera_and_a_bad_calibration_is_refused():
     broken["fx"] = broken["fx"] * np.nan
     with pytest.raises(CalibrationError, match="view 'cam' has a non-finite calibration"):
         camera_of(broken, "cam")
+
+
+def test_calibrated_camera_checks_every_value_naming_it():
+    good = dict(fx=365.0, fy=365.0, cx=256.0, cy=212.0, dist=[0.0] * 5, cam_to_world=np.eye(4), width=512, height=424)
+    assert calibrated_camera("k0", **good).width == 512
+    for change, message in [({"fx": "abc"}, "view 'k0': fx must be a number, got 'abc'"),
+                            ({"fy": -1.0}, "focal lengths fx, fy must be positive"),
+                            ({"dist": [0.0] * 4}, "dist must be five distortion coefficients"),
+                            ({"cam_to_world": np.eye(3)}, "cam_to_world must be a 4x4 camera-to-world transform"),
+                            ({"cx": float("nan")}, "view 'k0' has a non-finite calibration: cx = nan"),
+                            ({"width": 511.5}, "width must be a whole number of pixels")]:
+        with pytest.raises(CalibrationError) as err:
+            calibrated_camera("k0", **{**good, **change})
+        assert message in str(err.value)
