@@ -25,6 +25,7 @@ from mocapflow.tasks.shared.cache import BoundedCache
 PHENOTYPE_NAMES = ("gender", "age", "muscle", "weight", "height", "proportions")
 FACING = np.diag([-1.0, -1.0, 1.0])  # Anny's frame -> the studio's world (a half turn about Z)
 HEIGHT_RANGE_M = (1.50, 2.00)
+POSE_BATCH = 64  # frames skinned per call
 ADULT_AGE = (0.72, 0.83)  # Anny's age scale: 0.67 ~ 16 years, 0.77 ~ 18, 0.83 ~ 64 (its shape calibration)
 
 # The bone whose rest head is each template joint (tasks/shared/body.py JOINTS), for shared ground truth.
@@ -249,12 +250,15 @@ def pose_mesh(body: MeshBody, rotations: np.ndarray, root: np.ndarray) -> PosedM
     delta[..., :3, :3] = native
     delta[..., 3, 3] = 1.0
     delta[:, 0, :3, 3] = (root - lift) @ FACING  # the root head, in Anny's frame before the lift
+    phenotype = {k: torch.tensor([v], dtype=torch.float64) for k, v in asdict(body.phenotype).items()}
+    vertices, poses = [], []
     with torch.no_grad(), _one_torch_thread():
-        out = model(pose_parameters=torch.from_numpy(delta),
-                    phenotype_kwargs={k: torch.tensor([v], dtype=torch.float64)
-                                      for k, v in asdict(body.phenotype).items()})
-    poses = out["bone_poses"].numpy()
-    return PosedMesh(vertices=out["vertices"].numpy() @ FACING.T + lift,
+        for start in range(0, len(delta), POSE_BATCH):  # bounded memory for long takes
+            out = model(pose_parameters=torch.from_numpy(delta[start:start + POSE_BATCH]), phenotype_kwargs=phenotype)
+            vertices.append(out["vertices"].numpy())
+            poses.append(out["bone_poses"].numpy())
+    vertices, poses = np.concatenate(vertices), np.concatenate(poses)
+    return PosedMesh(vertices=vertices @ FACING.T + lift,
                      heads=poses[..., :3, 3] @ FACING.T + lift,
                      frames=FACING @ poses[..., :3, :3])
 

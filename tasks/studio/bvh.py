@@ -158,6 +158,23 @@ def parse_bvh(text: str) -> BVH:
                values.reshape(n_frames, width))
 
 
+def world_positions(bvh: BVH) -> np.ndarray:
+    """The clip's joint positions in the studio's axes (Z up, facing +Y), in the file's units, its added T-pose
+    frame dropped, as ``retarget`` sees them.  # (frame, joint, 3)"""
+    mapping = _mapping(bvh.names)
+    index = {n: i for i, n in enumerate(bvh.names)}
+    data = bvh.data[1:] if _starts_with_tpose(bvh) else bvh.data
+    _, pos = BVH(bvh.names, bvh.parents, bvh.offsets, bvh.channels, bvh.frame_time, data).forward_kinematics()
+    world = _facing(bvh, index[mapping["LeftHip"][0]], index[mapping["RightHip"][0]]) @ Y_UP_TO_Z_UP
+    return pos @ world.T
+
+
+def mapping(names) -> dict:
+    """template joint -> (BVH joint it follows, BVH bone start, BVH bone end), "inherit" or absent: the first
+    known mapping (CMU's two cgspeed namings) that ``names`` satisfy; BVHError naming the missing joints."""
+    return _mapping(names)
+
+
 def _mapping(names) -> dict:
     """The first known joint mapping that ``names`` satisfy."""
     missing = []

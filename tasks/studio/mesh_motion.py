@@ -5,8 +5,11 @@ from the template's rest T-pose, after the smallest rotation that turns the bone
 A-pose) onto the segment's rest direction, so every mapped bone points where its segment points, frame by
 frame. Bones no segment drives (the spine's upper vertebrae, the neck's, the clavicle's shoulder bone, the
 pelvis bones, fingers and toes) turn with their parent. The root is placed so that the mesh's hip joints'
-midpoint follows the template's, and each frame is lifted so that the mesh's lowest sole point sits where
-the template's lowest foot point does (on the floor, or in the air during a jump).
+midpoint follows the template's, and each frame is lifted so that the mesh's lowest sole point is on the
+floor in the frames where the template stands, the lift interpolated in between, so a jump keeps its
+height. Copying the template's lowest foot point instead made the mesh float where the template does (its
+proportions differ from the source's: 1.5-4.6 cm in stance on the CMU clips), and one lift for the whole
+take left the stance soles 2-3 cm up where the mesh's legs bend differently (benchmarks/mesh_studio.py).
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ SEGMENTS.update({b.replace(".L", ".R"): (j.replace("Left", "Right"), e and e.rep
                                             c and c.replace("Left", "Right"))
                  for b, (j, e, c) in list(SEGMENTS.items()) if b.endswith(".L")})
 SOLE_HEIGHT_M = 0.08  # rest vertices below this height are the feet, whose lowest point meets the floor
+CONTACT_M = 0.03  # the template stands on a frame whose lowest foot point is within this of the take's lowest
 
 
 @dataclass(frozen=True)
@@ -102,8 +106,16 @@ def retarget(body: MeshBody, subject: Subject, motion: Motion) -> MeshTake:
     root_rest = body.rest_heads[0]
     root = pos[:, hips].mean(axis=1) - rotations[:, 0] @ (mesh_hips - root_rest)  # hip midpoints coincide
     posed = pose_mesh(body, rotations, root)
-    soles = body.vertices[:, 2] < SOLE_HEIGHT_M
-    lift = lowest_foot_point(motion.local_rot, motion.root_pos, subject) - posed.vertices[:, soles, 2].min(axis=1)
-    up = np.outer(lift, [0.0, 0.0, 1.0])  # (frame, 3)
+    up = np.outer(_lift(body, posed, lowest_foot_point(motion.local_rot, motion.root_pos, subject)), [0.0, 0.0, 1.0])
     posed = PosedMesh(posed.vertices + up[:, None], posed.heads + up[:, None], posed.frames)
     return MeshTake(rotations, root + up, posed)
+
+
+def _lift(body: MeshBody, posed: PosedMesh, template_lowest: np.ndarray) -> np.ndarray:
+    """Per-frame height to add: the lowest sole on the floor in the template's stance frames (its lowest foot
+    point within CONTACT_M of the take's lowest), interpolated between them (a jump keeps its height over
+    them), never below the floor.  # (frame,)"""
+    lowest = posed.vertices[:, body.vertices[:, 2] < SOLE_HEIGHT_M, 2].min(axis=1)
+    stance = template_lowest <= template_lowest.min() + CONTACT_M
+    frames = np.arange(len(lowest))
+    return np.maximum(np.interp(frames, frames[stance], -lowest[stance]), -lowest)

@@ -65,7 +65,7 @@ def mesh_subject(spec) -> tuple[MeshBody, body.Subject]:
     return body_, body.Subject(height=body_.height)
 
 
-def _view_frame(rig: MeshRig, view: render.View, scene: MeshScene, f: int, normals: np.ndarray,
+def view_frame(rig: MeshRig, view: render.View, scene: MeshScene, f: int, normals: np.ndarray,
                 rng: np.random.Generator) -> render.Frame:
     """One view at frame ``f`` (the posed meshes of f - 1, f and f + 1 are in rig.take)."""
     hits = cast_view(scene, view.cam, view.rays)
@@ -119,7 +119,7 @@ def synthesize_mesh(rig: MeshRig, start: int, stop: int) -> xr.Dataset:
         scene = MeshScene(posed.vertices[f], rig.body.faces)
         normals = vertex_normals(posed.vertices[f], rig.body.faces)
         for v, view in enumerate(rig.views):
-            frame = _view_frame(rig, view, scene, f, normals, np.random.default_rng([rig.spec.seed, v, f]))
+            frame = view_frame(rig, view, scene, f, normals, np.random.default_rng([rig.spec.seed, v, f]))
             depth[v, i], ir[v, i], rid[v, i], body_mask[v, i], pixels[v, i] = (
                 frame.depth, frame.ir, frame.reflector_id, frame.body, frame.pixels)
             flow[v, i], flow_prev[v, i] = frame.scene_flow, frame.scene_flow_prev

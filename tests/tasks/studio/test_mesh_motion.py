@@ -37,18 +37,22 @@ def test_every_mapped_bone_points_where_its_template_segment_points(walk):
     assert checked == 16
 
 
-def test_the_hips_follow_the_template_and_the_feet_meet_its_floor(walk):
+def test_the_hips_follow_the_template_and_the_feet_stand_on_the_floor(walk):
     body, subject, clip, take = walk
     _, pos = forward_kinematics(clip.local_rot, clip.root_pos, rest_offsets(subject), PARENTS)
     hips_tmpl = pos[:, [JOINT_INDEX["LeftHip"], JOINT_INDEX["RightHip"]]].mean(axis=1)
     hips_mesh = take.posed.heads[:, [body.bone("upperleg01.L"), body.bone("upperleg01.R")]].mean(axis=1)
-    lift = motion.lowest_foot_point(clip.local_rot, clip.root_pos, subject)
     np.testing.assert_allclose(hips_mesh[:, :2], hips_tmpl[:, :2], atol=1e-9)  # only lifted, never moved across
     soles = body.vertices[:, 2] < mesh_motion.SOLE_HEIGHT_M
-    np.testing.assert_allclose(take.posed.vertices[:, soles, 2].min(axis=1), lift, atol=1e-9)
-    assert lift.min() == pytest.approx(0.0, abs=1e-9)  # the take's lowest contact is on the floor, never below
-    # the subject walks: the hips travel, and the mesh's joints stay within a body's proportions of the template's
-    assert np.linalg.norm(hips_mesh[-1, :2] - hips_mesh[0, :2]) > 0.3
+    lowest = take.posed.vertices[:, soles, 2].min(axis=1)
+    template = motion.lowest_foot_point(clip.local_rot, clip.root_pos, subject)
+    stance = template <= template.min() + mesh_motion.CONTACT_M
+    assert stance.mean() > 0.2
+    np.testing.assert_allclose(lowest[stance], 0.0, atol=1e-9)  # on the floor where the template stands
+    assert lowest.min() > -1e-9 and np.median(lowest) < 0.01  # never below it, and a walk keeps a foot down
+    lift = hips_mesh[:, 2] - hips_tmpl[:, 2]
+    assert np.abs(np.diff(lift)).max() < 0.02  # the lift moves smoothly: under 2 cm a frame at 30 fps
+    assert np.linalg.norm(hips_mesh[-1, :2] - hips_mesh[0, :2]) > 0.3  # the subject walks
     joints = take.posed.heads[:, body.joint_bones()]
     assert np.median(np.linalg.norm(joints - pos, axis=2)) < 0.15
 
