@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from scipy import ndimage
 
@@ -63,23 +64,36 @@ class MeshScene:
 
 
 def _box(cam: Camera, vertices: np.ndarray, margin_px: int) -> tuple[int, int, int, int] | None:
-    """Pixel box (y0, y1, x0, x1) around the projected mesh, or None when it is behind or outside the camera."""
-    xy, z = cam.project(vertices)
-    ok = np.isfinite(xy).all(axis=1) & (z > 0)
-    if not ok.any():
+    """Pixel box (y0, y1, x0, x1) around the projected mesh, or None when it is behind or outside the camera.
+
+    The vertices' extent in normalized image coordinates (x/z, y/z), found without the lens, is a rectangle
+    holding every vertex's undistorted image; points along its border are then put through the lens.
+    """
+    w2c = cam.world_to_cam
+    pc = vertices @ w2c[:3, :3].T + w2c[:3, 3]  # (vertex, 3) camera frame
+    front = pc[:, 2] > 1e-3
+    if not front.any():
         return None
-    lo = np.floor(xy[ok].min(axis=0)).astype(int) - margin_px
-    hi = np.ceil(xy[ok].max(axis=0)).astype(int) + margin_px + 1
+    xn, yn = pc[front, 0] / pc[front, 2], pc[front, 1] / pc[front, 2]
+    s = np.linspace(0.0, 1.0, 9)
+    x0, x1, y0, y1 = xn.min(), xn.max(), yn.min(), yn.max()
+    border = np.concatenate([np.column_stack([x0 + (x1 - x0) * s, np.full(9, y)]) for y in (y0, y1)]
+                            + [np.column_stack([np.full(9, x), y0 + (y1 - y0) * s]) for x in (x0, x1)])
+    xy, _ = cv2.projectPoints(np.column_stack([border, np.ones(len(border))]), np.zeros(3), np.zeros(3), cam.K,
+                              np.asarray(cam.dist))
+    xy = xy.reshape(-1, 2)
+    lo = np.floor(xy.min(axis=0)).astype(int) - margin_px
+    hi = np.ceil(xy.max(axis=0)).astype(int) + margin_px + 1
     x0, y0 = max(lo[0], 0), max(lo[1], 0)
     x1, y1 = min(hi[0], cam.width), min(hi[1], cam.height)
-    return None if x0 >= x1 or y0 >= y1 else (y0, y1, x0, x1)
+    return None if x0 >= x1 or y0 >= y1 else (int(y0), int(y1), int(x0), int(x1))
 
 
-def cast_view(scene: MeshScene, cam: Camera, rays: np.ndarray, margin_px: int = 8) -> Hits:
+def cast_view(scene: MeshScene, cam: Camera, rays: np.ndarray, margin_px: int = 4) -> Hits:
     """Per-pixel hits of ``cam``; ``rays`` = cam.pixel_rays() (y, x, 3), computed once per camera.
 
-    Only the rays inside the mesh's projected bounding box (grown by ``margin_px``, which covers the lens
-    distortion's bending of the box's edges) are cast; the rest see nothing.
+    Only the rays inside the mesh's projected bounding box (grown by ``margin_px``) are cast; the rest see
+    nothing.
     """
     face = np.full((cam.height, cam.width), NO_HIT, np.int32)
     bary = np.zeros((cam.height, cam.width, 2), np.float32)
@@ -102,9 +116,9 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Area-weighted unit normals of a closed mesh's vertices.  (vertex, 3), (face, 3) -> (vertex, 3)"""
     v0, v1, v2 = (vertices[faces[:, k]] for k in range(3))
     face_n = np.cross(v1 - v0, v2 - v0)  # length = twice the area
-    out = np.zeros_like(vertices)
-    for k in range(3):
-        np.add.at(out, faces[:, k], face_n)
+    corners = faces.ravel()
+    out = np.column_stack([np.bincount(corners, weights=np.repeat(face_n[:, c], 3), minlength=len(vertices))
+                           for c in range(3)])
     return out / np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-12)
 
 

@@ -62,3 +62,24 @@ def test_the_same_clip_gives_the_same_bytes(walk):
     again = mesh_motion.retarget(body, subject, clip)
     assert np.array_equal(again.posed.vertices, take.posed.vertices)
     assert np.array_equal(again.rotations, take.rotations)
+
+
+def test_the_mesh_bones_point_where_the_source_bvh_bones_point():
+    clip = bvh.parse_bvh(WALK.read_text())
+    body = mb.mesh_body(mb.random_phenotype(np.random.default_rng(22), 1.65))
+    subject = Subject(height=body.height)
+    take = mesh_motion.retarget(body, subject, bvh.retarget(clip, subject, fps=clip.fps, n_frames=60))
+    source = bvh.world_positions(clip)[:60]
+    index = {n: i for i, n in enumerate(clip.names)}
+    mapping = bvh.mapping(clip.names)
+    followed = 0
+    for bone, (joint, end_bone, _) in mesh_motion.SEGMENTS.items():
+        m = mapping.get(joint)
+        if end_bone is None or not isinstance(m, tuple):
+            continue
+        mesh = take.posed.heads[:, body.bone(end_bone)] - take.posed.heads[:, body.bone(bone)]
+        src = source[:, index[m[2]]] - source[:, index[m[1]]]
+        cos = np.einsum("fi,fi->f", mesh, src) / np.linalg.norm(mesh, axis=1) / np.linalg.norm(src, axis=1)
+        assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() < 0.05, bone
+        followed += 1
+    assert followed == 13  # every mapped bone but the neck and the clavicles, which inherit their rotation
