@@ -5,11 +5,12 @@ joints of Table 8). The gap between this floor and the evaluated figures is what
 depth lifting and fusion cost. Run the held-out evaluation first so the inputs exist
 (`mocapflow evaluate --catalog benchmarks/catalog.yaml`):
 
-    python benchmarks/poses_floor.py
+    python benchmarks/poses_floor.py [--set KEY=VALUE ...]   # catalog overrides, as `mocapflow evaluate --set`
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
@@ -43,7 +44,10 @@ def true_markers(smoothed, raw):
 
 
 def main() -> None:
-    catalog = load_catalog(str(ROOT / "benchmarks" / "catalog.yaml"), ())
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    args = parser.parse_args()
+    catalog = load_catalog(str(ROOT / "benchmarks" / "catalog.yaml"), tuple(args.overrides))
     store, plan = Store(catalog.root), build_plan(catalog)
     per_clip, errors = {}, []
     for seq in plan.sequences:
