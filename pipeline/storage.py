@@ -7,7 +7,7 @@ Layout of one artifact version (one stage partition under one cache key)::
     <root>/<stage>/<key>/_init             template (metadata + frame-less arrays) is written
     <root>/<stage>/<key>/_regions/A-B      frames [A, B) are written (marker written after the data)
     <root>/<stage>/<key>/_COMPLETE         every region is committed; lineage is in the zarr attrs
-    <root>/<stage>/<key>/.lock             held while a run writes this version
+    <root>/<stage>/<key>/.lock             held while a run writes this version (a lease: pipeline/locks.py)
 
 A version is read only when ``_COMPLETE`` exists; a region is trusted only when its marker
 exists, so a run killed at any point resumes at region granularity and never reads a partial
@@ -17,21 +17,17 @@ region as done. Several versions of a partition live side by side (swap A -> B -
 from __future__ import annotations
 
 import json
-import multiprocessing
-import os
-import socket
 import time
-import uuid
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Iterator
 
 import fsspec
 import numpy as np
-import psutil
 import xarray as xr
 
 from mocapflow.pipeline.errors import LockError, SchemaError, StorageError
+from mocapflow.pipeline.locks import LeasedLock
 from mocapflow.schemas import ArtifactSchema, SchemaViolation
 from mocapflow.tasks.shared.cache import BoundedCache
 
@@ -201,48 +197,31 @@ class Store:
 
     # ---- locking -------------------------------------------------------------------------
     @contextmanager
-    def lock(self, stage: str, key: str, label: str) -> Iterator[None]:
-        """Exclusive lock of one version; a lock left by a dead process on this host is taken over."""
-        path = self._marker(stage, key, ".lock")
-        me = _holder(label)
+    def lock(self, stage: str, key: str, label: str, lease_s: float | None = None) -> Iterator[None]:
+        """Exclusive lock of one version, held as a lease (pipeline/locks.py).
+
+        The holder renews the lease every ``lease_s / 6`` seconds from a daemon thread (``lease_s``: by default
+        ``$MOCAPFLOW_LOCK_LEASE_S`` or 60 s). Another run that reaches the version while the lease runs gets a
+        LockError naming the holder; a lock whose lease ran out is stale on any host, and one left by a dead
+        process of this host is stale at once. A stale lock is taken over atomically: the contender claims it
+        by creating ``.lock.takeover-<holder's token>`` exclusively, checks again that it is stale, and moves its
+        own lock over it with ``os.replace``; a second contender fails to create the claim, or finds the new lock
+        live, and backs off, so two never both win. On a local or mounted folder these are ``O_EXCL`` creates
+        and renames; an object store needs conditional writes (create-if-absent and compare-and-swap on the
+        object's version) for the same guarantee, which fsspec does not expose, so there it is best effort.
+        A holder that loses its lock (no renewal for a whole lease: a stalled host) gets a LockError on exit.
+        """
+        lock = LeasedLock(self.fs, self._marker(stage, key, ".lock"), self.local, label, lease_s)
         self.fs.makedirs(self.version_dir(stage, key), exist_ok=True)
-        if not self._try_create(path, me):
-            holder = self._read_lock(path)
-            if holder is not None and _alive(holder):
-                raise LockError(
-                    f"partition {label} is being written by another run ({holder.get('run', '?')}: host "
-                    f"{holder.get('host')} pid {holder.get('run_pid', holder.get('pid'))} since {holder.get('since')}); "
-                    f"wait for it to finish, or if that process is gone delete {path}")
-            self.fs.rm_file(path)
-            if not self._try_create(path, me):
-                raise LockError(f"partition {label}: lost the race for {path} to another run; retry")
+        lock.acquire()
         try:
             yield
         finally:
-            current = self._read_lock(path)
-            if current is not None and current.get("token") == me["token"]:
-                self.fs.rm_file(path)
-
-    def _try_create(self, path: str, info: dict) -> bool:
-        data = json.dumps(info).encode()
-        if self.local:
-            try:
-                fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-            except FileExistsError:
-                return False
-            with os.fdopen(fd, "wb") as fh:
-                fh.write(data)
-            return True
-        if self.fs.exists(path):  # best effort on object stores without exclusive create
-            return False
-        self.fs.pipe_file(path, data)
-        return (self._read_lock(path) or {}).get("token") == info["token"]
-
-    def _read_lock(self, path: str) -> dict | None:
-        try:
-            return json.loads(self.fs.cat_file(path))
-        except (OSError, ValueError):
-            return None
+            lock.release()
+        if lock.lost:
+            raise LockError(f"partition {label}: another run took over {lock.path} while this one held it (no "
+                            f"renewal for {lock.me['lease_s']:g} s: a stalled host or storage); the other run "
+                            f"rewrites the partition; if it failed, run again")
 
 
 def init_zarr(target: str, schema: ArtifactSchema, ds: xr.Dataset, n_frames: int, with_data: bool = False) -> None:
@@ -365,24 +344,3 @@ def _variable_strings(var: xr.Variable) -> xr.Variable:
 def _protocols(fs) -> tuple[str, ...]:
     proto = fs.protocol
     return (proto,) if isinstance(proto, str) else tuple(proto)
-
-
-def _holder(label: str) -> dict:
-    """Who takes a lock: this process (``pid``, ``started``: whether it still runs), and the run it works for
-    (``run_pid``: the process that started this one when this is a worker process, else this one)."""
-    me = psutil.Process()
-    parent = multiprocessing.parent_process()
-    return {"host": socket.gethostname(), "pid": os.getpid(), "started": me.create_time(),
-            "run_pid": parent.pid if parent is not None else os.getpid(),
-            "since": time.strftime("%Y-%m-%dT%H:%M:%S"), "run": label, "token": uuid.uuid4().hex}
-
-
-def _alive(holder: dict) -> bool:
-    """Whether the process named by a lock still runs (assumed alive if it is on another host)."""
-    if holder.get("host") != socket.gethostname():
-        return True
-    try:
-        proc = psutil.Process(int(holder["pid"]))
-        return abs(proc.create_time() - float(holder["started"])) < 1.0 and proc.status() != psutil.STATUS_ZOMBIE
-    except (psutil.NoSuchProcess, KeyError, ValueError):
-        return False
