@@ -100,7 +100,12 @@ class LeasedLock:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=CLAIM_WAIT_S + 1.0)
-        claims = self._claim_waiting(self.me["token"])
+        if self._read(self.path) is None:
+            return  # deleted, with its version folder (mocapflow gc)
+        try:
+            claims = self._claim_waiting(self.me["token"])
+        except FileNotFoundError:
+            return  # the version folder was deleted meanwhile
         if claims is None:
             log.warning("%s: a contender held the claim on %s for %.0f s; left the lock to expire",
                         self.label, self.path, CLAIM_WAIT_S)
