@@ -107,15 +107,56 @@ def run(catalog_path, overrides, sequences, only, until, dry_run, workers, threa
 @set_option
 @sequences_option
 def status_cmd(catalog_path, overrides, sequences):
-    """fresh / stale / partial / missing for every stage x partition."""
+    """fresh / damaged / partial / stale / missing for every stage x partition."""
     catalog = load_catalog(catalog_path, overrides)
     store = Store(catalog.root)
     plan = build_plan(catalog, sequences)
     versions = {stage: store.versions(stage) for stage in catalog.stages}
     cells = {pid: status(item, store, versions) for pid, item in plan.items.items()}
     click.echo(_matrix(plan, list(catalog.stages), cells))
-    counts = {s: list(cells.values()).count(s) for s in ("fresh", "partial", "stale", "missing")}
+    counts = {s: list(cells.values()).count(s) for s in ("fresh", "damaged", "partial", "stale", "missing")}
     click.echo(", ".join(f"{n} {s}" for s, n in counts.items()))
+
+
+@main.command()
+@catalog_option
+@set_option
+@click.argument("stage", required=False)
+def verify(catalog_path, overrides, stage):
+    """Check every complete version (of STAGE, or of every stage) against the digests recorded when it was written;
+    damaged ones are marked, and the next `mocapflow run` writes exactly their damaged regions again."""
+    catalog = load_catalog(catalog_path, overrides)
+    store = Store(catalog.root)
+    stages = store.stages_on_disk()
+    if stage is not None and stage not in stages:
+        known = sorted(set(catalog.stages) | set(stages))
+        raise MocapflowError(f"no stored versions of stage {stage!r} in {catalog.root}; stages: {', '.join(known)}")
+    counts = {"intact": 0, "damaged": 0, "unverified": 0}
+    for name in [stage] if stage else stages:
+        for version in store.versions(name):
+            if version.complete:
+                counts[_verify_version(store, version)] += 1
+    click.echo(f"{counts['intact']} intact, {counts['damaged']} damaged, {counts['unverified']} unverified "
+               "(written before digests were recorded)")
+    if counts["damaged"]:
+        click.echo("run `mocapflow run` to recompute the damaged regions", err=True)
+        sys.exit(1)
+
+
+def _verify_version(store: Store, version) -> str:
+    """Check one complete version, mark it if damaged; intact, damaged or unverified."""
+    damage = store.verify(version.stage, version.key)
+    if damage is None:
+        return "unverified"
+    if not damage:
+        return "intact"
+    chunks = {d.chunk: d.problem for d in damage}
+    click.echo(f"DAMAGED {version.partition} ({version.stage}/{version.key}): {len(chunks)} chunk(s), in "
+               f"{', '.join(sorted({d.group for d in damage}))}")
+    for chunk, problem in chunks.items():
+        click.echo(f"  {chunk} {problem}")
+    store.mark_damaged(version.stage, version.key, damage, f"verify {version.partition}")
+    return "damaged"
 
 
 @main.command()

@@ -33,3 +33,7 @@ class LockError(StorageError):
 
 class PlanError(MocapflowError):
     """The requested run cannot be planned (e.g. --only with missing inputs)."""
+
+
+class IntegrityError(StorageError):
+    """A stored artifact's bytes differ from what was committed (a chunk deleted, truncated or altered)."""

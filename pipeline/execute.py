@@ -2,8 +2,8 @@
 
 One runner for every stage: load the inputs of a frame region (plus the task's halo) from
 storage, call the pure task with the stage's params as keyword arguments, crop the halo, check
-the schema, write the region, commit its marker. Regions already committed are skipped, so a
-killed run resumes where it stopped.
+the schema, write the region, commit its marker. Regions already committed are skipped once their
+chunks match their digests, so a killed run resumes where it stopped and a damaged region is written again.
 
 A *unit* runs one frame region of a group of partitions that work region by region: the stages of
 one sequence x view (say masks -> flow -> heatmaps -> reflectors2d), or of one sequence. Each
@@ -150,7 +150,7 @@ def _unit_member(item: WorkItem, unit: Unit, store: Store, loader: "_UnitInputs"
 
     def produce(started: float) -> tuple[int, bool]:
         written = 0
-        if not store.region_done(stage, key, unit.start, unit.stop):
+        if not store.resume_region(stage, key, unit.start, unit.stop):
             if unit.first or not store.pending_lineage(stage, key):
                 store.begin(stage, key, item.lineage(started=now(), host=socket.gethostname()))
             out = _compute_region(item, store, unit.start, unit.stop, load=loader.for_member(item))
@@ -259,7 +259,7 @@ def _produce(item: WorkItem, store: Store) -> int:
     store.begin(stage, key, item.lineage(started=now(), host=socket.gethostname()))
     written = 0
     for start, stop in spans(item):
-        if store.region_done(stage, key, start, stop):
+        if store.resume_region(stage, key, start, stop):
             continue
         t0 = time.perf_counter()
         out = _compute_region(item, store, start, stop)

@@ -272,10 +272,13 @@ def select(plan: Plan, catalog: Catalog, store: Store, *, only: str | None, unti
 
 
 def status(item: WorkItem, store: Store, versions_by_stage: dict) -> str:
-    """fresh (current key complete), partial (current key, some regions), stale (another version), missing."""
+    """fresh (current key complete), damaged (current key, found damaged by ``mocapflow verify`` and not yet
+    written again), partial (current key, some regions), stale (another version), missing."""
     stage = item.partition.stage
     if store.is_complete(stage, item.key):
         return "fresh"
+    if store.is_damaged(stage, item.key):
+        return "damaged"
     if store.regions_done(stage, item.key):
         return "partial"
     others = [v for v in versions_by_stage.get(stage, []) if v.partition == item.partition.id and v.key != item.key]

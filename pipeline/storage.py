@@ -4,10 +4,13 @@ Layout of one artifact version (one stage partition under one cache key)::
 
     <root>/<stage>/<key>/lineage.json      key components, partition, written before any data
     <root>/<stage>/<key>/data.zarr/        the xarray Dataset (zarr v3), chunked along frames
-    <root>/<stage>/<key>/_init             template (metadata + frame-less arrays) is written
-    <root>/<stage>/<key>/_regions/A-B      frames [A, B) are written (marker written after the data)
+    <root>/<stage>/<key>/_init             template (metadata + frame-less arrays) is written; its chunks' digests
+    <root>/<stage>/<key>/_regions/A-B      frames [A, B) are written (marker written after the data): its seconds and
+                                           the digest of each chunk it wrote (pipeline/integrity.py)
+    <root>/<stage>/<key>/digests.json      every chunk's digest, gathered at the commit; reads check chunks against it
     <root>/<stage>/<key>/_COMPLETE         every region is committed; lineage is in the zarr attrs
-    <root>/<stage>/<key>/.lock             held while a run writes this version
+    <root>/<stage>/<key>/_DAMAGED          `mocapflow verify` found damaged chunks; their regions are to be written again
+    <root>/<stage>/<key>/.lock             held while a run writes this version (a lease: pipeline/locks.py)
 
 A version is read only when ``_COMPLETE`` exists; a region is trusted only when its marker
 exists, so a run killed at any point resumes at region granularity and never reads a partial
@@ -17,23 +20,22 @@ region as done. Several versions of a partition live side by side (swap A -> B -
 from __future__ import annotations
 
 import json
-import multiprocessing
-import os
-import socket
+import logging
 import time
-import uuid
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Iterator
 
 import fsspec
 import numpy as np
-import psutil
 import xarray as xr
 
 from mocapflow.pipeline.errors import LockError, SchemaError, StorageError
+from mocapflow.pipeline.locks import LeasedLock
 from mocapflow.schemas import ArtifactSchema, SchemaViolation
 from mocapflow.tasks.shared.cache import BoundedCache
+
+log = logging.getLogger(__name__)
 
 # The zarr releases region writes are tested on (pyproject.toml pins the same range): write_zarr_region uses zarr's
 # internal zarr.core.sync.sync and AsyncArray.with_config (3.1.6 on). Widen it only after tests/pipeline/test_storage.py
@@ -44,6 +46,16 @@ ZARR_RANGE = ">=3.1.6,<3.2"
 # them: opening one reads every array's metadata. Keyed by the completion stamp, so a version deleted and written
 # again is opened afresh; (zarr target, schema name, stamp) -> Dataset.
 _OPENED: BoundedCache[tuple[str, str, str], xr.Dataset] = BoundedCache(64)
+
+
+@dataclass(frozen=True)
+class Damage:
+    """A stored chunk that differs from its digest: its ``group`` (``"init"`` or a region ``"A-B"``), zarr key
+    and what is wrong."""
+
+    group: str
+    chunk: str
+    problem: str
 
 
 @dataclass(frozen=True)
@@ -121,7 +133,8 @@ class Store:
     def write_region(self, stage: str, key: str, schema: ArtifactSchema, ds: xr.Dataset,
                      n_frames: int, start: int, stop: int, seconds: float = 0.0) -> None:
         """Write frames [start, stop) of ``ds`` (validated), initializing the store on first use; the region's
-        marker records the ``seconds`` it took."""
+        marker records the ``seconds`` it took and the digest of every chunk written (``_init``'s, those of the
+        template)."""
         check(schema, ds, f"output of stage {stage!r} frames {start}-{stop}")
         frames = ds["frame"].values if "frame" in ds.coords else None
         if frames is not None and not np.array_equal(frames, np.arange(start, stop)):
@@ -129,26 +142,26 @@ class Store:
                               f"has frame coordinate {_frames_text(frames)}, expected {start}..{stop - 1}; "
                               "the task must return exactly the frames of its region, in order")
         target = self._zarr_target(stage, key)
+        digests: dict[str, str] = {}
         if not self.fs.exists(self._marker(stage, key, "_init")):
             if self.fs.exists(self._marker(stage, key, "_regions")):
                 self.fs.rm(self._marker(stage, key, "_regions"), recursive=True)
             whole = start == 0 and stop == n_frames
-            init_zarr(target, schema, ds, n_frames, with_data=whole)
-            self._put(self._marker(stage, key, "_init"), b"")
+            init_digests: dict[str, str] = {}
+            init_zarr(target, schema, ds, n_frames, with_data=whole, digests=init_digests)
+            self._put(self._marker(stage, key, "_init"), json.dumps({"chunks": init_digests}).encode())
             if not whole:
-                write_zarr_region(target, ds, start, stop)
+                write_zarr_region(target, ds, start, stop, digests=digests)
         else:
-            write_zarr_region(target, ds, start, stop)
-        self._put(self._marker(stage, key, f"_regions/{start:08d}-{stop:08d}"), f"{seconds:.6f}".encode())
+            write_zarr_region(target, ds, start, stop, digests=digests)
+        marker = {"seconds": round(seconds, 6), "chunks": digests}
+        self._put(self._marker(stage, key, f"_regions/{start:08d}-{stop:08d}"), json.dumps(marker).encode())
 
     def region_seconds(self, stage: str, key: str) -> float:
         """The seconds recorded by the written regions of a version (0 for markers without)."""
         total = 0.0
         for path in self.fs.glob(self._marker(stage, key, "_regions/*")):
-            try:
-                total += float(self.fs.cat_file(path) or 0.0)
-            except ValueError:
-                continue
+            total += _region_record(self.fs.cat_file(path)).get("seconds", 0.0)
         return total
 
     def pending_lineage(self, stage: str, key: str) -> dict:
@@ -165,7 +178,10 @@ class Store:
         group = zarr.open_group(self._zarr_target(stage, key), mode="r+", zarr_format=3)
         group.attrs["mocapflow_lineage"] = json.loads(json.dumps(lineage))
         self._put(self._marker(stage, key, "lineage.json"), json.dumps(lineage, indent=1).encode())
+        self._put(self._marker(stage, key, "digests.json"), json.dumps(self._collect_digests(stage, key)).encode())
         self._put(self._marker(stage, key, "_COMPLETE"), str(time.time()).encode())
+        if self.fs.exists(self._marker(stage, key, "_DAMAGED")):
+            self.fs.rm_file(self._marker(stage, key, "_DAMAGED"))
 
     # ---- reading -------------------------------------------------------------------------
     def open(self, stage: str, key: str, schema: ArtifactSchema, partial: bool = False) -> xr.Dataset:
@@ -184,13 +200,25 @@ class Store:
         return ds.copy(deep=False)  # loading the caller's copy leaves the kept one lazy
 
     def _open_checked(self, stage: str, key: str, schema: ArtifactSchema, target: str) -> xr.Dataset:
+        """The version, each chunk checked against its digest as it is read (pipeline/integrity.py)."""
         try:
-            ds = xr.open_zarr(target, consolidated=False, chunks=None, zarr_format=3)
+            ds = xr.open_zarr(self._verified(stage, key, target), consolidated=False, chunks=None, zarr_format=3)
         except (OSError, ValueError, KeyError) as exc:
             raise StorageError(f"artifact {stage}/{key} in {self.root} is unreadable ({exc}); "
                                f"delete {self.version_dir(stage, key)} and rerun") from exc
         check(schema, ds, f"stored artifact {stage}/{key}")
         return ds
+
+    def _verified(self, stage: str, key: str, target: str):
+        """A zarr store reading ``target`` that checks every recorded chunk; ``target`` itself for a version
+        written before digests were recorded."""
+        expected = {chunk: d for chunks in _chunk_groups(self.digests(stage, key)).values() for chunk, d in chunks.items()}
+        if not expected:
+            return target
+        from mocapflow.pipeline.integrity import VerifyingStore, Where, zarr_store
+
+        where = Where(stage, key, self.pending_lineage(stage, key).get("partition", "?"), self.root)
+        return VerifyingStore(zarr_store(target, read_only=True), expected, where)
 
     def _completed(self, stage: str, key: str) -> str | None:
         """The ``_COMPLETE`` marker's time stamp, None while the version is not complete."""
@@ -199,57 +227,130 @@ class Store:
         except FileNotFoundError:
             return None
 
+    # ---- integrity -------------------------------------------------------------------------
+    def digests(self, stage: str, key: str) -> dict:
+        """The recorded chunk digests of a version: ``{"init": {chunk: digest}, "regions": {"A-B": {chunk:
+        digest}}}``, a complete version's from its ``digests.json``; empty for versions written before digests."""
+        if self._completed(stage, key) is not None:
+            try:
+                return json.loads(self.fs.cat_file(self._marker(stage, key, "digests.json")))
+            except FileNotFoundError:
+                return {}
+        return self._collect_digests(stage, key)
+
+    def _collect_digests(self, stage: str, key: str) -> dict:
+        try:
+            init = _region_record(self.fs.cat_file(self._marker(stage, key, "_init"))).get("chunks", {})
+        except FileNotFoundError:
+            init = {}
+        regions = {path.rstrip("/").split("/")[-1]: _region_record(self.fs.cat_file(path)).get("chunks", {})
+                   for path in self.fs.glob(self._marker(stage, key, "_regions/*"))}
+        return {"init": init, "regions": regions}
+
+    def check_chunks(self, stage: str, key: str, groups: dict[str, dict[str, str]]) -> list[Damage]:
+        """The chunks of ``groups`` (``"init"`` or a region ``"A-B"`` -> {chunk: digest}) whose stored bytes are
+        missing or differ from their digest."""
+        from mocapflow.pipeline.integrity import chunk_problem
+
+        base = f"{self.version_dir(stage, key)}/data.zarr"
+        paths = sorted({f"{base}/{chunk}" for chunks in groups.values() for chunk in chunks})
+        stored = self.fs.cat(paths, on_error="return") if paths else {}
+        damage = []
+        for group, chunks in groups.items():  # a chunk several regions write (the frame coordinate) in each
+            for chunk, want in chunks.items():
+                data = stored.get(f"{base}/{chunk}")
+                problem = chunk_problem(None if isinstance(data, Exception) else data, want)
+                if problem is not None:
+                    damage.append(Damage(group, chunk, problem))
+        return damage
+
+    def verify(self, stage: str, key: str) -> list[Damage] | None:
+        """The damaged chunks of a complete version (None: it has no digests to check)."""
+        recorded = self.digests(stage, key)
+        if not recorded:
+            return None
+        return self.check_chunks(stage, key, _chunk_groups(recorded))
+
+    def resume_region(self, stage: str, key: str, start: int, stop: int) -> bool:
+        """Whether frames [start, stop) are written and intact, with the template (its frame-less arrays and frame
+        coordinate: small); a damaged region's markers are deleted, so that the caller writes it again (every
+        region, if the template is damaged)."""
+        if not self.region_done(stage, key, start, stop):
+            return False
+        recorded = self._collect_digests(stage, key)
+        name = f"{start:08d}-{stop:08d}"
+        groups = {"init": recorded["init"], name: recorded["regions"].get(name, {})}
+        damage = self.check_chunks(stage, key, groups)
+        if not damage:
+            return True
+        log.warning("%s/%s: written frames %d-%d are damaged (%s); writing them again", stage, key, start, stop,
+                    "; ".join(f"{d.chunk} {d.problem}" for d in damage[:3]))
+        self._forget(stage, key, damage)
+        return False
+
+    def mark_damaged(self, stage: str, key: str, damage: list[Damage], label: str) -> None:
+        """Record ``damage`` in ``_DAMAGED`` and make the version incomplete, its damaged regions unwritten, so
+        that the next run writes exactly those again (the whole version if the template is damaged)."""
+        with self.lock(stage, key, label):
+            record = {"found": time.strftime("%Y-%m-%dT%H:%M:%S"),
+                      "chunks": {d.chunk: f"{d.group}: {d.problem}" for d in damage}}
+            self._put(self._marker(stage, key, "_DAMAGED"), json.dumps(record, indent=1).encode())
+            for name in ("_COMPLETE", "digests.json"):
+                if self.fs.exists(self._marker(stage, key, name)):
+                    self.fs.rm_file(self._marker(stage, key, name))
+            self._forget(stage, key, damage)
+
+    def is_damaged(self, stage: str, key: str) -> bool:
+        return self.fs.exists(self._marker(stage, key, "_DAMAGED"))
+
+    def _forget(self, stage: str, key: str, damage: list[Damage]) -> None:
+        """Delete the markers of the damaged regions (all of them and ``_init`` if the template is damaged)."""
+        if any(d.group == "init" for d in damage):
+            for name in ("_init", "_regions"):
+                if self.fs.exists(self._marker(stage, key, name)):
+                    self.fs.rm(self._marker(stage, key, name), recursive=True)
+            return
+        for group in sorted({d.group for d in damage}):
+            if self.fs.exists(self._marker(stage, key, f"_regions/{group}")):
+                self.fs.rm_file(self._marker(stage, key, f"_regions/{group}"))
+
     # ---- locking -------------------------------------------------------------------------
     @contextmanager
-    def lock(self, stage: str, key: str, label: str) -> Iterator[None]:
-        """Exclusive lock of one version; a lock left by a dead process on this host is taken over."""
-        path = self._marker(stage, key, ".lock")
-        me = _holder(label)
+    def lock(self, stage: str, key: str, label: str, lease_s: float | None = None) -> Iterator[None]:
+        """Exclusive lock of one version, held as a lease (pipeline/locks.py).
+
+        The holder renews the lease every ``lease_s / 6`` seconds from a daemon thread (``lease_s``: by default
+        ``$MOCAPFLOW_LOCK_LEASE_S`` or 60 s). Another run that reaches the version while the lease runs gets a
+        LockError naming the holder; a lock whose lease ran out is stale on any host, and one left by a dead
+        process of this host is stale at once. A stale lock is taken over atomically: the contender claims it
+        by creating ``.lock.takeover-<holder's token>`` exclusively, checks again that it is stale, and moves its
+        own lock over it with ``os.replace``; a second contender fails to create the claim, or finds the new lock
+        live, and backs off, so two never both win. On a local or mounted folder these are ``O_EXCL`` creates
+        and renames; an object store needs conditional writes (create-if-absent and compare-and-swap on the
+        object's version) for the same guarantee, which fsspec does not expose, so there it is best effort.
+        A holder that loses its lock (no renewal for a whole lease: a stalled host) gets a LockError on exit.
+        """
+        lock = LeasedLock(self.fs, self._marker(stage, key, ".lock"), self.local, label, lease_s)
         self.fs.makedirs(self.version_dir(stage, key), exist_ok=True)
-        if not self._try_create(path, me):
-            holder = self._read_lock(path)
-            if holder is not None and _alive(holder):
-                raise LockError(
-                    f"partition {label} is being written by another run ({holder.get('run', '?')}: host "
-                    f"{holder.get('host')} pid {holder.get('run_pid', holder.get('pid'))} since {holder.get('since')}); "
-                    f"wait for it to finish, or if that process is gone delete {path}")
-            self.fs.rm_file(path)
-            if not self._try_create(path, me):
-                raise LockError(f"partition {label}: lost the race for {path} to another run; retry")
+        lock.acquire()
         try:
             yield
         finally:
-            current = self._read_lock(path)
-            if current is not None and current.get("token") == me["token"]:
-                self.fs.rm_file(path)
-
-    def _try_create(self, path: str, info: dict) -> bool:
-        data = json.dumps(info).encode()
-        if self.local:
-            try:
-                fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-            except FileExistsError:
-                return False
-            with os.fdopen(fd, "wb") as fh:
-                fh.write(data)
-            return True
-        if self.fs.exists(path):  # best effort on object stores without exclusive create
-            return False
-        self.fs.pipe_file(path, data)
-        return (self._read_lock(path) or {}).get("token") == info["token"]
-
-    def _read_lock(self, path: str) -> dict | None:
-        try:
-            return json.loads(self.fs.cat_file(path))
-        except (OSError, ValueError):
-            return None
+            lock.release()
+        if lock.lost:
+            raise LockError(f"partition {label}: another run took over {lock.path} while this one held it (no "
+                            f"renewal for {lock.me['lease_s']:g} s: a stalled host or storage); the other run "
+                            f"rewrites the partition; if it failed, run again")
 
 
-def init_zarr(target: str, schema: ArtifactSchema, ds: xr.Dataset, n_frames: int, with_data: bool = False) -> None:
+def init_zarr(target: str, schema: ArtifactSchema, ds: xr.Dataset, n_frames: int, with_data: bool = False,
+              digests: dict[str, str] | None = None) -> None:
     """Create a zarr v3 group shaped like ``ds`` but ``n_frames`` long: metadata and frame-less arrays only.
 
-    ``with_data``: ``ds`` already holds all ``n_frames`` frames; write everything in one pass.
+    ``with_data``: ``ds`` already holds all ``n_frames`` frames; write everything in one pass. ``digests``: filled
+    with the digest of every chunk written (pipeline/integrity.py).
     """
+    target = _writer(target, digests)
     if with_data:
         encoding = {name: {"chunks": schema.chunks(name, var.shape, var.dims), **_codec()}
                     for name, var in ds.data_vars.items() if "frame" in var.dims}
@@ -262,8 +363,9 @@ def init_zarr(target: str, schema: ArtifactSchema, ds: xr.Dataset, n_frames: int
                          write_empty_chunks=True)
 
 
-def write_zarr_region(target: str, ds: xr.Dataset, start: int, stop: int) -> None:
-    """Write the frame-dimensioned variables of ``ds`` into frames [start, stop) of an initialized group.
+def write_zarr_region(target: str, ds: xr.Dataset, start: int, stop: int, digests: dict[str, str] | None = None) -> None:
+    """Write the frame-dimensioned variables of ``ds`` into frames [start, stop) of an initialized group
+    (``digests``: filled with the digest of every chunk written, pipeline/integrity.py).
 
     Every array in one pass of zarr's event loop: their metadata read and their chunks written concurrently.
     xarray's region write (which this replaces) takes a round trip through that loop per array and per
@@ -278,7 +380,7 @@ def write_zarr_region(target: str, ds: xr.Dataset, start: int, stop: int) -> Non
     """
     framed = {name: var for name, var in ds.variables.items() if "frame" in var.dims}
     if framed:
-        _zarr_sync()(_write_arrays(target, framed, start, stop))
+        _zarr_sync()(_write_arrays(_writer(target, digests), framed, start, stop, target))
 
 
 def _zarr_sync():
@@ -293,13 +395,23 @@ def _zarr_sync():
     return sync
 
 
-async def _write_arrays(target: str, framed: dict, start: int, stop: int) -> None:
-    """Frames [start, stop) of each of ``framed``'s variables into its zarr array (named dims, stored order)."""
+def _writer(target: str, digests: dict[str, str] | None):
+    """``target`` itself, or a zarr store writing to it that records chunk digests in ``digests``."""
+    if digests is None:
+        return target
+    from mocapflow.pipeline.integrity import RecordingStore, zarr_store
+
+    return RecordingStore(zarr_store(target, read_only=False), digests)
+
+
+async def _write_arrays(store, framed: dict, start: int, stop: int, target: str) -> None:
+    """Frames [start, stop) of each of ``framed``'s variables into its zarr array (named dims, stored order) in
+    ``store`` (``target``, or a store writing there)."""
     import asyncio
 
     import zarr.api.asynchronous as zarr_async
 
-    group = await zarr_async.open_group(target, mode="r+", zarr_format=3)
+    group = await zarr_async.open_group(store, mode="r+", zarr_format=3)
     arrays = dict(zip(framed, await asyncio.gather(*(group.getitem(name) for name in framed))))
     for name, var in framed.items():  # every array checked before any is written
         stored = tuple(arrays[name].metadata.dimension_names or ())
@@ -362,27 +474,23 @@ def _variable_strings(var: xr.Variable) -> xr.Variable:
     return var.astype(object) if var.dtype.kind == "U" else var
 
 
+def _region_record(data: bytes) -> dict:
+    """A region or ``_init`` marker's record: ``{"seconds", "chunks"}``; older markers held the seconds alone, or
+    nothing."""
+    try:
+        record = json.loads(data or b"{}")
+    except ValueError:
+        return {}
+    if isinstance(record, (int, float)):
+        return {"seconds": float(record)}
+    return record if isinstance(record, dict) else {}
+
+
+def _chunk_groups(recorded: dict) -> dict[str, dict[str, str]]:
+    """``"init"`` and each region -> {chunk: digest}, from ``Store.digests``."""
+    return {"init": recorded.get("init", {}), **recorded.get("regions", {})}
+
+
 def _protocols(fs) -> tuple[str, ...]:
     proto = fs.protocol
     return (proto,) if isinstance(proto, str) else tuple(proto)
-
-
-def _holder(label: str) -> dict:
-    """Who takes a lock: this process (``pid``, ``started``: whether it still runs), and the run it works for
-    (``run_pid``: the process that started this one when this is a worker process, else this one)."""
-    me = psutil.Process()
-    parent = multiprocessing.parent_process()
-    return {"host": socket.gethostname(), "pid": os.getpid(), "started": me.create_time(),
-            "run_pid": parent.pid if parent is not None else os.getpid(),
-            "since": time.strftime("%Y-%m-%dT%H:%M:%S"), "run": label, "token": uuid.uuid4().hex}
-
-
-def _alive(holder: dict) -> bool:
-    """Whether the process named by a lock still runs (assumed alive if it is on another host)."""
-    if holder.get("host") != socket.gethostname():
-        return True
-    try:
-        proc = psutil.Process(int(holder["pid"]))
-        return abs(proc.create_time() - float(holder["started"])) < 1.0 and proc.status() != psutil.STATUS_ZOMBIE
-    except (psutil.NoSuchProcess, KeyError, ValueError):
-        return False

@@ -178,7 +178,7 @@ def test_threads_opening_one_complete_version_open_it_once(tmp_path, monkeypatch
         t.start()
     for t in threads:
         t.join(timeout=30)
-    assert opened == [str(tmp_path / "s" / "k" / "data.zarr")]
+    assert len(opened) == 1 and str(opened[0]).endswith(str(tmp_path / "s" / "k" / "data.zarr"))  # a checking store
     assert len(labels) == 8
     for label in labels:
         np.testing.assert_array_equal(label[:, :4], dataset(range(0, 4))["label"].values)

@@ -1,0 +1,298 @@
+"""Leased locks on a storage root shared by several processes and hosts.
+
+A lock is a small JSON file naming its holder (host, pid, run, a random token) and when the holder last
+renewed it. The holder renews it every ``lease / HEARTBEATS_PER_LEASE`` seconds from a daemon thread; a lock
+is *stale* when its lease ran out (on any host), or at once when its holder is a process of this host that
+no longer runs. A stale lock is taken over, never deleted and recreated:
+
+1. the contender claims the stale generation by creating ``<lock>.takeover-<token>`` exclusively (the token
+   is the stale holder's, so every generation has its own claim and a late contender cannot reuse an old one);
+2. holding the claim it reads the lock again: still that token and still stale, or it backs off;
+3. it writes its own lock beside it and moves it over the lock with one ``os.replace``, then drops the claim.
+
+The holder's renewals and its release take the same claim on their own token, so a takeover and a renewal
+never interleave: whichever comes second sees the other's result. A claim whose maker died (a claim lives a
+few milliseconds) is stale by the same rules and is claimed in turn (``<claim>-<token>``).
+
+Locally this rests on ``O_CREAT | O_EXCL`` and ``os.replace`` (atomic on POSIX, on NFSv3+ and on SMB).
+An object store needs conditional writes for the same guarantee: create-if-absent for the claim and the lock
+(S3 ``If-None-Match: *``, GCS ``ifGenerationMatch=0``) and compare-and-swap on the lock's version (S3
+``If-Match: <ETag>``, GCS ``ifGenerationMatch=<generation>``); fsspec exposes neither, so there the create is
+write-then-read-back, which narrows the race but does not close it.
+
+Clocks: the lease is measured from the renewal time the holder writes, on the reader's clock, so the hosts'
+clocks must agree to well within the lease (NTP keeps them within milliseconds).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import multiprocessing
+import os
+import socket
+import threading
+import time
+import uuid
+
+import psutil
+
+from mocapflow.pipeline.errors import LockError, StorageError
+
+log = logging.getLogger(__name__)
+
+LEASE_ENV = "MOCAPFLOW_LOCK_LEASE_S"
+# 60 s lease, renewed every 10 s: a holder misses five renewals in a row before anyone may take its lock over,
+# which rides out a long garbage-collection pause, a swapping host or an NFS server that stalls for tens of seconds
+# (a hard mount retries every 6 s by default), while a partition whose worker died on another host waits at most a
+# minute for the run that takes it over. Same-host holders that died are taken over at once.
+DEFAULT_LEASE_S = 60.0
+HEARTBEATS_PER_LEASE = 6
+CLAIM_WAIT_S = 2.0  # how long a holder waits for a contender's claim on its lock (held for milliseconds)
+UNREADABLE = "unreadable"  # the token of a lock file whose contents cannot be parsed
+
+
+def lease_seconds() -> float:
+    """The lease of new locks: ``$MOCAPFLOW_LOCK_LEASE_S`` or ``DEFAULT_LEASE_S``."""
+    raw = os.environ.get(LEASE_ENV)
+    if raw is None or raw.strip() == "":
+        return DEFAULT_LEASE_S
+    try:
+        value = float(raw)
+    except ValueError as exc:
+        raise StorageError(f"{LEASE_ENV}={raw!r} is not a number of seconds; set it to a positive number "
+                           f"(default {DEFAULT_LEASE_S:g})") from exc
+    if not value > 0:
+        raise StorageError(f"{LEASE_ENV}={raw!r} must be a positive number of seconds (default {DEFAULT_LEASE_S:g})")
+    return value
+
+
+class LeasedLock:
+    """One lock file ``path`` on the fsspec filesystem ``fs`` (``local``: a local or mounted folder)."""
+
+    def __init__(self, fs, path: str, local: bool, label: str, lease_s: float | None = None):
+        self.fs, self.path, self.local, self.label = fs, path, local, label
+        self.me = holder_info(label, lease_seconds() if lease_s is None else lease_s)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.lost = False
+
+    # ---- the holder's side -------------------------------------------------------------
+    def acquire(self) -> None:
+        """Take the lock, taking over a stale one; LockError while another holder's lease runs."""
+        for _ in range(3):
+            if self._create(self.path, self.me):
+                break
+            holder = self._read(self.path)
+            if holder is None:
+                continue  # released meanwhile: create again
+            if not self._stale(self.path, holder):
+                raise LockError(busy_message(self.label, self.path, holder))
+            if self._take_over(holder):
+                break
+        else:
+            raise LockError(f"partition {self.label}: lost the race for {self.path} to another run; retry")
+        self._thread = threading.Thread(target=self._beat, name=f"lease {self.label}", daemon=True)
+        self._thread.start()
+
+    def release(self) -> None:
+        """Stop renewing and delete the lock if it is still ours."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=CLAIM_WAIT_S + 1.0)
+        if self._read(self.path) is None:
+            return  # deleted, with its version folder (mocapflow gc)
+        try:
+            claims = self._claim_waiting(self.me["token"])
+        except FileNotFoundError:
+            return  # the version folder was deleted meanwhile
+        if claims is None:
+            log.warning("%s: a contender held the claim on %s for %.0f s; left the lock to expire",
+                        self.label, self.path, CLAIM_WAIT_S)
+            return
+        try:
+            if _token(self._read(self.path)) == self.me["token"]:
+                self.fs.rm_file(self.path)
+        finally:
+            self._drop(claims)
+
+    def renew(self) -> bool:
+        """Write a fresh renewal time; False once the lock is no longer ours (another run took it over)."""
+        claims = self._claim_waiting(self.me["token"])
+        if claims is None:
+            return True  # a contender is looking at our lock; it sees our last renewal, and we retry next beat
+        try:
+            if _token(self._read(self.path)) != self.me["token"]:
+                return False
+            self._replace(self.path, self.me)
+            return True
+        finally:
+            self._drop(claims)
+
+    def _beat(self) -> None:
+        interval = float(self.me["lease_s"]) / HEARTBEATS_PER_LEASE
+        while not self._stop.wait(interval):
+            try:
+                if not self.renew():
+                    self.lost = True
+                    log.error("%s: the lock %s was taken over by another run (no renewal for a whole lease)",
+                              self.label, self.path)
+                    return
+            except OSError as exc:
+                log.warning("%s: could not renew %s (%s); retrying in %.1f s", self.label, self.path, exc, interval)
+
+    # ---- the contender's side ------------------------------------------------------------
+    def _take_over(self, stale: dict) -> bool:
+        """Replace the stale lock ``stale`` with ours, atomically; False if another contender or the holder
+        got there first."""
+        claims = self._claim(_token(stale))
+        if claims is None:
+            return False
+        try:
+            current = self._read(self.path)
+            if current is None or _token(current) != _token(stale) or not self._stale(self.path, current):
+                return False
+            self._replace(self.path, self.me)
+        finally:
+            self._drop(claims)
+        log.warning("%s: took over the stale lock %s of %s", self.label, self.path, describe(stale))
+        return True
+
+    def _claim(self, token: str) -> list[str] | None:
+        """The exclusive claim on the lock generation ``token`` (and the stale claims passed on the way, to drop
+        with it), or None while another live contender holds it."""
+        claim, passed = f"{self.path}.takeover-{token}", []
+        for _ in range(4):
+            if self._create(claim, self.me):
+                return [claim, *passed]
+            other = self._read(claim)
+            if other is None or not self._stale(claim, other):
+                return None
+            passed.append(claim)
+            claim = f"{claim}-{_token(other)}"
+        return None
+
+    def _claim_waiting(self, token: str) -> list[str] | None:
+        deadline = time.monotonic() + CLAIM_WAIT_S
+        while True:
+            claims = self._claim(token)
+            if claims is not None or time.monotonic() > deadline:
+                return claims
+            time.sleep(0.01)
+
+    def _stale(self, path: str, holder: dict) -> bool:
+        """Whether ``holder`` (read from ``path``) has lost its claim: dead on this host, or its lease ran out."""
+        if holder.get("host") == socket.gethostname() and not process_alive(holder):
+            return True
+        renewed = _number(holder, "renewed")
+        if renewed is None:  # unreadable, or written by an older release: the file's modification time
+            renewed = self._mtime(path)
+        lease = _number(holder, "lease_s") or lease_seconds()
+        return time.time() - renewed > lease
+
+    # ---- files -----------------------------------------------------------------------------
+    def _create(self, path: str, info: dict) -> bool:
+        """Create ``path`` holding ``info`` if it does not exist; False if it does."""
+        data = _encode(info)
+        if self.local:
+            try:
+                fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                return False
+            with os.fdopen(fd, "wb") as fh:
+                fh.write(data)
+            return True
+        if self.fs.exists(path):  # best effort: fsspec has no create-if-absent (see the module's docstring)
+            return False
+        self.fs.pipe_file(path, data)
+        return _token(self._read(path)) == info["token"]
+
+    def _replace(self, path: str, info: dict) -> None:
+        """Put ``info`` at ``path`` in one step: readers see the old lock or the new, never a part."""
+        data = _encode(info)
+        if not self.local:
+            self.fs.pipe_file(path, data)
+            return
+        tmp = f"{path}.{info['token']}.tmp"
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+
+    def _read(self, path: str) -> dict | None:
+        """The lock at ``path``; None if there is none, {} if its contents are unreadable."""
+        try:
+            text = self.fs.cat_file(path)
+        except FileNotFoundError:
+            return None
+        try:
+            info = json.loads(text)
+        except ValueError:
+            return {}
+        return info if isinstance(info, dict) else {}
+
+    def _mtime(self, path: str) -> float:
+        try:
+            return self.fs.modified(path).timestamp()
+        except (FileNotFoundError, NotImplementedError):
+            return 0.0
+
+    def _drop(self, claims: list[str]) -> None:
+        for claim in claims:
+            try:
+                self.fs.rm_file(claim)
+            except FileNotFoundError:
+                continue
+
+
+def holder_info(label: str, lease_s: float) -> dict:
+    """Who takes a lock: this process (``pid``, ``started``: whether it still runs), the run it works for
+    (``run_pid``: the process that started this one when this is a worker process, else this one), and its
+    lease."""
+    me = psutil.Process()
+    parent = multiprocessing.parent_process()
+    return {"host": socket.gethostname(), "pid": os.getpid(), "started": me.create_time(),
+            "run_pid": parent.pid if parent is not None else os.getpid(),
+            "since": time.strftime("%Y-%m-%dT%H:%M:%S"), "run": label, "token": uuid.uuid4().hex,
+            "lease_s": lease_s}
+
+
+def process_alive(holder: dict) -> bool:
+    """Whether the process of this host named by a lock still runs."""
+    try:
+        proc = psutil.Process(int(holder["pid"]))
+        return abs(proc.create_time() - float(holder["started"])) < 1.0 and proc.status() != psutil.STATUS_ZOMBIE
+    except (psutil.NoSuchProcess, KeyError, ValueError, TypeError):
+        return False
+
+
+def busy_message(label: str, path: str, holder: dict) -> str:
+    renewed = _number(holder, "renewed")
+    lease = _number(holder, "lease_s")
+    lease_text = ""
+    if renewed is not None and lease is not None:
+        lease_text = f", lease renewed {time.time() - renewed:.0f} s ago, expires in {renewed + lease - time.time():.0f} s"
+    return (f"partition {label} is being written by another run ({describe(holder)}{lease_text}); wait for it "
+            f"to finish; if that process is gone the lock is taken over once its lease expires "
+            f"(${LEASE_ENV}, default {DEFAULT_LEASE_S:g} s), or delete {path} if you know no run holds it")
+
+
+def describe(holder: dict) -> str:
+    return (f"{holder.get('run', '?')}: host {holder.get('host')} pid {holder.get('run_pid', holder.get('pid'))} "
+            f"since {holder.get('since')}")
+
+
+def _encode(info: dict) -> bytes:
+    return json.dumps({**info, "renewed": time.time()}).encode()
+
+
+def _token(holder: dict | None) -> str | None:
+    if holder is None:
+        return None
+    return str(holder.get("token") or UNREADABLE)
+
+
+def _number(holder: dict, field: str) -> float | None:
+    try:
+        return float(holder[field])
+    except (KeyError, TypeError, ValueError):
+        return None
