@@ -124,8 +124,12 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 def interpolate(values: np.ndarray, face: np.ndarray, bary: np.ndarray) -> np.ndarray:
     """Per-corner values at barycentric points: values (face, 3, C), face (n,), bary (n, 2) -> (n, C)."""
+    return barycentric(values[face], bary)
+
+
+def barycentric(corners: np.ndarray, bary: np.ndarray) -> np.ndarray:
+    """(1-u-v) c0 + u c1 + v c2: corners (n, 3, C), bary (n, 2) -> (n, C)."""
     u, v = bary[:, :1], bary[:, 1:]
-    corners = values[face]  # (n, 3, C)
     return (1 - u - v) * corners[:, 0] + u * corners[:, 1] + v * corners[:, 2]
 
 

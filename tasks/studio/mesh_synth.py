@@ -23,7 +23,7 @@ from mocapflow.schemas.raw import make_raw_sequence
 from mocapflow.tasks.shared import body, reflectors
 from mocapflow.tasks.shared.mesh_body import PARTS, MeshBody, mesh_body, part_of_bone, random_phenotype
 from mocapflow.tasks.studio import mesh_motion, mesh_reflectors, render
-from mocapflow.tasks.studio.mesh_render import MeshScene, cast_view, interpolate, vertex_normals
+from mocapflow.tasks.studio.mesh_render import MeshScene, barycentric, cast_view, vertex_normals
 
 MESH_STUDIO_VERSION = "1"
 _FINE_PARTS = tuple(p for p in PARTS if PARTS[p] == (p,))
@@ -74,23 +74,23 @@ def view_frame(rig: MeshRig, view: render.View, scene: MeshScene, f: int, normal
     body_mask &= t_body < view.bg_t
     t = np.where(body_mask, t_body, view.bg_t)
     face, bary = hits.face[body_mask], hits.bary[body_mask]
-    faces = rig.body.faces
+    corners = rig.body.faces[face]  # (n, 3) vertex indices of each hit's face
     verts = rig.take.posed.vertices
-    n = interpolate(normals[faces], face, bary)
+    n = barycentric(normals[corners], bary)
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     cos = view.bg_cos.copy()
     cos[body_mask] = np.abs(np.einsum("ni,ni->n", n @ view.R.T, view.rays[body_mask]))
     rid = np.full(body_mask.shape, -1, np.int8)
     rid[body_mask] = rig.face_reflector[face]
     reflector = rid >= 0
-    here = interpolate(verts[f][faces], face, bary)
+    here = barycentric(verts[f][corners], bary)
     flow = np.zeros(body_mask.shape + (3,), np.float32)
     flow_prev = np.zeros_like(flow)
-    flow[body_mask] = (interpolate(verts[f + 1][faces], face, bary) - here) @ view.R.T
-    flow_prev[body_mask] = (here - interpolate(verts[max(f - 1, 0)][faces], face, bary)) @ view.R.T
+    flow[body_mask] = (barycentric(verts[f + 1][corners], bary) - here) @ view.R.T
+    flow_prev[body_mask] = (here - barycentric(verts[max(f - 1, 0)][corners], bary)) @ view.R.T
     depth = render.kinect_depth(t * view.rays[..., 2], cos, reflector, rng, rig.spec.noise)
     albedo = view.bg_albedo.copy()
-    rest = interpolate(rig.body.vertices[faces], face, bary)
+    rest = barycentric(rig.body.vertices[corners], bary)
     albedo[body_mask] = render.ALBEDO["body"] * render.cloth_texture(rig.face_part[face], rest)
     ir = render.kinect_ir(t, cos, albedo, reflector, rng, rig.spec.noise)
     pixels = np.bincount(rid[reflector].astype(np.int64), minlength=len(rig.placements)).astype(np.int32)
