@@ -112,6 +112,14 @@ class MeshBody:
         except ValueError:
             raise MeshBodyError(f"Anny has no bone {name!r}; bones are {', '.join(self.bone_names)}") from None
 
+    def descendants(self, name: str) -> np.ndarray:
+        """Indices of a bone and every bone below it.  # (bone,)"""
+        inside = np.zeros(len(self.bone_names), bool)
+        inside[self.bone(name)] = True
+        for b, parent in enumerate(self.bone_parents):  # parents come first
+            inside[b] |= parent >= 0 and inside[parent]
+        return np.flatnonzero(inside)
+
     def part_faces(self, part: str) -> np.ndarray:
         """Skin faces of a named part (PARTS), by the bone that moves their vertices most.  # (face,) bool"""
         if part not in PARTS:

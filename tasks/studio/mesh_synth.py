@@ -19,8 +19,7 @@ import numpy as np
 import xarray as xr
 from scipy.spatial.transform import Rotation
 
-from mocapflow.schemas.raw import make_raw_sequence
-from mocapflow.tasks.shared import body, reflectors
+from mocapflow.tasks.shared import body
 from mocapflow.tasks.shared.mesh_body import PARTS, MeshBody, mesh_body, part_of_bone, random_phenotype
 from mocapflow.tasks.studio import mesh_motion, mesh_reflectors, render
 from mocapflow.tasks.studio.mesh_render import MeshScene, barycentric, cast_view, vertex_normals
@@ -69,29 +68,35 @@ def view_frame(rig: MeshRig, view: render.View, scene: MeshScene, f: int, normal
                 rng: np.random.Generator) -> render.Frame:
     """One view at frame ``f`` (the posed meshes of f - 1, f and f + 1 are in rig.take)."""
     hits = cast_view(scene, view.cam, view.rays)
-    body_mask = hits.face >= 0
-    t_body = np.where(body_mask, hits.depth / np.maximum(view.rays[..., 2], 1e-9), np.inf)
-    body_mask &= t_body < view.bg_t
-    t = np.where(body_mask, t_body, view.bg_t)
-    face, bary = hits.face[body_mask], hits.bary[body_mask]
+    shape = hits.face.shape
+    rays = view.rays.reshape(-1, 3)
+    hit = np.flatnonzero(hits.face.ravel() >= 0)
+    t_hit = hits.depth.ravel()[hit] / np.maximum(rays[hit, 2], 1e-9)  # camera z -> ray length
+    keep = t_hit < view.bg_t.ravel()[hit]  # the body is in front of the room
+    idx, t_hit = hit[keep], t_hit[keep]  # flat indices of the body's pixels
+    body_mask = np.zeros(shape, bool)
+    body_mask.ravel()[idx] = True
+    t = view.bg_t.copy()
+    t.ravel()[idx] = t_hit
+    face, bary = hits.face.ravel()[idx], hits.bary.reshape(-1, 2)[idx]
     corners = rig.body.faces[face]  # (n, 3) vertex indices of each hit's face
     verts = rig.take.posed.vertices
     n = barycentric(normals[corners], bary)
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     cos = view.bg_cos.copy()
-    cos[body_mask] = np.abs(np.einsum("ni,ni->n", n @ view.R.T, view.rays[body_mask]))
-    rid = np.full(body_mask.shape, -1, np.int8)
-    rid[body_mask] = rig.face_reflector[face]
+    cos.ravel()[idx] = np.abs(np.einsum("ni,ni->n", n @ view.R.T, rays[idx]))
+    rid = np.full(shape, -1, np.int8)
+    rid.ravel()[idx] = rig.face_reflector[face]
     reflector = rid >= 0
     here = barycentric(verts[f][corners], bary)
-    flow = np.zeros(body_mask.shape + (3,), np.float32)
+    flow = np.zeros(shape + (3,), np.float32)
     flow_prev = np.zeros_like(flow)
-    flow[body_mask] = (barycentric(verts[f + 1][corners], bary) - here) @ view.R.T
-    flow_prev[body_mask] = (here - barycentric(verts[max(f - 1, 0)][corners], bary)) @ view.R.T
+    flow.reshape(-1, 3)[idx] = (barycentric(verts[f + 1][corners], bary) - here) @ view.R.T
+    flow_prev.reshape(-1, 3)[idx] = (here - barycentric(verts[max(f - 1, 0)][corners], bary)) @ view.R.T
     depth = render.kinect_depth(t * view.rays[..., 2], cos, reflector, rng, rig.spec.noise)
     albedo = view.bg_albedo.copy()
     rest = barycentric(rig.body.vertices[corners], bary)
-    albedo[body_mask] = render.ALBEDO["body"] * render.cloth_texture(rig.face_part[face], rest)
+    albedo.ravel()[idx] = render.ALBEDO["body"] * render.cloth_texture(rig.face_part[face], rest)
     ir = render.kinect_ir(t, cos, albedo, reflector, rng, rig.spec.noise)
     pixels = np.bincount(rid[reflector].astype(np.int64), minlength=len(rig.placements)).astype(np.int32)
     return render.Frame(depth, ir, rid, body_mask, flow, flow_prev, pixels)
@@ -101,51 +106,22 @@ def synthesize_mesh(rig: MeshRig, start: int, stop: int) -> xr.Dataset:
     """Frames [start, stop) of the sequence in the raw-sequence schema, with ground truth."""
     if not 0 <= start < stop <= rig.n_frames:
         raise ValueError(f"frames [{start}, {stop}) are outside the sequence's 0-{rig.n_frames}")
-    n_views, n = len(rig.views), stop - start
-    h, w = rig.views[0].bg_t.shape
-    depth = np.zeros((n_views, n, h, w), np.uint16)
-    ir = np.zeros_like(depth)
-    rid = np.zeros((n_views, n, h, w), np.int8)
-    flow = np.zeros((n_views, n, h, w, 3), np.float16)
-    flow_prev = np.zeros_like(flow)
-    body_mask = np.zeros((n_views, n, h, w), bool)
-    pixels = np.zeros((n_views, n, len(rig.placements)), np.int32)
+    n = stop - start
+    stack = render.FrameStack(len(rig.views), n, rig.views[0].bg_t.shape, len(rig.placements))
     posed = rig.take.posed
     refl3d = mesh_reflectors.reflector_positions(rig.body, rig.placements, posed.vertices[start:stop])
-    uv = np.zeros((n_views, n, len(rig.placements), 2), np.float32)
-    for v, view in enumerate(rig.views):
-        uv[v] = view.cam.project(refl3d.reshape(-1, 3))[0].reshape(n, -1, 2)
     for i, f in enumerate(range(start, stop)):
         scene = MeshScene(posed.vertices[f], rig.body.faces)
         normals = vertex_normals(posed.vertices[f], rig.body.faces)
         for v, view in enumerate(rig.views):
-            frame = view_frame(rig, view, scene, f, normals, np.random.default_rng([rig.spec.seed, v, f]))
-            depth[v, i], ir[v, i], rid[v, i], body_mask[v, i], pixels[v, i] = (
-                frame.depth, frame.ir, frame.reflector_id, frame.body, frame.pixels)
-            flow[v, i], flow_prev[v, i] = frame.scene_flow, frame.scene_flow_prev
-    joint_quats = Rotation.from_matrix(rig.motion.local_rot[start:stop].reshape(-1, 3, 3)).as_quat()
-    bone_quats = Rotation.from_matrix(rig.take.rotations[start:stop].reshape(-1, 3, 3)).as_quat()
-    gt = {
-        "gt_joints": (("frame", "joint", "xyz"), posed.heads[start:stop][:, rig.body.joint_bones()].astype(np.float32)),
-        "gt_joint_rotations": (("frame", "joint", "quat"), joint_quats.reshape(n, -1, 4).astype(np.float32)),
-        "gt_bone_rotations": (("frame", "bone", "quat"), bone_quats.reshape(n, -1, 4)),
-        "gt_root": (("frame", "xyz"), rig.take.root[start:stop]),
-        "gt_reflectors": (("frame", "reflector", "xyz"), refl3d.astype(np.float32)),
-        "gt_reflectors2d": (("view", "frame", "reflector", "uv"), uv),
-        "gt_visible": (("view", "frame", "reflector"), pixels > 0),
-        "gt_pixels": (("view", "frame", "reflector"), pixels),
-        "gt_reflector_id": (("view", "frame", "y", "x"), rid),
-        "gt_body": (("view", "frame", "y", "x"), body_mask),
-        "gt_scene_flow": (("view", "frame", "y", "x", "xyz"), flow),
-        "gt_scene_flow_prev": (("view", "frame", "y", "x", "xyz"), flow_prev),
-    }
-    ds = make_raw_sequence(depth, ir, {view.cam.name: view.cam.as_dict() for view in rig.views}, rig.spec.fps,
-                           start, gt)
-    ds = ds.assign_coords(joint=np.array(body.JOINT_NAMES, dtype=object),
-                          reflector=np.array(reflectors.REFLECTOR_NAMES, dtype=object),
-                          bone=np.array(rig.body.bone_names, dtype=object),
-                          xyz=np.array(["x", "y", "z"], dtype=object), uv=np.array(["u", "v"], dtype=object),
-                          quat=np.array(["x", "y", "z", "w"], dtype=object))
+            stack.put(v, i, view_frame(rig, view, scene, f, normals, np.random.default_rng([rig.spec.seed, v, f])))
+    joint_quats = Rotation.from_matrix(rig.motion.local_rot[start:stop].reshape(-1, 3, 3)).as_quat().reshape(n, -1, 4)
+    bone_quats = Rotation.from_matrix(rig.take.rotations[start:stop].reshape(-1, 3, 3)).as_quat().reshape(n, -1, 4)
+    extra = {"gt_bone_rotations": (("frame", "bone", "quat"), bone_quats),
+             "gt_root": (("frame", "xyz"), rig.take.root[start:stop])}
+    ds = stack.dataset(rig.views, rig.spec.fps, start, refl3d, posed.heads[start:stop][:, rig.body.joint_bones()],
+                       joint_quats, extra)
+    ds = ds.assign_coords(bone=np.array(rig.body.bone_names, dtype=object))
     ds.attrs.update(body="mesh", body_model=f"anny {_anny_version()}", phenotype=asdict(rig.body.phenotype),
                     mesh_studio_version=MESH_STUDIO_VERSION, exercise=rig.motion.label,
                     subject=asdict(rig.subject), seed=rig.spec.seed, noise=rig.spec.noise,

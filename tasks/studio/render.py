@@ -15,10 +15,12 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+import xarray as xr
 
-from mocapflow.tasks.shared.body import Primitive
+from mocapflow.schemas.raw import make_raw_sequence
+from mocapflow.tasks.shared.body import JOINT_NAMES, Primitive
 from mocapflow.tasks.shared.cameras import Camera
-from mocapflow.tasks.shared.reflectors import Placement, label_hits
+from mocapflow.tasks.shared.reflectors import REFLECTOR_NAMES, Placement, label_hits
 
 RANGE_M = (0.5, 4.5)  # Kinect v2 operating range
 GRAZING_COS = 0.12  # below this incidence cosine the sensor returns no depth
@@ -81,6 +83,51 @@ class Frame:
     scene_flow: np.ndarray  # (y, x, 3) float32 m, camera frame: motion of the visible surface to the next frame
     scene_flow_prev: np.ndarray  # (y, x, 3) float32 m, camera frame: its motion from the previous frame
     pixels: np.ndarray  # (26,) int32 visible pixels per reflector
+
+
+class FrameStack:
+    """A region's rendered frames, view by view, and the raw-sequence Dataset they make with their ground truth."""
+
+    def __init__(self, n_views: int, n_frames: int, shape: tuple[int, int], n_reflectors: int):
+        h, w = shape
+        self.depth = np.zeros((n_views, n_frames, h, w), np.uint16)
+        self.ir = np.zeros_like(self.depth)
+        self.rid = np.zeros((n_views, n_frames, h, w), np.int8)
+        self.flow = np.zeros((n_views, n_frames, h, w, 3), np.float16)
+        self.flow_prev = np.zeros_like(self.flow)
+        self.body = np.zeros((n_views, n_frames, h, w), bool)
+        self.pixels = np.zeros((n_views, n_frames, n_reflectors), np.int32)
+
+    def put(self, v: int, i: int, frame: Frame) -> None:
+        self.depth[v, i], self.ir[v, i], self.rid[v, i], self.body[v, i], self.pixels[v, i] = (
+            frame.depth, frame.ir, frame.reflector_id, frame.body, frame.pixels)
+        self.flow[v, i], self.flow_prev[v, i] = frame.scene_flow, frame.scene_flow_prev
+
+    def dataset(self, views: tuple[View, ...], fps: float, start: int, reflectors3d: np.ndarray, joints: np.ndarray,
+                joint_quats: np.ndarray, extra: dict | None = None) -> xr.Dataset:
+        """The raw sequence of frames [start, start + n): reflectors3d (frame, 26, 3), joints (frame, 20, 3) and
+        joint_quats (frame, 20, 4) of the truth, ``extra`` more ground-truth variables."""
+        n = reflectors3d.shape[0]
+        uv = np.stack([view.cam.project(reflectors3d.reshape(-1, 3))[0].reshape(n, -1, 2) for view in views])
+        gt = {
+            "gt_joints": (("frame", "joint", "xyz"), joints.astype(np.float32)),
+            "gt_joint_rotations": (("frame", "joint", "quat"), joint_quats.astype(np.float32)),
+            **(extra or {}),
+            "gt_reflectors": (("frame", "reflector", "xyz"), reflectors3d.astype(np.float32)),
+            "gt_reflectors2d": (("view", "frame", "reflector", "uv"), uv.astype(np.float32)),
+            "gt_visible": (("view", "frame", "reflector"), self.pixels > 0),
+            "gt_pixels": (("view", "frame", "reflector"), self.pixels),
+            "gt_reflector_id": (("view", "frame", "y", "x"), self.rid),
+            "gt_body": (("view", "frame", "y", "x"), self.body),
+            "gt_scene_flow": (("view", "frame", "y", "x", "xyz"), self.flow),
+            "gt_scene_flow_prev": (("view", "frame", "y", "x", "xyz"), self.flow_prev),
+        }
+        ds = make_raw_sequence(self.depth, self.ir, {view.cam.name: view.cam.as_dict() for view in views}, fps,
+                               start, gt)
+        return ds.assign_coords(joint=np.array(JOINT_NAMES, dtype=object),
+                                reflector=np.array(REFLECTOR_NAMES, dtype=object),
+                                xyz=np.array(["x", "y", "z"], dtype=object), uv=np.array(["u", "v"], dtype=object),
+                                quat=np.array(["x", "y", "z", "w"], dtype=object))
 
 
 def render(view: View, prims: tuple[Primitive, ...], placements: tuple[Placement, ...],

@@ -15,7 +15,6 @@ import numpy as np
 import xarray as xr
 from scipy.spatial.transform import Rotation
 
-from mocapflow.schemas.raw import make_raw_sequence
 from mocapflow.tasks.shared import body, reflectors
 from mocapflow.tasks.shared.kinematics import forward_kinematics
 from mocapflow.tasks.studio import bvh, cameras, mesh_synth, motion, render
@@ -114,44 +113,15 @@ def synthesize(rig: Rig | mesh_synth.MeshRig, start: int, stop: int) -> xr.Datas
         return mesh_synth.synthesize_mesh(rig, start, stop)
     if not 0 <= start < stop <= rig.n_frames:
         raise ValueError(f"frames [{start}, {stop}) are outside the sequence's 0-{rig.n_frames}")
-    n_views, n = len(rig.views), stop - start
-    h, w = rig.views[0].bg_t.shape
-    depth = np.zeros((n_views, n, h, w), np.uint16)
-    ir = np.zeros_like(depth)
-    rid = np.zeros((n_views, n, h, w), np.int8)
-    flow = np.zeros((n_views, n, h, w, 3), np.float16)
-    flow_prev = np.zeros_like(flow)
-    body_mask = np.zeros((n_views, n, h, w), bool)
-    pixels = np.zeros((n_views, n, len(rig.placements)), np.int32)
-    uv = np.zeros((n_views, n, len(rig.placements), 2), np.float32)
+    n = stop - start
+    stack = render.FrameStack(len(rig.views), n, rig.views[0].bg_t.shape, len(rig.placements))
     refl3d = reflectors.world_positions(rig.placements, rig.prims, rig.joint_rot[start:stop], rig.joint_pos[start:stop])
     for v, view in enumerate(rig.views):
-        uv[v] = view.cam.project(refl3d.reshape(-1, 3))[0].reshape(n, -1, 2)
         for i, f in enumerate(range(start, stop)):
-            frame = render.render(view, rig.prims, rig.placements, rig.pose(f), rig.pose(max(f - 1, 0)),
-                                  rig.pose(f + 1), np.random.default_rng([rig.spec.seed, v, f]), rig.spec.noise)
-            depth[v, i], ir[v, i], rid[v, i], body_mask[v, i], pixels[v, i] = (
-                frame.depth, frame.ir, frame.reflector_id, frame.body, frame.pixels)
-            flow[v, i], flow_prev[v, i] = frame.scene_flow, frame.scene_flow_prev
-    quats = Rotation.from_matrix(rig.motion.local_rot[start:stop].reshape(-1, 3, 3)).as_quat()
-    gt = {
-        "gt_joints": (("frame", "joint", "xyz"), rig.joint_pos[start:stop].astype(np.float32)),
-        "gt_joint_rotations": (("frame", "joint", "quat"), quats.reshape(n, -1, 4).astype(np.float32)),
-        "gt_reflectors": (("frame", "reflector", "xyz"), refl3d.astype(np.float32)),
-        "gt_reflectors2d": (("view", "frame", "reflector", "uv"), uv),
-        "gt_visible": (("view", "frame", "reflector"), pixels > 0),
-        "gt_pixels": (("view", "frame", "reflector"), pixels),
-        "gt_reflector_id": (("view", "frame", "y", "x"), rid),
-        "gt_body": (("view", "frame", "y", "x"), body_mask),
-        "gt_scene_flow": (("view", "frame", "y", "x", "xyz"), flow),
-        "gt_scene_flow_prev": (("view", "frame", "y", "x", "xyz"), flow_prev),
-    }
-    ds = make_raw_sequence(depth, ir, {view.cam.name: view.cam.as_dict() for view in rig.views}, rig.spec.fps,
-                           start, gt)
-    ds = ds.assign_coords(joint=np.array(body.JOINT_NAMES, dtype=object),
-                          reflector=np.array(reflectors.REFLECTOR_NAMES, dtype=object),
-                          xyz=np.array(["x", "y", "z"], dtype=object), uv=np.array(["u", "v"], dtype=object),
-                          quat=np.array(["x", "y", "z", "w"], dtype=object))
+            stack.put(v, i, render.render(view, rig.prims, rig.placements, rig.pose(f), rig.pose(max(f - 1, 0)),
+                                          rig.pose(f + 1), np.random.default_rng([rig.spec.seed, v, f]), rig.spec.noise))
+    quats = Rotation.from_matrix(rig.motion.local_rot[start:stop].reshape(-1, 3, 3)).as_quat().reshape(n, -1, 4)
+    ds = stack.dataset(rig.views, rig.spec.fps, start, refl3d, rig.joint_pos[start:stop], quats)
     ds.attrs.update(exercise=rig.motion.label, subject=asdict(rig.subject), studio_version=STUDIO_VERSION,
                     seed=rig.spec.seed, noise=rig.spec.noise,
                     reflector_kinds=[p.kind for p in rig.placements],

@@ -43,7 +43,7 @@ def test_the_rest_rotations_give_back_the_rest_mesh_and_a_turn_moves_only_its_li
     # the left forearm and everything below it turned 90 degrees about the elbow's vertical axis
     turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     elbow = body.bone("lowerarm01.L")
-    below = [b for b in range(n) if _descends(body.bone_parents, b, elbow)]
+    below = body.descendants("lowerarm01.L")
     rot = rest.copy()
     rot[0, below] = turn
     moved = mb.pose_mesh(body, rot, body.rest_heads[:1])
@@ -53,14 +53,6 @@ def test_the_rest_rotations_give_back_the_rest_mesh_and_a_turn_moves_only_its_li
     far = np.linalg.norm(body.vertices - e, axis=1) > 0.45  # the other side of the body does not move
     np.testing.assert_allclose(moved.vertices[0, far & (body.vertices[:, 0] > 0.1)],
                                body.vertices[far & (body.vertices[:, 0] > 0.1)], atol=1e-12)
-
-
-def _descends(parents, b, ancestor) -> bool:
-    while b >= 0:
-        if b == ancestor:
-            return True
-        b = parents[b]
-    return False
 
 
 def test_bad_phenotypes_and_poses_are_refused_with_the_fix(body):
@@ -110,3 +102,10 @@ def test_a_body_is_the_same_to_the_last_bit_whatever_the_thread_count(body):
     finally:
         torch.set_num_threads(threads)
     assert np.array_equal(out[0][0], out[1][0]) and np.array_equal(out[0][1], out[1][1])
+
+
+def test_a_bones_descendants_are_its_limb(body):
+    names = {body.bone_names[b] for b in body.descendants("lowerleg01.R")}
+    assert {"lowerleg01.R", "lowerleg02.R", "foot.R", "toe1-1.R"} <= names
+    assert not any(n.endswith(".L") or n.startswith(("upperleg", "spine")) for n in names)
+    assert len(body.descendants("root")) == len(body.bone_names)

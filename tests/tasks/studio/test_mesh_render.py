@@ -51,8 +51,7 @@ def test_a_vertex_seen_by_a_camera_lands_on_its_own_surface_in_the_render(body):
 def test_a_chest_point_is_hidden_when_the_forearm_crosses_in_front_of_it(body):
     cam = camera((0.0, 2.5, 1.2))
     crossed = rest_pose(body)
-    shoulder = body.bone("upperarm01.L")
-    arm = [b for b in range(len(body.bone_names)) if _descends(body.bone_parents, b, shoulder)]
+    arm = body.descendants("upperarm01.L")
     a = np.radians(-120)  # the left arm swung about the vertical to hang across the front of the body
     crossed[0, arm] = [[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]]
     posed = mb.pose_mesh(body, crossed, body.rest_heads[:1])
@@ -74,14 +73,6 @@ def test_a_chest_point_is_hidden_when_the_forearm_crosses_in_front_of_it(body):
     assert seen[0] and not hidden[0]
     behind = camera((0.0, -2.5, 1.2))  # and the back camera never sees the chest
     assert not mr.visibility(rest_scene, behind, point, normal)[1][0]
-
-
-def _descends(parents, b, ancestor) -> bool:
-    while b >= 0:
-        if b == ancestor:
-            return True
-        b = parents[b]
-    return False
 
 
 def test_a_marker_off_the_skin_sits_along_the_normal():
