@@ -313,7 +313,7 @@ def _spans(numbers: Mapping[str, list[int]]) -> dict[str, str]:
     return {view: _span(n) for view, n in numbers.items()}
 
 
-class _UniqueKeyLoader(yaml.SafeLoader):
+class _UniqueKeySafeLoader(yaml.SafeLoader):
     """yaml.safe_load that refuses a mapping naming a key twice (a second view of the same name would replace the
     first)."""
 
@@ -328,14 +328,14 @@ def _unique_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool 
     return loader.construct_mapping(node, deep=deep)
 
 
-_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _unique_mapping)
+_UniqueKeySafeLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _unique_mapping)
 
 
 def _calibration(seq_dir: Path) -> dict:
     """calibration.yaml of a sequence folder, checked: ``fps``, and per view a checked Camera (``cameras``)."""
     path = seq_dir / "calibration.yaml"
     try:
-        calib = yaml.load(path.read_text(), Loader=_UniqueKeyLoader)
+        calib = yaml.load(path.read_text(), Loader=_UniqueKeySafeLoader)
     except OSError as exc:
         raise InputError(f"cannot read {path}: {exc.strerror}") from exc
     except yaml.YAMLError as exc:
