@@ -1,0 +1,130 @@
+"""Unlabelled marker takes on the mesh body (UUO, Milef et al. 2024, §4 and appendix E.3): markers stuck anywhere.
+
+A ``MarkerLayout`` is a set of points on the skin, given as (face, barycentric) and 9.5 mm off the surface
+along its normal, spread uniformly by area over the whole body or one part (the paper's partial layouts: a
+leg, an arm, a shoulder). ``marker_paths`` tracks them through a skinned take. ``capture`` then records them
+the way an optical system does when nobody labels its output: each sample jittered (0.5-1 mm), markers
+hidden for runs of frames (a run of ``gap_frames`` starts on any frame with probability ``dropout``), a
+marker that reappears after a gap under a new trajectory id (fragmentation), a few ghost points near the
+body, and the ids in an order that says nothing. ``source`` keeps, per id, the true marker it follows
+(-1 for a ghost): the ground truth a labelling is scored against.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mocapflow.tasks.shared.mesh_body import MeshBody, random_surface_points
+from mocapflow.tasks.studio.mesh_render import surface_points
+
+MARKER_OFFSET_M = 0.0095  # a 9.5 mm marker's centre above the skin
+
+
+class MarkerTakeError(ValueError):
+    """Capture settings a marker take cannot use."""
+
+
+@dataclass(frozen=True)
+class MarkerLayout:
+    faces: np.ndarray  # (marker,) face of each marker's skin point
+    bary: np.ndarray  # (marker, 2) barycentric (u, v) on that face
+    offset_m: float = MARKER_OFFSET_M
+    part: str = "body"
+
+
+@dataclass(frozen=True)
+class MarkerFaults:
+    """What goes wrong while recording (UUO appendix E.3)."""
+
+    jitter_mm: tuple[float, float] = (0.5, 1.0)  # each marker's noise sigma, drawn in this range
+    dropout: float = 0.0  # per-frame probability that a seen marker starts a hidden run
+    gap_frames: int = 10  # frames a hidden run lasts
+    fragment: bool = True  # a marker seen again after a gap comes back under a new id
+    ghosts: int = 0  # ghost points in the take
+    ghost_frames: tuple[int, int] = (3, 15)  # how long a ghost lives
+    ghost_reach_m: float = 0.3  # how far from a true marker a ghost appears
+
+    def __post_init__(self):
+        lo, hi = self.jitter_mm
+        if not 0 <= lo <= hi:
+            raise MarkerTakeError(f"jitter_mm must be a range 0 <= low <= high, got {self.jitter_mm}")
+        if not 0 <= self.dropout < 1:
+            raise MarkerTakeError(f"dropout is a per-frame probability in [0, 1), got {self.dropout}")
+        if self.gap_frames < 1 or self.ghosts < 0 or not 1 <= self.ghost_frames[0] <= self.ghost_frames[1]:
+            raise MarkerTakeError(f"gap_frames ({self.gap_frames}) and ghost_frames ({self.ghost_frames}) must be "
+                                  f">= 1 and ghosts ({self.ghosts}) >= 0")
+
+
+@dataclass(frozen=True)
+class CapturedMarkers:
+    positions: np.ndarray  # (frame, id, 3) metres, NaN where the id has no sample
+    source: np.ndarray  # (id,) the true marker each id follows, -1 for a ghost
+    truth: np.ndarray  # (frame, marker, 3) every true marker's centre, never hidden
+
+
+def layout(body: MeshBody, rng: np.random.Generator, count: int, part: str = "body",
+           offset_m: float = MARKER_OFFSET_M) -> MarkerLayout:
+    """``count`` markers spread uniformly by area over ``part``'s skin (mesh_body.PARTS)."""
+    faces, bary = random_surface_points(body, rng, count, part)
+    return MarkerLayout(faces, bary, offset_m, part)
+
+
+def marker_paths(body: MeshBody, markers: MarkerLayout, vertices: np.ndarray) -> np.ndarray:
+    """Each marker's centre on every posed mesh: vertices (frame, vertex, 3) -> (frame, marker, 3)."""
+    return np.stack([surface_points(v, body.faces, markers.faces, markers.bary, markers.offset_m)[0]
+                     for v in vertices])
+
+
+def capture(truth: np.ndarray, faults: MarkerFaults, rng: np.random.Generator) -> CapturedMarkers:
+    """The unlabelled recording of true marker paths (frame, marker, 3) under ``faults``."""
+    n_frames, n_markers, _ = truth.shape
+    sigma = rng.uniform(*faults.jitter_mm, n_markers) / 1000.0
+    seen = _visibility(n_frames, n_markers, faults, rng)  # (frame, marker)
+    noisy = truth + rng.standard_normal(truth.shape) * sigma[None, :, None]
+    columns, source = [], []
+    for m in range(n_markers):
+        for start, stop in _runs(seen[:, m]) if faults.fragment else [(0, n_frames)]:
+            column = np.full((n_frames, 3), np.nan)
+            keep = np.zeros(n_frames, bool)
+            keep[start:stop] = seen[start:stop, m]
+            column[keep] = noisy[keep, m]
+            columns.append(column)
+            source.append(m)
+    for _ in range(faults.ghosts):
+        columns.append(_ghost(truth, faults, rng))
+        source.append(-1)
+    order = rng.permutation(len(columns))  # ids carry no label
+    positions = np.stack(columns, axis=1)[:, order] if columns else np.zeros((n_frames, 0, 3))
+    return CapturedMarkers(positions, np.asarray(source, np.int64)[order], truth)
+
+
+def _visibility(n_frames: int, n_markers: int, faults: MarkerFaults, rng: np.random.Generator) -> np.ndarray:
+    """(frame, marker) bool: False inside hidden runs of ``gap_frames`` started with probability ``dropout``."""
+    starts = rng.random((n_frames, n_markers)) < faults.dropout
+    seen = np.ones((n_frames, n_markers), bool)
+    for f, m in zip(*np.nonzero(starts)):
+        if seen[f, m]:  # a run starts only on a frame where the marker is seen
+            seen[f:f + faults.gap_frames, m] = False
+    return seen
+
+
+def _runs(seen: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) of each run of True."""
+    edges = np.diff(np.concatenate([[0], seen.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
+
+
+def _ghost(truth: np.ndarray, faults: MarkerFaults, rng: np.random.Generator) -> np.ndarray:
+    """A spurious point living a few frames near a random true marker, drifting slowly.  # (frame, 3)"""
+    n_frames = truth.shape[0]
+    life = int(rng.integers(faults.ghost_frames[0], faults.ghost_frames[1] + 1))
+    start = int(rng.integers(0, max(n_frames - life, 0) + 1))
+    near = truth[start, int(rng.integers(truth.shape[1]))]
+    direction = rng.standard_normal(3)
+    place = near + direction / np.linalg.norm(direction) * rng.uniform(0.05, faults.ghost_reach_m)
+    column = np.full((n_frames, 3), np.nan)
+    stop = min(start + life, n_frames)
+    column[start:stop] = place + np.cumsum(rng.normal(0, 0.002, (stop - start, 3)), axis=0)
+    return column
