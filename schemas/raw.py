@@ -92,3 +92,25 @@ def make_raw_sequence(depth: np.ndarray, ir: np.ndarray, cameras: Mapping[str, M
     coords = {"view": np.array(views, dtype=object), "frame": frames, "dist_coef": np.array(DIST_COEFS, dtype=object)}
     return xr.Dataset(data, coords=coords, attrs={"fps": float(fps), "length_unit": "m", "depth_unit": "mm",
                                                   "up_axis": "Z"})
+
+
+RAW_MARKERS = register_schema(
+    ArtifactSchema(
+        name="raw_markers",
+        version=1,
+        coords={
+            "frame": VarSpec(("frame",), "int64", description="frame index from 0"),
+            "marker": VarSpec(("marker",), "str", description="trajectory id (the file's label, or m000... when "
+                                                               "labels are ignored)"),
+        },
+        variables={
+            "position": VarSpec(("frame", "marker", "xyz"), "float32", "m",
+                                description="marker centre, world Z up; NaN where the trajectory has no sample"),
+            "timestamp": VarSpec(("frame",), "float64", "s"),
+            "label": VarSpec(("marker",), "str", required=False, description="the file's own label"),
+        },
+        required_attrs={"fps": float},
+        frame_chunk=64,
+        description="unlabelled or labelled optical marker trajectories (C3D, TRC) on the shared axes",
+    )
+)
