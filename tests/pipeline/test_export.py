@@ -229,3 +229,10 @@ def test_an_export_file_name_may_not_leave_the_out_folder(tmp_path):
     for name in ("../../x.trc", "sub/x.trc", "/etc/x.trc"):
         with pytest.raises(PlanError, match="would be written outside --out"):
             _inside(tmp_path / "out", name)
+
+
+def test_up_is_refused_for_formats_with_a_fixed_up_axis(tmp_path):
+    from mocapflow.pipeline.export import export_files
+
+    with pytest.raises(InputError, match="--up z applies to TRC only.*drop --up"):
+        export_files(None, None, "c3d", None, tmp_path, workers=1, up="z")
