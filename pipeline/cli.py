@@ -315,14 +315,16 @@ def train(catalog_path, overrides, sequences, stage, out, workers, threads, as_j
 @click.option("--stage", default=None,
               help="the stage to export [c3d/trc: the last smoothed stage, else markers3d; bvh: the poses stage]")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="folder for <sequence>.<format>")
+@click.option("--up", type=click.Choice(["y", "z"]), default=None,
+              help="trc only: the file's up axis [default: y, as OpenSim reads TRC; z keeps the studio's Z-up world]")
 @workers_option
 @threads_option
-def export(catalog_path, overrides, sequences, fmt, stage, out_dir, workers, threads):
+def export(catalog_path, overrides, sequences, fmt, stage, out_dir, up, workers, threads):
     """Write markers as C3D or TRC, or poses as BVH, one file per sequence (computes missing partitions first)."""
     from mocapflow.pipeline.export import export_files
 
     for path in export_files(load_catalog(catalog_path, overrides), sequences, fmt, stage, Path(out_dir), workers,
-                             processes=not threads):
+                             processes=not threads, up=up):
         click.echo(f"wrote {path}")
 
 

@@ -1,13 +1,18 @@
 """`mocapflow export`: labelled 3D markers as C3D (ezc3d) or TRC files, solved poses as BVH.
 
-Both carry the labels (DeepMoCap's reflector names), the frame rate, the unit (millimetres, the
-convention of both formats) and the up axis (Z, the world frame of mocapflow): C3D in POINT:UNITS
-and POINT:X_SCREEN/Y_SCREEN, TRC in its Units column and an UpAxis column after the standard ones.
-Missing samples are NaN with residual -1 in C3D and empty fields in TRC.
+Both marker formats carry the labels (DeepMoCap's reflector names), the frame rate and the unit (millimetres, the
+convention of both). C3D keeps the Z-up world of mocapflow (POINT:X_SCREEN/Y_SCREEN) and stores floats, with
+POINT:SCALE negative (the spec's flag for float data) and of magnitude max |coordinate| / 32000 or the largest
+residual / 255, whichever is larger. Its residual is the mean distance of the fused views from the point (mm) for
+markers3d, 0 for a smoothed stage (the C3D convention for filtered or interpolated data: no measurement residual)
+and -1 for a missing point; the camera bits name the fused views (the first seven) for markers3d, none once filtered.
+TRC is Y up by default (OpenSim's convention: the world rotated about x, x stays, y = z, z = -y, so handedness is
+kept) or Z up on request, the axis in an ``UpAxis`` column after the eight standard header fields; missing samples
+are empty fields.
 
 BVH follows the convention of animation tools: Y up, the subject facing +Z, centimetres, the template's 20 joints (each
-leaf closed by an End Site continuing its bone), root channels ``X/Y/Zposition Z/X/Yrotation`` and
-``Z/X/Yrotation`` elsewhere. Frames the solver left unsolved hold the nearest solved pose.
+leaf closed by an End Site continuing its bone), root channels ``X/Y/Zposition Z/X/Yrotation`` (absolute: the root's
+OFFSET is 0 0 0) and ``Z/X/Yrotation`` elsewhere. Frames the solver left unsolved hold the nearest solved pose.
 """
 
 from __future__ import annotations
@@ -33,50 +38,111 @@ Z_UP_TO_Y_UP = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
 
 
 def _arrays(markers: xr.Dataset) -> tuple[np.ndarray, list[str], float, np.ndarray]:
+    """xyz (frame, marker, 3) mm in the Z-up world, labels, rate, residual (frame, marker) mm: the mean distance of
+    the fused views from the point where the stage keeps one (markers3d), 0 for a point that filtering produced
+    (the C3D convention for processed data), -1 where the point is missing."""
+    up = str(markers.attrs.get("up_axis", "Z"))
+    if up.upper() != "Z":
+        raise InputError(f"markers with up_axis {up!r} cannot be exported: the export rotates the Z-up world of "
+                         "mocapflow; recompute the markers (their up_axis must be 'Z')")
     xyz = markers["position"].transpose("frame", "reflector", "xyz").values.astype(np.float64) * UNIT_SCALE
     names = [str(n) for n in markers["reflector"].values]
     fps = float(markers.attrs["fps"])
+    residual = np.zeros(xyz.shape[:2])
     if "residual" in markers:
-        residual = np.nanmean(markers["residual"].transpose("frame", "reflector", "view").values, axis=-1) * UNIT_SCALE
-    else:
-        residual = np.zeros(xyz.shape[:2])
-    residual = np.where(np.isnan(xyz[..., 0]), -1.0, np.nan_to_num(residual, nan=0.0))
+        per_view = markers["residual"].transpose("frame", "reflector", "view").values.astype(np.float64)
+        seen = np.isfinite(per_view).any(axis=-1)
+        residual[seen] = np.nanmean(per_view[seen], axis=-1) * UNIT_SCALE
+    residual = np.where(np.isfinite(xyz).all(axis=-1), residual, -1.0)
     return xyz, names, fps, residual
 
 
+def _camera_masks(markers: xr.Dataset, shape: tuple[int, int]) -> np.ndarray:
+    """C3D camera bits (frame, marker): bit v set where view v (the first 7 views) was fused; 0 for filtered data."""
+    mask = np.zeros(shape, dtype=np.int64)
+    if "residual" in markers:
+        seen = np.isfinite(markers["residual"].transpose("frame", "reflector", "view").values)[..., :7]
+        mask = (seen * (1 << np.arange(seen.shape[-1]))).sum(axis=-1)
+    return mask
+
+
+def c3d_scale(xyz: np.ndarray, residual: np.ndarray) -> float:
+    """POINT:SCALE for float storage: negative (the C3D sign for floats), magnitude the larger of the spec's
+    max |coordinate| / 32000 and the largest residual / 255 (the residual is one byte in units of |SCALE|)."""
+    coords = np.abs(xyz[np.isfinite(xyz)])
+    return -max(coords.max() / 32000.0 if coords.size else 0.0, residual.max(initial=0.0) / 255.0, 1e-3)
+
+
 def write_c3d(markers: xr.Dataset, path: Path) -> None:
+    xyz, names, fps, residual = _arrays(markers)
+    scale = c3d_scale(xyz, residual)
+    word4 = np.where(residual < 0, -1, (_camera_masks(markers, residual.shape) << 8)
+                     | np.clip(np.rint(residual / abs(scale)), 0, 255).astype(np.int64))
+    _write(path, lambda p: _write_c3d(p, xyz, names, fps, scale, word4))
+
+
+def _write_c3d(path: Path, xyz: np.ndarray, names: list[str], fps: float, scale: float, word4: np.ndarray) -> None:
+    """Float (Intel) C3D with the spec's point word 4 (camera bits in the high byte, residual / |SCALE| in the low
+    byte, -1 when missing) and the header's scale equal to POINT:SCALE. ezc3d writes the file; word 4 and the header
+    scale are then set here, as ezc3d puts the residual in the high byte of word 4 and leaves the header scale at -1."""
     import ezc3d
 
-    xyz, names, fps, residual = _arrays(markers)
     c3d = ezc3d.c3d()
     c3d["parameters"]["POINT"]["RATE"]["value"] = [fps]
     c3d["parameters"]["POINT"]["LABELS"]["value"] = names
     c3d["parameters"]["POINT"]["UNITS"]["value"] = ["mm"]
+    c3d["parameters"]["POINT"]["SCALE"]["value"] = [scale]
     c3d.add_parameter("POINT", "X_SCREEN", "+X")
     c3d.add_parameter("POINT", "Y_SCREEN", "+Z")  # Z up
     points = np.ones((4, len(names), xyz.shape[0]))
     points[:3] = xyz.transpose(2, 1, 0)  # (xyz, marker, frame)
     c3d["data"]["points"] = points
-    c3d["data"]["meta_points"] = {"residuals": residual.T[None]}
-    _write(path, lambda p: c3d.write(str(p)))
+    c3d.write(str(path))
+    data = bytearray(path.read_bytes())
+    data[12:16] = np.float32(scale).tobytes()  # header words 7-8: POINT:SCALE
+    start = (int(np.frombuffer(data, "<u2", 1, 16)[0]) - 1) * 512  # header word 9: first data block
+    n = xyz.shape[0] * len(names) * 4
+    block = np.frombuffer(data, "<f4", n, start).reshape(xyz.shape[0], len(names), 4).copy()
+    block[..., 3] = word4
+    data[start:start + 4 * n] = block.tobytes()
+    path.write_bytes(bytes(data))
 
 
 def read_c3d(path: Path) -> tuple[np.ndarray, list[str], float, np.ndarray]:
-    """xyz (frame, marker, 3) mm, labels, rate, residuals (frame, marker) of a C3D file."""
+    """xyz (frame, marker, 3) mm, labels, rate, residuals (frame, marker) mm (-1 where missing) of a float C3D file
+    written by :func:`write_c3d`. Coordinates through ezc3d; residuals decoded from point word 4 as the C3D spec
+    lays it out (ezc3d reads float files' residual byte from the wrong half of the word)."""
     import ezc3d
 
     c3d = ezc3d.c3d(str(path))
     points = c3d["data"]["points"][:3].transpose(2, 1, 0)
+    scale = float(c3d["parameters"]["POINT"]["SCALE"]["value"][0])
+    data = path.read_bytes()
+    start = (int(np.frombuffer(data, "<u2", 1, 16)[0]) - 1) * 512
+    word4 = np.frombuffer(data, "<f4", points.size // 3 * 4, start).reshape(points.shape[:2] + (4,))[..., 3]
+    word4 = word4.astype(np.int64)
+    residual = np.where(word4 < 0, -1.0, (word4 & 0xFF) * abs(scale))
     return (points, list(c3d["parameters"]["POINT"]["LABELS"]["value"]),
-            float(c3d["parameters"]["POINT"]["RATE"]["value"][0]), c3d["data"]["meta_points"]["residuals"][0].T)
+            float(c3d["parameters"]["POINT"]["RATE"]["value"][0]), residual)
 
 
-def write_trc(markers: xr.Dataset, path: Path) -> None:
+# mocapflow world (Z up) -> TRC Y up: x stays, y = z, z = -y (a rotation about x, so handedness is kept)
+TRC_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+TRC_UP = ("y", "z")
+
+
+def write_trc(markers: xr.Dataset, path: Path, up: str = "y") -> None:
+    """TRC in millimetres, Y up by default (OpenSim's convention; ``up="z"`` keeps the Z-up world). The up axis is
+    written in an ``UpAxis`` column after the eight standard header fields."""
+    if up not in TRC_UP:
+        raise InputError(f"TRC up axis {up!r} is not one of {list(TRC_UP)}; pass --up y (OpenSim) or --up z")
     xyz, names, fps, _ = _arrays(markers)
+    if up == "y":
+        xyz = xyz @ TRC_Y_UP.T
     n_frames = xyz.shape[0]
     lines = [f"PathFileType\t4\t(X/Y/Z)\t{path.name}",
              "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames\tUpAxis",
-             f"{fps:.2f}\t{fps:.2f}\t{n_frames}\t{len(names)}\tmm\t{fps:.2f}\t1\t{n_frames}\tZ",
+             f"{fps:.2f}\t{fps:.2f}\t{n_frames}\t{len(names)}\tmm\t{fps:.2f}\t1\t{n_frames}\t{up.upper()}",
              "Frame#\tTime\t" + "\t".join(f"{n}\t\t" for n in names).rstrip("\t"),
              "\t\t" + "\t".join(f"X{i}\tY{i}\tZ{i}" for i in range(1, len(names) + 1))]
     frames = markers["frame"].values
@@ -87,7 +153,7 @@ def write_trc(markers: xr.Dataset, path: Path) -> None:
 
 
 def read_trc(path: Path) -> tuple[np.ndarray, list[str], float]:
-    """xyz (frame, marker, 3) mm, labels and rate of a TRC file written by :func:`write_trc`."""
+    """xyz (frame, marker, 3) mm in the file's axes, labels and rate of a TRC file written by :func:`write_trc`."""
     rows = path.read_text().splitlines()
     header = dict(zip(rows[1].split("\t"), rows[2].split("\t")))
     names = [n for n in rows[3].split("\t")[2:] if n]
@@ -121,7 +187,8 @@ def bvh_text(poses: xr.Dataset) -> str:
         kind = "ROOT" if parents[j] < 0 else "JOINT"
         chans = "6 Xposition Yposition Zposition Zrotation Xrotation Yrotation" if parents[j] < 0 else \
             "3 Zrotation Xrotation Yrotation"
-        lines.extend([f"{pad}{kind} {names[j]}", f"{pad}{{", f"{pad}  OFFSET {_xyz(offsets[j])}",
+        offset = np.zeros(3) if parents[j] < 0 else offsets[j]  # the root's position is all in its channels
+        lines.extend([f"{pad}{kind} {names[j]}", f"{pad}{{", f"{pad}  OFFSET {_xyz(offset)}",
                       f"{pad}  CHANNELS {chans}"])
         for c in children[j]:
             emit(c, depth + 1)
@@ -180,10 +247,14 @@ SCHEMAS = {"c3d": ("smoothed_markers", "markers3d"), "trc": ("smoothed_markers",
 
 
 def export_files(catalog, sequences: str | None, fmt: str, stage: str | None, out_dir: Path,
-                 workers: int, processes: bool = True) -> list[Path]:
+                 workers: int, processes: bool = True, up: str | None = None) -> list[Path]:
     """Write ``<out_dir>/<sequence>.<fmt>`` for every sequence of ``stage`` (computing missing partitions first
-    on ``workers`` local worker processes, or threads)."""
+    on ``workers`` local worker processes, or threads). ``up`` is TRC's up axis, ``y`` (default) or ``z``."""
     from mocapflow.pipeline.scheduler import compute_missing
+
+    if up is not None and fmt != "trc":
+        raise InputError(f"--up {up} applies to TRC only ({fmt} has a fixed up axis: C3D Z, BVH Y); drop --up")
+    writer = (lambda data, path: write_trc(data, path, up or "y")) if fmt == "trc" else WRITERS[fmt]
 
     stage = stage or next((s for schema in SCHEMAS[fmt] if (s := stage_writing(catalog, schema))), None)
     if stage not in catalog.stages:
@@ -200,7 +271,7 @@ def export_files(catalog, sequences: str | None, fmt: str, stage: str | None, ou
     written = []
     for item in plan.for_stages([stage]):
         path = _inside(out_dir, f"{item.partition.sequence}.{fmt}")
-        WRITERS[fmt](store.open(stage, item.key, item.stage.schema).load(), path)
+        writer(store.open(stage, item.key, item.stage.schema).load(), path)
         written.append(path)
     return written
 
