@@ -71,3 +71,20 @@ def test_bad_marker_files_and_settings_are_refused(tmp_path):
     (tmp_path / "short.trc").write_text("PathFileType\t4\n")
     with pytest.raises(InputError, match="needs its 5 header lines"):
         read_markers(tmp_path / "short.trc")
+
+
+@pytest.mark.parametrize("up", ["y", "z"])
+def test_an_exported_trc_reads_back_as_the_markers_it_came_from(tmp_path, up):
+    import xarray as xr
+
+    from mocapflow.pipeline.export import write_trc
+
+    rng = np.random.default_rng(0)
+    position = rng.uniform(-1, 2, (5, 3, 3)).astype(np.float32)
+    position[2, 1] = np.nan
+    markers = xr.Dataset({"position": (("frame", "reflector", "xyz"), position)},
+                         coords={"reflector": ["A", "B", "C"], "xyz": ["x", "y", "z"]}, attrs={"fps": 30.0, "up_axis": "Z"})
+    write_trc(markers, tmp_path / "m.trc", up=up)
+    back = read_markers(tmp_path / "m.trc", up=up, labels="use")
+    assert list(back.marker.values) == ["A", "B", "C"] and back.attrs["fps"] == 30.0
+    np.testing.assert_allclose(back.position.values, position, atol=1e-5, equal_nan=True)
