@@ -23,6 +23,20 @@ register(
     )
 )
 
+# The marker-file counterpart: a `markers` dataset's C3D or TRC recordings as raw_markers (frame, marker, xyz).
+register(
+    TaskSpec(
+        name="ingest_markers",
+        fn=None,
+        version="1",
+        params=NoParams,
+        output="raw_markers",
+        partition="sequence",
+        source=True,
+        description="import a dataset's marker recordings (C3D, TRC) as trajectories in metres, Z up",
+    )
+)
+
 register(TaskSpec(
     name="reflector_mask", fn=masks.masks, version="1", params=masks.MaskConfig, output="reflector_masks",
     partition="view", inputs={"frames": "raw_sequence"}, reads={"frames": ("depth", "ir")},

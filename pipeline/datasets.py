@@ -5,6 +5,7 @@ Kinds:
   zarr    a folder of raw-sequence zarr stores (one per sequence, ``<id>.zarr``)
   images  a folder of sequences as 16-bit PNGs:
           ``<id>/calibration.yaml`` and ``<id>/<view>/{depth,ir}/<frame:06d>.png``
+  markers a folder of optical marker recordings, C3D or TRC (``<id>.c3d``), read as raw_markers
 
 Each reader discovers sequences (id, views, frame count, fingerprint of the raw input) on the
 driver, and reads a frame region on a worker. Discovery checks the raw input before any stage runs:
@@ -34,10 +35,11 @@ import xarray as xr
 import yaml
 
 from mocapflow.pipeline.errors import CatalogError, InputError
-from mocapflow.pipeline.hashing import digest
+from mocapflow.pipeline.hashing import digest, file_digest
 from mocapflow.pipeline.storage import check
 from mocapflow.schemas import get_schema
 from mocapflow.schemas.raw import make_raw_sequence
+from mocapflow.tasks.shared.cache import BoundedCache
 from mocapflow.tasks.shared.cameras import CalibrationError, calibrated_camera
 
 NAME_RULE = "[A-Za-z0-9_-][A-Za-z0-9_.-]*"  # sequence ids and view names: they become parts of paths
@@ -70,15 +72,16 @@ def check_sequence(dataset, seq: SequenceInfo) -> None:
     """Refuse a sequence whose id or view names break ``NAME_RULE``, whose views repeat, or that has no frame."""
     source = f" ({seq.spec['path']})" if isinstance(seq.spec, Mapping) and "path" in seq.spec else ""
     error = InputError if source else CatalogError
-    check_names(dataset.where, seq.id, seq.views, source)
+    check_names(dataset.where, seq.id, seq.views, source, getattr(DATASET_KINDS[dataset.kind], "has_views", True))
     if seq.n_frames <= 0:
         raise error(f"{dataset.where}: sequence {seq.id!r}{source} has no frames ({seq.n_frames}); record or render "
                     "at least one frame, or remove the sequence")
 
 
-def check_names(where: str, seq_id: str, views, source: str = "") -> None:
-    """A sequence id and its view names follow ``NAME_RULE`` (they become parts of paths), the views distinct.
-    ``source``: the file they come from (then the error is an InputError, else a CatalogError)."""
+def check_names(where: str, seq_id: str, views, source: str = "", has_views: bool = True) -> None:
+    """A sequence id and its view names follow ``NAME_RULE`` (they become parts of paths), the views distinct, and
+    (``has_views``: the kind films with sensors) at least one. ``source``: the file they come from (then the error
+    is an InputError, else a CatalogError)."""
     error = InputError if source else CatalogError
     if not _NAME.fullmatch(seq_id):
         raise error(f"{where}: sequence id {seq_id!r}{source} is not a valid name: ids become file names, so they must "
@@ -92,7 +95,7 @@ def check_names(where: str, seq_id: str, views, source: str = "") -> None:
     if repeated:
         raise error(f"{where}: view name(s) {repeated} appear more than once in {list(views)}; "
                     "give every sensor its own name")
-    if not views:
+    if has_views and not views:
         raise error(f"{where}: has no views; a sequence needs at least one sensor")
 
 
@@ -378,4 +381,49 @@ def _folder(catalog, dataset) -> Path:
     return folder
 
 
-DATASET_KINDS = {"studio": StudioReader, "zarr": ZarrReader, "images": ImageFolderReader}
+# ---- marker files ----------------------------------------------------------------------------
+_MARKER_FILES: BoundedCache[tuple, xr.Dataset] = BoundedCache(4)  # (path, size, mtime, up, labels) -> trajectories
+
+
+class MarkerFileReader:
+    """A folder of optical marker recordings (C3D, TRC), one sequence per file, as raw_markers (pipeline/marker_files.py).
+
+    ``up``: which axis of the files is up (``z``, or ``y`` to turn Y-up files onto Z up); ``labels``: ``ignore``
+    (unlabelled trajectories m000, m001, ...) or ``use``. A catalog reads them with the source task
+    ``ingest_markers``."""
+
+    options = ("path", "pattern", "up", "labels")
+    has_views = False  # trajectories, not sensor images: a sequence is one partition
+
+    @staticmethod
+    def discover(catalog, dataset) -> list[SequenceInfo]:
+        folder = _folder(catalog, dataset)
+        pattern = _pattern(dataset, "*.c3d")
+        out = []
+        for path in sorted(p for p in folder.glob(pattern) if p.is_file()):
+            ds = MarkerFileReader._load(dataset, path)
+            settings = {"up": dataset.options.get("up", "z"), "labels": dataset.options.get("labels", "ignore")}
+            out.append(SequenceInfo(path.stem, (), ds.sizes["frame"], digest([file_digest(path), settings]),
+                                    {"path": str(path)}))
+        if not out:
+            raise InputError(f"{dataset.where}: no marker files match {pattern!r} in {folder}")
+        return out
+
+    @staticmethod
+    def _load(dataset, path: Path) -> xr.Dataset:
+        from mocapflow.pipeline.marker_files import read_markers
+
+        up, labels = str(dataset.options.get("up", "z")), str(dataset.options.get("labels", "ignore"))
+        stat = path.stat()
+        try:
+            return _MARKER_FILES.get_or_make((str(path), stat.st_size, stat.st_mtime_ns, up, labels),
+                                            lambda: read_markers(path, up=up, labels=labels))
+        except InputError as exc:
+            raise InputError(f"{dataset.where}: {exc}") from exc
+
+    @staticmethod
+    def read(dataset, seq: SequenceInfo, start: int, stop: int) -> xr.Dataset:
+        return MarkerFileReader._load(dataset, Path(seq.spec["path"])).isel(frame=slice(start, stop))
+
+
+DATASET_KINDS = {"studio": StudioReader, "zarr": ZarrReader, "images": ImageFolderReader, "markers": MarkerFileReader}

@@ -6,7 +6,7 @@ import ezc3d
 import numpy as np
 import pytest
 
-from conftest import SHARED
+from conftest import SHARED, last_json, mocapflow, read_artifacts
 from mocapflow.pipeline.errors import InputError
 from mocapflow.pipeline.marker_files import read_markers
 from mocapflow.schemas import get_schema
@@ -88,3 +88,26 @@ def test_an_exported_trc_reads_back_as_the_markers_it_came_from(tmp_path, up):
     back = read_markers(tmp_path / "m.trc", up=up, labels="use")
     assert list(back.marker.values) == ["A", "B", "C"] and back.attrs["fps"] == 30.0
     np.testing.assert_allclose(back.position.values, position, atol=1e-5, equal_nan=True)
+
+
+def test_a_markers_dataset_runs_through_the_engine(tmp_path):
+    import shutil
+
+    (tmp_path / "takes").mkdir()
+    for name in ("ktk_kinematics_tennis_serve.c3d", "qualisys_duplicate_labels_fragmented.c3d"):
+        shutil.copy(C3D / name, tmp_path / "takes" / name)
+    (tmp_path / "catalog.yaml").write_text(
+        "data_roots: [.]\nstorage: {root: storage/, region_frames: 64}\n"
+        "datasets:\n  lab: {kind: markers, path: takes, labels: use}\n"
+        "stages:\n  markers: {task: ingest_markers, dataset: lab}\n")
+    summary = last_json(mocapflow("run", "--json", cwd=tmp_path))
+    assert sorted(summary["executed"]) == ["markers/ktk_kinematics_tennis_serve",
+                                           "markers/qualisys_duplicate_labels_fragmented"]
+    stored = {pid: arrays for (pid, _), arrays in read_artifacts(tmp_path / "storage").items()}
+    direct = read_markers(C3D / "qualisys_duplicate_labels_fragmented.c3d", labels="use")
+    np.testing.assert_array_equal(stored["markers/qualisys_duplicate_labels_fragmented"]["position"],
+                                  direct.position.values)
+    assert last_json(mocapflow("run", "--json", cwd=tmp_path))["executed"] == []
+    (tmp_path / "catalog.yaml").write_text((tmp_path / "catalog.yaml").read_text().replace("labels: use", "up: x"))
+    proc = mocapflow("run", cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and "up axis 'x' is not one of z, y" in proc.stderr
