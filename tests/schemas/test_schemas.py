@@ -92,7 +92,7 @@ def test_an_unknown_schema_name_is_a_lookup_error_naming_it_a_close_match_and_th
         get_schema("markers3")
     message = str(err.value)
     assert message.startswith("unknown schema 'markers3' (did you mean 'markers3d'?); registered schemas: [")
-    assert "'markers3d', 'poses', 'raw_sequence'" in message and "register_schema" in message
+    assert "'markers3d', 'poses', 'raw_markers', 'raw_sequence'" in message and "register_schema" in message
     assert isinstance(err.value, LookupError) and not isinstance(err.value, KeyError)
     assert err.value.name == "markers3" and "raw_sequence" in err.value.registered
     with pytest.raises(UnknownSchema, match=r"^unknown schema 'zzz'; registered schemas: \["):  # nothing close
