@@ -6,6 +6,7 @@ Kinds:
   images  a folder of sequences as 16-bit PNGs:
           ``<id>/calibration.yaml`` and ``<id>/<view>/{depth,ir}/<frame:06d>.png``
   markers a folder of optical marker recordings, C3D or TRC (``<id>.c3d``), read as raw_markers
+  studio_markers  unlabelled marker takes filmed on the studio's mesh body, as raw_markers with ground truth
 
 Each reader discovers sequences (id, views, frame count, fingerprint of the raw input) on the
 driver, and reads a frame region on a worker. Discovery checks the raw input before any stage runs:
@@ -426,4 +427,25 @@ class MarkerFileReader:
         return MarkerFileReader._load(dataset, Path(seq.spec["path"])).isel(frame=slice(start, stop))
 
 
-DATASET_KINDS = {"studio": StudioReader, "zarr": ZarrReader, "images": ImageFolderReader, "markers": MarkerFileReader}
+class StudioMarkersReader:
+    """Unlabelled marker takes filmed on the studio's mesh body (UUO): a studio dataset whose sequences (and
+    ``markers`` defaults) say how many markers, on which part, and what goes wrong while recording."""
+
+    options = ("sequences", "defaults", "markers")
+    has_views = False
+
+    @staticmethod
+    def discover(catalog, dataset) -> list[SequenceInfo]:
+        from mocapflow.pipeline import studio_io
+
+        return studio_io.discover_markers(catalog, dataset)
+
+    @staticmethod
+    def read(dataset, seq: SequenceInfo, start: int, stop: int) -> xr.Dataset:
+        from mocapflow.pipeline import studio_io
+
+        return studio_io.read_markers(dataset, seq, start, stop)
+
+
+DATASET_KINDS = {"studio": StudioReader, "zarr": ZarrReader, "images": ImageFolderReader, "markers": MarkerFileReader,
+                 "studio_markers": StudioMarkersReader}

@@ -24,6 +24,7 @@ from importlib.metadata import version
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
+import numpy as np
 import yaml
 
 from mocapflow.pipeline.errors import CatalogError, InputError
@@ -33,6 +34,7 @@ from mocapflow.tasks.shared.cache import BoundedCache
 from mocapflow.tasks.studio import bvh as bvh_mod
 from mocapflow.tasks.studio.cameras import layout as camera_layout
 from mocapflow.tasks.studio import motion as motion_mod
+from mocapflow.tasks.studio import uuo_takes as uuo
 from mocapflow.tasks.studio.motion import EXERCISES
 from mocapflow.tasks.studio.mesh_synth import MESH_STUDIO_VERSION
 from mocapflow.tasks.studio.synth import STUDIO_VERSION, Rig, SequenceSpec, build_rig, synthesize
@@ -178,3 +180,67 @@ def write_sequence(rig: Rig, target: str, region_frames: int = 16) -> None:
         if start == 0:
             init_zarr(target, schema, ds, rig.n_frames)
         write_zarr_region(target, ds, start, stop)
+
+
+# ---- unlabelled marker takes on the mesh body (kind: studio_markers) ----------------------------------
+MARKER_DEFAULTS = {"count": 40, "part": "body"}
+_TAKES: BoundedCache[str, tuple] = BoundedCache(4)  # fingerprint -> (layout, captured), this process
+
+
+def marker_options(raw: Mapping[str, Any] | None, where: str) -> tuple[int, str, uuo.MarkerFaults]:
+    """(marker count, body part, capture faults) from a ``markers`` mapping, checked."""
+    from mocapflow.tasks.shared.mesh_body import PARTS
+
+    raw = {**MARKER_DEFAULTS, **(raw or {})}
+    fields = {f.name: f for f in dataclasses.fields(uuo.MarkerFaults)}
+    for key in raw:
+        if key not in fields and key not in MARKER_DEFAULTS:
+            known = sorted(set(fields) | set(MARKER_DEFAULTS))
+            raise CatalogError(f"{where}: unknown markers field {key!r}{did_you_mean(key, known)}; fields: {known}")
+    count = coerce(raw["count"], int, f"{where}.count")
+    if count < 1 or raw["part"] not in PARTS:
+        raise CatalogError(f"{where}: markers need count >= 1 (got {count}) and a part among {sorted(PARTS)} "
+                           f"(got {raw['part']!r})")
+    hints = typing.get_type_hints(uuo.MarkerFaults)
+    values = {k: coerce(tuple(v) if isinstance(v, list) else v, hints[k], f"{where}.{k}")
+              for k, v in raw.items() if k in fields}
+    try:
+        return count, str(raw["part"]), uuo.MarkerFaults(**values)
+    except (ValueError, TypeError) as exc:
+        raise CatalogError(f"{where}: {exc}") from exc
+
+
+def discover_markers(catalog, dataset) -> list:
+    """A studio_markers dataset's sequences: mesh-body takes recorded as unlabelled markers."""
+    from mocapflow.pipeline.datasets import SequenceInfo
+
+    opts = dataset.options
+    sequences = opts.get("sequences") or {}
+    if not isinstance(sequences, dict) or not sequences:
+        raise CatalogError(f"{dataset.where}: a studio_markers dataset needs 'sequences: {{id: {{motion: ...}}}}'")
+    out = []
+    for seq_id, body in sequences.items():
+        where = f"{dataset.where}.sequences.{seq_id}"
+        fields = {**(opts.get("defaults") or {}), **(body or {})}
+        markers = marker_options({**(opts.get("markers") or {}), **(fields.pop("markers", None) or {})}, where)
+        if fields.setdefault("body", "mesh") != "mesh":
+            raise CatalogError(f"{where}: unlabelled marker takes are filmed on the mesh body; drop 'body' or set it "
+                               "to mesh")
+        spec, text, path = make_spec(fields, where, lambda p, w=where: catalog.resolve_data_path(p, w))
+        fp = digest({"take": fingerprint(spec, text), "markers": [markers[0], markers[1], dataclasses.asdict(markers[2])]})
+        out.append(SequenceInfo(str(seq_id), (), frame_count(spec, text), fp,
+                                {"spec": spec, "bvh_path": path, "markers": markers}))
+    return out
+
+
+def read_markers(dataset, seq, start: int, stop: int):
+    rig = rig_for(seq)
+    count, part, faults = seq.spec["markers"]
+
+    def record():
+        layout = uuo.layout(rig.body, np.random.default_rng([rig.spec.seed, 3]), count, part)
+        paths = uuo.marker_paths(rig.body, layout, rig.take.posed.vertices[:rig.n_frames])
+        return layout, uuo.capture(paths, faults, np.random.default_rng([rig.spec.seed, 4]))
+
+    layout, captured = _TAKES.get_or_make(seq.fingerprint, record)
+    return uuo.marker_dataset(rig.body, layout, captured, rig.take, rig.spec.fps, start, stop)

@@ -15,7 +15,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import xarray as xr
+from scipy.spatial.transform import Rotation
 
+from mocapflow.tasks.shared.body import JOINT_NAMES
 from mocapflow.tasks.shared.mesh_body import MeshBody, random_surface_points
 from mocapflow.tasks.studio.mesh_render import surface_points
 
@@ -128,3 +131,36 @@ def _ghost(truth: np.ndarray, faults: MarkerFaults, rng: np.random.Generator) ->
     stop = min(start + life, n_frames)
     column[start:stop] = place + np.cumsum(rng.normal(0, 0.002, (stop - start, 3)), axis=0)
     return column
+
+
+def marker_dataset(body: MeshBody, markers: MarkerLayout, captured: CapturedMarkers, take, fps: float,
+                   start: int, stop: int) -> xr.Dataset:
+    """Frames [start, stop) of a captured take as raw_markers with its ground truth: per trajectory its true
+    marker's skin point and path, the body's joints and what reproduces its mesh (``take``: mesh_motion.MeshTake)."""
+    n = stop - start
+    real = captured.source >= 0
+    src = np.where(real, captured.source, 0)
+    path = captured.truth[start:stop][:, src].astype(np.float32)
+    path[:, ~real] = np.nan
+    bary = np.where(real[:, None], markers.bary[src], np.nan)
+    quats = Rotation.from_matrix(take.rotations[start:stop].reshape(-1, 3, 3)).as_quat().reshape(n, -1, 4)
+    data = {
+        "position": (("frame", "marker", "xyz"), captured.positions[start:stop].astype(np.float32)),
+        "timestamp": (("frame",), np.arange(start, stop) / fps),
+        "gt_source": (("marker",), captured.source.astype(np.int64)),
+        "gt_face": (("marker",), np.where(real, markers.faces[src], -1).astype(np.int64)),
+        "gt_bary": (("marker", "uv"), bary),
+        "gt_path": (("frame", "marker", "xyz"), path),
+        "gt_joints": (("frame", "joint", "xyz"), take.posed.heads[start:stop][:, body.joint_bones()].astype(np.float32)),
+        "gt_bone_rotations": (("frame", "bone", "quat"), quats),
+        "gt_root": (("frame", "xyz"), take.root[start:stop]),
+    }
+    ids = np.array([f"m{i:03d}" for i in range(len(captured.source))], dtype=object)
+    return xr.Dataset(data, coords={"frame": np.arange(start, stop, dtype=np.int64), "marker": ids,
+                                    "xyz": np.array(["x", "y", "z"], dtype=object),
+                                    "uv": np.array(["u", "v"], dtype=object),
+                                    "joint": np.array(JOINT_NAMES, dtype=object),
+                                    "bone": np.array(body.bone_names, dtype=object),
+                                    "quat": np.array(["x", "y", "z", "w"], dtype=object)},
+                      attrs={"fps": float(fps), "length_unit": "m", "up_axis": "Z", "marker_part": markers.part,
+                             "marker_offset_m": markers.offset_m})

@@ -134,3 +134,39 @@ def test_a_varied_sequence_is_rerendered_when_the_variation_ranges_change(monkey
     monkeypatch.setattr(motion, "VARIATION", wider)
     assert fingerprint(plain, None) == before[0]
     assert fingerprint(varied, None) != before[1]
+
+
+MARKER_CATALOG = """\
+data_roots: [., {shared}]
+storage: {{root: storage/, region_frames: 8}}
+datasets:
+  uuo:
+    kind: studio_markers
+    defaults: {{frames: 12, views: 1}}
+    markers: {{count: 30, dropout: 0.02, ghosts: 2}}
+    sequences:
+      walk: {{motion: {shared}/motions/cmu_12_01_walk.bvh, seed: 8}}
+      arm: {{motion: side_reaches, seed: 9, markers: {{count: 12, part: right_arm, dropout: 0.0, ghosts: 0}}}}
+stages:
+  markers: {{task: ingest_markers, dataset: uuo}}
+"""
+
+
+def test_unlabelled_marker_takes_on_the_mesh_body_run_through_the_engine(tmp_path):
+    (tmp_path / "catalog.yaml").write_text(MARKER_CATALOG.format(shared=SHARED))
+    summary = last_json(mocapflow("run", "--json", cwd=tmp_path))
+    assert sorted(summary["executed"]) == ["markers/arm", "markers/walk"]
+    stored = {pid: arrays for (pid, _), arrays in read_artifacts(tmp_path / "storage").items()}
+    walk, arm = stored["markers/walk"], stored["markers/arm"]
+    assert walk["position"].shape[0] == 12 and walk["position"].shape[1] > 30  # fragments and ghosts
+    real = walk["gt_source"] >= 0
+    assert (~real).sum() == 2 and sorted(set(walk["gt_source"][real])) == list(range(30))
+    seen = ~np.isnan(walk["position"][..., 0])
+    error = np.linalg.norm(walk["position"] - walk["gt_path"], axis=2)[seen & real[None]]
+    assert error.max() < 0.006 and np.isnan(walk["gt_path"][:, ~real]).all()
+    assert arm["position"].shape == (12, 12, 3) and not np.isnan(arm["position"]).any()
+    assert walk["gt_joints"].shape == (12, 20, 3) and walk["gt_bone_rotations"].shape == (12, 104, 4)
+    assert last_json(mocapflow("run", "--json", cwd=tmp_path))["executed"] == []
+    (tmp_path / "catalog.yaml").write_text(MARKER_CATALOG.format(shared=SHARED).replace("ghosts: 2", "ghost: 2"))
+    proc = mocapflow("run", cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and "unknown markers field 'ghost' (did you mean 'ghosts'?)" in proc.stderr
