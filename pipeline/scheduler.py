@@ -136,7 +136,7 @@ def run_items(items: list[WorkItem], *, workers: int = 2, address: str | None = 
     try:
         with dask_client(workers, address, processes=processes) as client:
             log.info("running %d partition(s) of %d stage(s) as %d task(s) on %s", len(items), len(stages.left),
-                     len(graph), address or f"{workers} local worker {'process' if processes else 'thread'}(s)")
+                     len(graph), address or f"{workers} local worker {'processes' if processes else 'threads'}")
             for task, results in _dispatch(client, graph, uuid.uuid4().hex[:8]):
                 for r in results:
                     reports.setdefault(r.partition, []).append(r)
