@@ -11,11 +11,10 @@ from datetime import datetime
 from pathlib import Path
 from typing import Iterator
 
-from mocapflow.pipeline.storage import Store
+from mocapflow.pipeline.storage import LOG_FOLDER, Store
 
 log = logging.getLogger(__name__)
 
-LOG_FOLDER = "logs"
 FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 
 

@@ -6,6 +6,7 @@ import re
 from pathlib import Path
 
 from conftest import mocapflow
+from mocapflow.pipeline.storage import Store
 
 
 def log_file(project: Path, stdout: str) -> Path:
@@ -30,6 +31,7 @@ def test_a_piped_run_prints_a_line_per_stage_and_logs_to_the_storage_root(toy_pr
     assert text.startswith(f"mocapflow run (run --workers 1) on {project / 'storage'}") and "INFO" in text
     assert re.search(r"scaled\+diffed/seqA/cam0@\S+ ran on worker .+: scaled/seqA/cam0 executed", text), text
     assert "summed: 2 partition(s) done" in text and "12 executed, 0 cached, 0 failed, 0 skipped" in text
+    assert Store(str(project / "storage")).stages_on_disk() == ["diffed", "frames", "scaled", "summed"]  # not logs
 
     again = mocapflow("-v", "run", cwd=project)  # nothing to run: no stage line, still a log of its own
     assert again.stdout.strip().splitlines()[0].startswith("0 executed, 12 cached")
