@@ -41,7 +41,24 @@ class _Group(click.Group):
 def main(verbose: int) -> None:
     """mocapflow: optical motion capture as a cached, resumable dataflow."""
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(verbose, 2)]
+    root = logging.getLogger()
+    before = list(root.handlers)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    for handler in root.handlers:
+        if handler not in before:  # the console's; a run's log file takes INFO whatever it shows
+            handler.setLevel(level)
+
+
+def _run_log(store: Store, command: str) -> str:
+    """Log the command's run to a file in the storage root until it returns; the file's path."""
+    from mocapflow.pipeline.runlog import run_log
+
+    return click.get_current_context().with_resource(run_log(store, command))
+
+
+def _stage_lines():
+    """Where stdout is not a terminal (a pipe, a CI log), a line per finished stage, else nothing."""
+    return None if sys.stdout.isatty() else click.echo
 
 
 @main.command()
@@ -77,14 +94,18 @@ def run(catalog_path, overrides, sequences, only, until, dry_run, workers, threa
         if as_json:
             click.echo(json.dumps({"planned": [i.partition.id for i in todo], "cached": [i.partition.id for i in cached]}))
         return
+    log_path = _run_log(store, "run")
     results = run_items(todo, workers=workers, processes=not threads, address=address, keep_going=keep_going,
-                        progress=not no_progress and sys.stderr.isatty())
+                        progress=not no_progress and sys.stderr.isatty(), report=_stage_lines())
     by_status = {s: [r for r in results if r.status == s] for s in ("executed", "cached", "failed", "skipped")}
     elapsed = time.perf_counter() - started
     found_complete = len(by_status["cached"])  # complete when a worker reached them (another run wrote them)
-    click.echo(f"{len(by_status['executed'])} executed, {len(cached) + found_complete} cached, "
+    summary = (f"{len(by_status['executed'])} executed, {len(cached) + found_complete} cached, "
                f"{len(by_status['failed'])} failed, {len(by_status['skipped'])} skipped in {elapsed:.2f} s")
+    logging.getLogger(__name__).info("%s", summary)
+    click.echo(f"{summary}; log {log_path}")
     for r in by_status["failed"]:
+        logging.getLogger(__name__).info("FAILED %s: %s", r.partition, r.error)
         click.echo(f"FAILED {r.partition}: {r.error}", err=True)
         if r.detail:
             logging.getLogger(__name__).info("%s", r.detail)
@@ -343,10 +364,12 @@ def demo(out_dir, motions, frames, workers, threads, as_json):
 
     text, summary, written = run_demo(Path(out_dir), DemoOptions(motions=tuple(motions) or DEFAULT_MOTIONS,
                                                                   frames=frames), workers=workers,
-                                       processes=not threads)
+                                       processes=not threads, log=lambda store: _run_log(store, "demo"),
+                                       report=_stage_lines())
     click.echo(text)
     for path in written:
         click.echo(f"wrote {path}")
+    click.echo(f"log {summary.pop('log')}")
     if as_json:
         click.echo(json.dumps(summary))
 

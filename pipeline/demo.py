@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import xarray as xr
 
@@ -65,15 +66,19 @@ def prepare(out: Path, options: DemoOptions):
     return load_catalog(str(path), ())
 
 
-def run_demo(out: Path, options: DemoOptions, *, workers: int, processes: bool = True) -> tuple[str, dict, list[Path]]:
+def run_demo(out: Path, options: DemoOptions, *, workers: int, processes: bool = True,
+             log: Callable[[Store], str] | None = None,
+             report: Callable[[str], None] | None = None) -> tuple[str, dict, list[Path]]:
     """Run, evaluate, export and report the demo; return the accuracy table, the summary figures and
-    the files written."""
+    the files written. ``log``: starts the run's log file in the demo's store, returns its path (the summary's
+    "log"); ``report``: a line per finished stage (scheduler.run_items)."""
     started = time.perf_counter()
     catalog = prepare(out, options)
     store = Store(catalog.root)
+    log_path = log(store) if log is not None else None
     plan = build_plan(catalog, None)
     computed = compute_missing(plan.items.values(), store, workers=workers, processes=processes,
-                               what="the demo failed")
+                               what="the demo failed", report=report)
     result = evaluate(catalog, plan, store)
     text = table(result)
     files = [path for fmt in ("bvh", "c3d")
@@ -85,7 +90,7 @@ def run_demo(out: Path, options: DemoOptions, *, workers: int, processes: bool =
                            dim="view")
     images = figures(out / "report", raw, reflectors, poses, result)
     summary = {**headline(result), "partitions computed": len(computed),
-               "seconds": round(time.perf_counter() - started, 1)}
+               "seconds": round(time.perf_counter() - started, 1), **({"log": log_path} if log_path else {})}
     page = out / "report" / "report.html"
     write_html(page, title="mocapflow demo", summary=summary, table=text, images=images, files=files)
     return text, summary, files + images + [page]

@@ -22,11 +22,12 @@ import logging
 import os
 import sys
 import threading
+import time
 import uuid
 from collections import Counter
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Iterator
+from typing import Callable, Iterator
 
 import dask
 from tqdm import tqdm
@@ -116,31 +117,65 @@ def _warm_imports(items: list[WorkItem]) -> None:
 
 
 def run_items(items: list[WorkItem], *, workers: int = 2, address: str | None = None, processes: bool = True,
-              keep_going: bool = False, progress: bool = True, units: bool = True) -> list[Result]:
+              keep_going: bool = False, progress: bool = True, units: bool = True,
+              report: Callable[[str], None] | None = None) -> list[Result]:
     """Run ``items`` (topologically ordered) and return one Result per item, in order. ``processes``: local
     workers are processes (else threads of this process); ``units``: run the stages that work region by region
-    as units (the default); False: every partition as one task."""
+    as units (the default); False: every partition as one task. Each stage whose partitions have all finished
+    is logged (INFO) as one line, also handed to ``report`` (the CLI prints it where there is no progress bar);
+    each task, its worker and its partitions are logged too."""
     if not items:
         return []
     if not address and not processes:  # worker processes, local or remote, import for themselves
         _warm_imports(items)
     graph = _graph(plan_tasks(items, units=units))
+    tasks_of = Counter(pid for task in graph for pid in task.ids)
+    stages = _StageLines(items, tasks_of, report)
     reports: dict[str, list[Result]] = {}
     bar = tqdm(total=len(items), unit="part", file=sys.stderr, disable=not progress, dynamic_ncols=True)
     try:
         with dask_client(workers, address, processes=processes) as client:
+            log.info("running %d partition(s) of %d stage(s) as %d task(s) on %s", len(items), len(stages.left),
+                     len(graph), address or f"{workers} local worker {'processes' if processes else 'threads'}")
             for task, results in _dispatch(client, graph, uuid.uuid4().hex[:8]):
                 for r in results:
                     reports.setdefault(r.partition, []).append(r)
                 if task.finishes:
                     bar.set_postfix_str(task.ids[-1], refresh=False)
                     bar.update(len(task.ids))
+                    stages.finished(task.ids, reports)
                 if not keep_going and any(r.status == "failed" for r in results):
                     break
     finally:
         bar.close()
-    tasks_of = Counter(pid for task in graph for pid in task.ids)
     return [_summary(i.partition.id, reports.get(i.partition.id, []), tasks_of[i.partition.id]) for i in items]
+
+
+class _StageLines:
+    """One line per stage as the last of its partitions finishes: how many executed, were cached or failed."""
+
+    def __init__(self, items: list[WorkItem], tasks_of: Counter, report: Callable[[str], None] | None):
+        self.left = Counter(i.partition.stage for i in items)
+        self.total = dict(self.left)
+        self.counts: dict[str, Counter] = {stage: Counter() for stage in self.left}
+        self.stage_of = {i.partition.id: i.partition.stage for i in items}
+        self.tasks_of = tasks_of
+        self.report = report
+        self.started = time.perf_counter()
+
+    def finished(self, pids: list[str], reports: dict[str, list[Result]]) -> None:
+        for pid in pids:
+            stage = self.stage_of[pid]
+            self.counts[stage][_summary(pid, reports.get(pid, []), self.tasks_of[pid]).status] += 1
+            self.left[stage] -= 1
+            if self.left[stage] == 0:
+                counts = self.counts[stage]
+                line = (f"{stage}: {self.total[stage]} partition(s) done, {counts['executed']} executed, "
+                        f"{counts['cached']} cached, {counts['failed']} failed "
+                        f"({time.perf_counter() - self.started:.1f} s)")
+                log.info("%s", line)
+                if self.report is not None:
+                    self.report(line)
 
 
 @dataclass
@@ -204,15 +239,17 @@ def _dispatch(client, graph: list[_Task], run_id: str) -> Iterator[tuple[_Task, 
                 task = graph[n]
                 upstream = [done[u] for u in task.after]
                 if isinstance(task.work, Unit):
-                    fut = client.submit(run_unit, task.work, *upstream, key=f"{task.work.id}-{run_id}", pure=False)
+                    fut = client.submit(_on_worker, run_unit, task.work, *upstream, key=f"{task.work.id}-{run_id}",
+                                        pure=False)
                 else:
-                    fut = client.submit(run_partition, task.work, *upstream,
+                    fut = client.submit(_on_worker, run_partition, task.work, *upstream,
                                         key=f"{task.work.partition.id}-{task.work.key}-{run_id}", pure=False)
+                log.debug("submitted %s", _task_name(task))
                 running[fut] = n
                 finished.add(fut)
             fut = next(finished)
             n = running.pop(fut)
-            done[n] = _results(fut, graph[n].ids)
+            done[n] = _results(fut, graph[n].ids, _task_name(graph[n]))
             for d in graph[n].dependents:
                 waiting[d] -= 1
                 if not waiting[d]:
@@ -285,12 +322,28 @@ def _reads_any(item: WorkItem, targets: set[str], ids: dict, seen: set | None = 
     return False
 
 
-def _results(fut, partitions: list[str]) -> list[Result]:
+def _on_worker(fn, *args):
+    """Run ``fn(*args)`` on a Dask worker; returns (the worker's name and address, what ``fn`` returned)."""
+    from distributed import get_worker
+
+    worker = get_worker()
+    return f"{worker.name} ({worker.address})", fn(*args)
+
+
+def _task_name(task: _Task) -> str:
+    return task.work.id if isinstance(task.work, Unit) else task.work.partition.id
+
+
+def _results(fut, partitions: list[str], name: str) -> list[Result]:
     try:
-        out = fut.result()
-        return list(out) if isinstance(out, (list, tuple)) else [out]
+        worker, out = fut.result()
     except Exception as exc:  # a lost worker (KilledWorker), cancellation or unpickling failure
+        log.info("%s failed: %s: %s", name, type(exc).__name__, exc)
         return [Result(pid, "failed", error=f"{type(exc).__name__}: {exc}") for pid in partitions]
+    results = list(out) if isinstance(out, (list, tuple)) else [out]
+    log.info("%s ran on worker %s: %s", name, worker,
+             ", ".join(f"{r.partition} {r.status}" + (f" {r.seconds:.2f} s" if r.seconds else "") for r in results))
+    return results
 
 
 def _summary(pid: str, reports: list[Result], tasks: int) -> Result:
@@ -307,11 +360,13 @@ def _summary(pid: str, reports: list[Result], tasks: int) -> Result:
                   regions=sum(r.regions for r in reports))
 
 
-def compute_missing(items, store, *, workers: int, what: str, processes: bool = True) -> list[WorkItem]:
+def compute_missing(items, store, *, workers: int, what: str, processes: bool = True,
+                    report: Callable[[str], None] | None = None) -> list[WorkItem]:
     """Run the ``items`` not yet complete in ``store`` and return them; raise PlanError naming the first
-    failures (``what``: the purpose, e.g. "cannot export")."""
+    failures (``what``: the purpose, e.g. "cannot export"). ``report``: see run_items."""
     todo = [i for i in items if not store.is_complete(i.partition.stage, i.key)]
-    failed = [r for r in run_items(todo, workers=workers, processes=processes, progress=sys.stderr.isatty())
+    failed = [r for r in run_items(todo, workers=workers, processes=processes, progress=sys.stderr.isatty(),
+                                   report=report)
               if not r.ok]
     if failed:
         raise PlanError(f"{what}: " + "; ".join(f"{r.partition}: {r.error}" for r in failed[:5]))

@@ -67,6 +67,9 @@ class VersionInfo:
     lineage: dict
 
 
+LOG_FOLDER = "logs"  # each run's log file, <root>/logs/run-<time>.log (runlog.py)
+
+
 class Store:
     """One storage root (a local folder or any fsspec URL)."""
 
@@ -116,7 +119,10 @@ class Store:
             entries = self.fs.ls(self.base, detail=True)
         except FileNotFoundError:
             return []
-        return sorted(e["name"].rstrip("/").split("/")[-1] for e in entries if e["type"] == "directory")
+        names = sorted(e["name"].rstrip("/").split("/")[-1] for e in entries if e["type"] == "directory")
+        # The runs' log files (runlog.py) share the root; their folder is a stage only where it holds versions.
+        return [n for n in names
+                if n != LOG_FOLDER or self.fs.glob(f"{self.base.rstrip('/')}/{LOG_FOLDER}/*/lineage.json")]
 
     def _put(self, path: str, data: bytes) -> None:
         self.fs.makedirs(path.rsplit("/", 1)[0], exist_ok=True)

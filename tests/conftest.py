@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from mocapflow.schemas.raw import make_raw_sequence
+from shared_data import SHARED, pytest_configure, pytest_runtest_setup  # noqa: F401  (the needs_shared marker)
 
 ROOT = Path(__file__).resolve().parents[1]
 PLUGINS = ROOT / "tests" / "plugins"
-SHARED = ROOT.parent / "shared" / "data"
 
 
 def env_with_plugins() -> dict:

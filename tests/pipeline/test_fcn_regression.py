@@ -2,7 +2,11 @@
 clip (subject and camera layout unseen in training), through frames -> masks -> flow -> heatmaps ->
 reflectors2d and `mocapflow evaluate`. A regression test of the documented accuracy, not a timing."""
 
+import pytest
+
 from conftest import SHARED, last_json, mocapflow
+
+pytestmark = pytest.mark.needs_shared  # a real CMU clip drives the sequence
 
 # Measured with the committed weights (docs/results.md); the tolerance absorbs BLAS differences between machines.
 # A procedural-subject view of one CMU clip; the full held-out split is harder (docs/results.md: 91.1 %).

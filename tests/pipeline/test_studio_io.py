@@ -6,6 +6,7 @@ import dataclasses
 import hashlib
 
 import numpy as np
+import pytest
 import xarray as xr
 
 from conftest import SHARED, last_json, mocapflow, read_artifacts
@@ -36,6 +37,7 @@ def tree_digest(folder):
     return h.hexdigest()
 
 
+@pytest.mark.needs_shared
 def test_studio_dataset_runs_through_the_engine_and_equals_the_task(tmp_path):
     (tmp_path / "catalog.yaml").write_text(CATALOG.format(shared=SHARED))
     summary = last_json(mocapflow("run", "--json", cwd=tmp_path))
@@ -48,12 +50,14 @@ def test_studio_dataset_runs_through_the_engine_and_equals_the_task(tmp_path):
     assert last_json(mocapflow("run", "--json", cwd=tmp_path))["executed"] == []
 
 
+@pytest.mark.needs_shared
 def test_bvh_outside_data_roots_is_refused(tmp_path):
     (tmp_path / "catalog.yaml").write_text(CATALOG.format(shared=SHARED).replace(f"[., {SHARED}]", "[.]"))
     proc = mocapflow("run", cwd=tmp_path, check=False)
     assert proc.returncode == 2 and "outside the declared data_roots" in proc.stderr
 
 
+@pytest.mark.needs_shared
 def test_studio_catalog_errors(tmp_path):
     text = CATALOG.format(shared=SHARED)
     for old, new, message in [("classic_squat", "clasic_squat", "did you mean 'classic_squat'"),
@@ -66,6 +70,7 @@ def test_studio_catalog_errors(tmp_path):
         assert proc.returncode == 2 and message in proc.stderr, proc.stderr
 
 
+@pytest.mark.needs_shared
 def test_synth_is_deterministic_per_seed_and_writes_the_raw_schema(tmp_path):
     args = ["--motion", "kick_box_kicking", "--motion", SHARED / "motions" / "cmu_12_01_walk.bvh",
             "--frames", "5", "--views", "2", "--seed", "11", "--subject-height", "1.9"]
@@ -105,6 +110,7 @@ def test_later_fields_enter_the_fingerprint_only_when_set():
     assert fingerprint(SequenceSpec("classic_squat", seed=3, body="mesh"), None) != fingerprint(plain, None)
 
 
+@pytest.mark.needs_shared
 def test_a_mesh_body_sequence_runs_through_the_engine_and_through_synth(tmp_path):
     text = CATALOG.format(shared=SHARED).replace("defaults: {frames: 10, noise: 0.5}",
                                                  "defaults: {frames: 3, noise: 0.5, body: mesh, views: 2}")

@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 
 from conftest import SHARED
+from shared_data import cmu_clips
 from mocapflow.tasks.shared import body, kinematics
 from mocapflow.tasks.studio import bvh, motion
 
-CLIPS = sorted((SHARED / "motions").glob("*.bvh"))
+CLIPS = cmu_clips()
 
 
 def joints(m, subject):
@@ -22,6 +23,7 @@ def test_template_has_20_joints_levels_0_to_6_and_40_dof():
     assert body.LEVELS[body.JOINT_INDEX["Hips"]] == 0 and body.LEVELS[body.JOINT_INDEX["LeftHand"]] == 6
 
 
+@pytest.mark.needs_shared
 @pytest.mark.parametrize("clip", CLIPS, ids=lambda p: p.stem)
 def test_retargeted_cmu_clip_keeps_bone_lengths_and_feet_on_the_floor(clip):
     subject = body.Subject(1.68)
@@ -38,6 +40,7 @@ def test_retargeted_cmu_clip_keeps_bone_lengths_and_feet_on_the_floor(clip):
     assert 1.3 < np.median(head) < 1.68
 
 
+@pytest.mark.needs_shared
 def test_walk_moves_forward_and_jumping_jacks_leave_the_ground():
     subject = body.Subject(1.75)
     walk = bvh.retarget(bvh.parse_bvh((SHARED / "motions" / "cmu_12_01_walk.bvh").read_text()), subject)

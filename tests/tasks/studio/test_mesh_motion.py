@@ -12,6 +12,7 @@ from mocapflow.tasks.shared.kinematics import forward_kinematics
 from mocapflow.tasks.studio import bvh, mesh_motion, motion
 
 WALK = SHARED / "motions" / "cmu_12_01_walk.bvh"
+pytestmark = pytest.mark.needs_shared  # every test reads the clip
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,27 @@
+# Two commands on a fresh machine: `make demo` and `make test`. Both create .venv (Python 3.11) if it is
+# missing and install mocapflow into it with the CPU build of PyTorch (requirements-cpu.txt).
+
+PYTHON ?= python3.11
+VENV ?= .venv
+BIN := $(VENV)/bin
+TORCH_CPU_INDEX := https://download.pytorch.org/whl/cpu
+INSTALL := -r requirements-cpu.txt -e ".[test]"
+
+.PHONY: demo test install
+
+demo: install
+	$(BIN)/mocapflow demo
+
+test: install
+	$(BIN)/python -m pytest -q
+
+install: $(VENV)/.installed
+
+# Reinstalled when the dependencies change. Where pip cannot find torch==2.13.0+cpu, the same install
+# again with PyTorch's CPU wheel index.
+$(VENV)/.installed: pyproject.toml requirements-cpu.txt
+	@test -x $(BIN)/python || { command -v $(PYTHON) >/dev/null || { echo "error: $(PYTHON) not found; install Python 3.11 or run make PYTHON=/path/to/python3.11" >&2; exit 1; }; $(PYTHON) -m venv $(VENV); }
+	$(BIN)/python -m pip install -q $(INSTALL) || \
+	  { echo "retrying with PyTorch's CPU index ($(TORCH_CPU_INDEX))" >&2; \
+	    $(BIN)/python -m pip install -q --extra-index-url $(TORCH_CPU_INDEX) $(INSTALL); }
+	touch $@

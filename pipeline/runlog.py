@@ -1,0 +1,74 @@
+"""Each run's log file: ``<storage root>/logs/run-<time>.log``, INFO level, whatever the console shows."""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import tempfile
+from contextlib import contextmanager
+from datetime import datetime
+from pathlib import Path
+from typing import Iterator
+
+from mocapflow.pipeline.storage import LOG_FOLDER, Store
+
+log = logging.getLogger(__name__)
+
+FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+
+
+class _LogFile(logging.FileHandler):
+    """A log file created with its folder on the first record (a command refused before it runs writes none),
+    starting with ``header``."""
+
+    def __init__(self, path: str, header: str):
+        super().__init__(path, encoding="utf-8", delay=True)
+        self.header = header
+        self.setLevel(logging.INFO)
+        self.setFormatter(logging.Formatter(FORMAT))
+
+    def _open(self):
+        os.makedirs(os.path.dirname(self.baseFilename), exist_ok=True)
+        stream = super()._open()
+        stream.write(self.header + "\n")
+        return stream
+
+
+@contextmanager
+def run_log(store: Store, command: str) -> Iterator[str]:
+    """Write the INFO log of the enclosed run to a new file in ``store``'s ``logs/`` folder, created on its first
+    record; yields its path (a URL where the root is not a local folder: the log is then written locally and
+    copied there at the end)."""
+    name = f"run-{datetime.now().strftime('%Y%m%d-%H%M%S-%f')}.log"
+    target = f"{store.base.rstrip('/')}/{LOG_FOLDER}/{name}"
+    local = target if store.local else os.path.join(tempfile.gettempdir(), f"mocapflow-{os.getpid()}-{name}")
+    shown = target if store.local else store.fs.unstrip_protocol(target)
+    handler = _LogFile(local, f"mocapflow {command} ({' '.join(sys.argv[1:])}) on {store.root}, "
+                              f"started {datetime.now().isoformat(timespec='seconds')}")
+    root = logging.getLogger()
+    level = root.level
+    root.addHandler(handler)
+    root.setLevel(min(level or logging.WARNING, logging.INFO))
+    try:
+        yield _relative(shown) if store.local else shown
+    finally:
+        root.removeHandler(handler)
+        root.setLevel(level)
+        handler.close()
+        if not store.local and os.path.exists(local):
+            try:
+                store.fs.makedirs(os.path.dirname(target), exist_ok=True)
+                store.fs.put_file(local, target)
+            except OSError as exc:
+                log.warning("could not copy the run's log to %s (%s); it stays at %s", shown, exc, local)
+            else:
+                os.unlink(local)
+
+
+def _relative(path: str) -> str:
+    """``path`` relative to the working folder where it lies inside it."""
+    try:
+        return str(Path(path).relative_to(Path.cwd()))
+    except ValueError:
+        return path

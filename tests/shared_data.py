@@ -1,0 +1,57 @@
+"""The real data some tests read from ``../shared/data`` beside the checkout, and the ``needs_shared`` marker.
+
+Only the CMU BVH clips (``../shared/data/motions``) are read by tests. A test marked ``needs_shared`` is
+skipped, with a message naming what is missing and where it is expected, when that folder is absent; with
+``MOCAPFLOW_REQUIRE_SHARED=1`` (CI) it fails instead. ``MOCAPFLOW_SHARED_DATA`` points the tests at
+another copy of the folder. Loaded by tests/conftest.py, or as a plugin (``-p shared_data``).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("MOCAPFLOW_SHARED_DATA") or ROOT.parent / "shared" / "data")
+MOTIONS = SHARED / "motions"
+# The clips the tests name; a fuller copy of the folder may hold more, and every clip there is tested.
+CMU_CLIPS = ("cmu_12_01_walk.bvh", "cmu_14_14_jumping_jacks.bvh", "cmu_14_14_jog_in_place_excerpt_f0440-1035.bvh",
+             "cmu_14_14_squats_excerpt_f1020-1600.bvh", "cmu_14_14_knee_raise_excerpt_f1590-2270.bvh")
+REQUIRE = "MOCAPFLOW_REQUIRE_SHARED"
+
+
+def cmu_clips() -> list[Path]:
+    """Every CMU clip of the shared folder; where the folder is missing, the clips the tests expect there (their
+    tests then skip, or fail in CI, through ``needs_shared``)."""
+    found = sorted(MOTIONS.glob("*.bvh")) if MOTIONS.is_dir() else []
+    return found or [MOTIONS / name for name in CMU_CLIPS]
+
+
+def missing() -> str | None:
+    """What is missing of the shared data the tests read, or None."""
+    if not MOTIONS.is_dir():
+        return (f"the real CMU BVH clips are missing: expected the folder {MOTIONS} (../shared/data/motions beside "
+                "the checkout, or $MOCAPFLOW_SHARED_DATA/motions); see the README, 'Test data'")
+    absent = [name for name in CMU_CLIPS if not (MOTIONS / name).is_file()]
+    if absent:
+        return f"CMU BVH clip(s) missing from {MOTIONS}: {', '.join(absent)}; see the README, 'Test data'"
+    return None
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "needs_shared: reads the real data in ../shared/data (skipped where it is "
+                                      f"missing, an error with {REQUIRE}=1)")
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
+    if item.get_closest_marker("needs_shared") is None:
+        return
+    problem = missing()
+    if problem is None:
+        return
+    if os.environ.get(REQUIRE) == "1":
+        pytest.fail(f"{problem} ({REQUIRE}=1: missing shared data is an error)", pytrace=False)
+    pytest.skip(problem)
