@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from shared_data import CMU_CLIPS
+from shared_data import C3D_FILES, CMU_CLIPS
 
 PROBE = """\
 import pytest
@@ -53,6 +53,11 @@ def test_a_missing_clip_is_named_and_present_data_runs_the_test(tmp_path):
     proc = run_probe(tmp_path, tmp_path / "data", require=False)
     assert "1 skipped" in proc.stdout and CMU_CLIPS[0] in proc.stdout, proc.stdout + proc.stderr
     (motions / CMU_CLIPS[0]).write_text("")
+    proc = run_probe(tmp_path, tmp_path / "data", require=False)  # the clips are there, the C3D files not yet
+    assert "1 skipped" in proc.stdout and C3D_FILES[0] in proc.stdout, proc.stdout + proc.stderr
+    (tmp_path / "data" / "c3d").mkdir()
+    for name in C3D_FILES:
+        (tmp_path / "data" / "c3d" / name).write_text("")
     for require in (False, True):
         proc = run_probe(tmp_path, tmp_path / "data", require)
         assert proc.returncode == 0 and "1 passed" in proc.stdout, proc.stdout + proc.stderr

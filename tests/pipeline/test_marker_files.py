@@ -19,6 +19,7 @@ C3D = SHARED / "c3d"
     ("ktk_kinematics_tennis_serve.c3d", "z", 50.0, 1.0),
     ("bts_c3d_sample_gait_with_gaps.c3d", "y", 100.0, 0.001),
 ])
+@pytest.mark.needs_shared
 def test_real_c3d_files_read_in_metres_with_z_up(name, up, fps, unit):
     ds = read_markers(C3D / name, up=up)
     get_schema("raw_markers").validate(ds)
@@ -31,6 +32,7 @@ def test_real_c3d_files_read_in_metres_with_z_up(name, up, fps, unit):
     assert list(ds.marker.values[:2]) == ["m000", "m001"] and "label" not in ds  # labels dropped by default
 
 
+@pytest.mark.needs_shared
 def test_gaps_are_nan_and_fragmented_labels_stay_apart():
     ds = read_markers(C3D / "qualisys_duplicate_labels_fragmented.c3d", labels="use")
     assert np.isnan(ds.position.values).any()
@@ -60,6 +62,7 @@ def test_a_trc_file_is_read_with_its_units_rate_gaps_and_y_up(tmp_path):
     np.testing.assert_allclose(ds.timestamp.values, [0, 1 / 60, 2 / 60])
 
 
+@pytest.mark.needs_shared
 def test_bad_marker_files_and_settings_are_refused(tmp_path):
     (tmp_path / "x.c3d").write_bytes(b"not a c3d")
     with pytest.raises(InputError, match="not a readable C3D file"):
@@ -90,6 +93,7 @@ def test_an_exported_trc_reads_back_as_the_markers_it_came_from(tmp_path, up):
     np.testing.assert_allclose(back.position.values, position, atol=1e-5, equal_nan=True)
 
 
+@pytest.mark.needs_shared
 def test_a_markers_dataset_runs_through_the_engine(tmp_path):
     import shutil
 

@@ -158,6 +158,7 @@ stages:
 """
 
 
+@pytest.mark.needs_shared
 def test_unlabelled_marker_takes_on_the_mesh_body_run_through_the_engine(tmp_path):
     (tmp_path / "catalog.yaml").write_text(MARKER_CATALOG.format(shared=SHARED))
     summary = last_json(mocapflow("run", "--json", cwd=tmp_path))
