@@ -19,11 +19,14 @@ def test_kill_dash_nine_then_resume_finishes_only_unfinished_work(toy_project, t
     # 2 sequences x 2 views x 10 regions of 4 frames, 0.25 s per region: about 5 s of work on 2 threads.
     project = toy_project(sleep=0.25, frames=40)
     proc = subprocess.Popen([sys.executable, "-m", "mocapflow.pipeline.cli", "run", "--json", "--workers", "2"],
-                            cwd=project, env=env_with_plugins(), stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                            cwd=project, env=env_with_plugins(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            start_new_session=True)
     deadline = time.time() + 60
     while len(committed_regions(project / "storage")) < 6 and time.time() < deadline:
         time.sleep(0.05)
-    os.kill(proc.pid, signal.SIGKILL)
+    # the whole run at once, its worker processes too (as a crash or the OOM killer takes it): a worker left
+    # running would finish its region and release its lock, which is a different test
+    os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()
     done_before = len(committed_regions(project / "storage"))
     assert 6 <= done_before < 40, "the run must be killed part-way through the scaled stage"
