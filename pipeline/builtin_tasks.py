@@ -6,6 +6,7 @@ from mocapflow.pipeline.registry import Lazy, NoParams, TaskSpec, register
 from mocapflow.tasks.deepmocap import flow, markers3d, masks, poses, refine2d, reflectors2d, skeleton, smoothing, training
 from mocapflow.tasks.deepmocap.heatmaps import HeatmapConfig
 from mocapflow.tasks.shared.cameras import CALIBRATION_VARIABLES as CALIBRATION
+from mocapflow.tasks.uuo import segmentation
 
 
 # The `frames` stage: every raw sequence of a dataset synthesized (studio) or imported
@@ -124,4 +125,11 @@ register(TaskSpec(
     reads={"poses": ("position", "rotation"), "skeleton": ("parent", "bone", "reflector_offset"),
            "masks": ("blob_id", "blob_area"), "frames": ("depth",) + CALIBRATION},
     description="mirrored labels exchanged and missing reflectors added where the solved poses project",
+))
+
+# UUO (Milef et al. 2024): unlabelled markers anywhere on the body.
+register(TaskSpec(
+    name="rigid_segments", fn=segmentation.rigid_segments, version="1", params=segmentation.SegmentConfig,
+    output="marker_segments", partition="sequence", inputs={"markers": "raw_markers"}, reads={"markers": ("position",)},
+    description="group unlabelled markers by the bone they ride: spread of pairwise distances, agglomerative clustering",
 ))
