@@ -6,7 +6,7 @@ from mocapflow.pipeline.registry import Lazy, NoParams, TaskSpec, register
 from mocapflow.tasks.deepmocap import flow, markers3d, masks, poses, refine2d, reflectors2d, skeleton, smoothing, training
 from mocapflow.tasks.deepmocap.heatmaps import HeatmapConfig
 from mocapflow.tasks.shared.cameras import CALIBRATION_VARIABLES as CALIBRATION
-from mocapflow.tasks.uuo import segmentation
+from mocapflow.tasks.uuo import prior, segmentation
 
 
 # The `frames` stage: every raw sequence of a dataset synthesized (studio) or imported
@@ -132,4 +132,10 @@ register(TaskSpec(
     name="rigid_segments", fn=segmentation.rigid_segments, version="1", params=segmentation.SegmentConfig,
     output="marker_segments", partition="sequence", inputs={"markers": "raw_markers"}, reads={"markers": ("position",)},
     description="group unlabelled markers by the bone they ride: spread of pairwise distances, agglomerative clustering",
+))
+register(TaskSpec(
+    name="simulated_prior", fn=prior.simulated_prior, version="1", params=prior.SimulatedPriorConfig,
+    output="body_prior", partition="sequence", inputs={"markers": "raw_markers"},
+    description="the studio's true body degraded like a monocular estimate (rotation errors, yaw, size, position, "
+                "lost frames)",
 ))

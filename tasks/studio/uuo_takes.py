@@ -12,7 +12,7 @@ body, and the ids in an order that says nothing. ``source`` keeps, per id, the t
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 import xarray as xr
@@ -163,4 +163,4 @@ def marker_dataset(body: MeshBody, markers: MarkerLayout, captured: CapturedMark
                                     "bone": np.array(body.bone_names, dtype=object),
                                     "quat": np.array(["x", "y", "z", "w"], dtype=object)},
                       attrs={"fps": float(fps), "length_unit": "m", "up_axis": "Z", "marker_part": markers.part,
-                             "marker_offset_m": markers.offset_m})
+                             "marker_offset_m": markers.offset_m, "phenotype": asdict(body.phenotype)})

@@ -156,6 +156,7 @@ datasets:
 stages:
   markers: {{task: ingest_markers, dataset: uuo}}
   segments: {{task: rigid_segments, inputs: [markers]}}
+  prior: {{task: simulated_prior, inputs: [markers]}}
 """
 
 
@@ -163,11 +164,13 @@ stages:
 def test_unlabelled_marker_takes_on_the_mesh_body_run_through_the_engine(tmp_path):
     (tmp_path / "catalog.yaml").write_text(MARKER_CATALOG.format(shared=SHARED))
     summary = last_json(mocapflow("run", "--json", cwd=tmp_path))
-    assert sorted(summary["executed"]) == ["markers/arm", "markers/walk", "segments/arm", "segments/walk"]
+    assert sorted(summary["executed"]) == ["markers/arm", "markers/walk", "prior/arm", "prior/walk",
+                                           "segments/arm", "segments/walk"]
     stored = {pid: arrays for (pid, _), arrays in read_artifacts(tmp_path / "storage").items()}
     walk, arm = stored["markers/walk"], stored["markers/arm"]
     assert stored["segments/walk"]["segment"].shape == walk["gt_source"].shape  # a group for every trajectory
     assert 2 <= stored["segments/arm"]["segment"].max() + 1 <= 12  # an arm's 12 markers: a few bones
+    assert stored["prior/walk"]["joints"].shape == (12, 20, 3)  # a rough body for every frame
     assert walk["position"].shape[0] == 12 and walk["position"].shape[1] > 30  # fragments and ghosts
     real = walk["gt_source"] >= 0
     assert (~real).sum() == 2 and sorted(set(walk["gt_source"][real])) == list(range(30))

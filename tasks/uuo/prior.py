@@ -1,0 +1,134 @@
+"""The monocular body prior of UUO (Milef et al. 2024, §3.3): a rough body per frame, as a video estimator gives.
+
+UUO starts from a body estimated from monocular video (HMR 2.0 in the paper), whose poses and proportions are
+roughly right but whose global translation, size and root orientation are not (§3.3, appendix B: mostly a
+single yaw offset). Implementations of the stage ``prior``:
+
+- ``simulated_prior``: the studio's truth degraded the way such an estimator errs: every bone's local
+  rotation off by a smooth, temporally correlated random rotation; the whole body turned by one yaw offset,
+  scaled by one factor and moved by one translation; a few frames lost (tracking failures, held by the
+  nearest kept frame and marked invalid); the phenotype off by a little. Its error is reported as MPJPE after
+  a rigid registration with scale (the paper's HMR2.0+RR measures 132-150 mm MPJPE on its three datasets);
+- ``no_prior``: markers only (the paper's marker-only rows): an empty prior.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import xarray as xr
+from scipy.ndimage import gaussian_filter1d
+from scipy.spatial.transform import Rotation
+
+from mocapflow.tasks.shared.body import JOINT_NAMES
+from mocapflow.tasks.shared.kinematics import rigid_fit
+from mocapflow.tasks.shared.mesh_body import MeshBody, Phenotype, mesh_body, pose_mesh
+
+
+class PriorError(ValueError):
+    """A prior that cannot be made from the given take or settings."""
+
+
+@dataclass(frozen=True)
+class SimulatedPriorConfig:
+    rotation_deg: float = 8.0  # std of each bone's local rotation error: about 150 mm registered MPJPE on a CMU walk
+    correlation_s: float = 0.4  # how long an error lasts (Gaussian smoothing of the error curves)
+    yaw_deg: float = 180.0  # the root's yaw offset is drawn in [-yaw_deg, yaw_deg]
+    scale_range: tuple[float, float] = (0.85, 1.15)  # one size factor for the take
+    translation_m: float = 1.0  # one offset of that size, in a random direction
+    lost: float = 0.02  # per-frame probability that tracking fails for a frame
+    phenotype_noise: float = 0.1  # std of the phenotype parameters' error (clipped to [0, 1])
+    seed: int = 0
+
+    def __post_init__(self):
+        lo, hi = self.scale_range
+        if self.rotation_deg < 0 or self.correlation_s <= 0 or not 0 < lo <= hi or not 0 <= self.lost < 1:
+            raise PriorError(f"simulated prior settings out of range: rotation_deg {self.rotation_deg} >= 0, "
+                             f"correlation_s {self.correlation_s} > 0, 0 < scale_range {self.scale_range}, "
+                             f"lost {self.lost} in [0, 1)")
+
+
+def local_rotations(world: np.ndarray, parents: np.ndarray) -> np.ndarray:
+    """Each bone's rotation relative to its parent's.  (frame, bone, 3, 3) -> (frame, bone, 3, 3)"""
+    local = world.copy()
+    has = parents >= 0
+    local[:, has] = np.swapaxes(world[:, parents[has]], -1, -2) @ world[:, has]
+    return local
+
+
+def world_from_local(local: np.ndarray, parents: np.ndarray) -> np.ndarray:
+    """Inverse of ``local_rotations`` (parents come first)."""
+    world = local.copy()
+    for b, p in enumerate(parents):
+        if p >= 0:
+            world[:, b] = world[:, p] @ local[:, b]
+    return world
+
+
+def degrade(body: MeshBody, rotations: np.ndarray, root: np.ndarray, fps: float, config: SimulatedPriorConfig,
+            rng: np.random.Generator) -> dict:
+    """The prior's bone rotations (frame, bone, 3, 3), root (frame, 3), validity (frame,) and phenotype."""
+    n, n_bones = rotations.shape[:2]
+    sigma_frames = config.correlation_s * fps
+    noise = rng.standard_normal((n, n_bones, 3))
+    if n > 1:
+        noise = gaussian_filter1d(noise, sigma_frames, axis=0, mode="nearest")
+        noise /= np.maximum(noise.std(axis=0, keepdims=True), 1e-9)  # unit std per component, whatever the smoothing
+    noise *= np.radians(config.rotation_deg) / np.sqrt(3)
+    local = local_rotations(rotations, body.bone_parents)
+    local = Rotation.from_rotvec(noise.reshape(-1, 3)).as_matrix().reshape(n, n_bones, 3, 3) @ local
+    yaw = Rotation.from_euler("z", rng.uniform(-config.yaw_deg, config.yaw_deg), degrees=True).as_matrix()
+    local[:, 0] = yaw @ local[:, 0]  # the root's world orientation, turned by one yaw for the take
+    world = world_from_local(local, body.bone_parents)
+    scale = rng.uniform(*config.scale_range)
+    direction = rng.standard_normal(3)
+    offset = direction / np.linalg.norm(direction) * config.translation_m
+    centre = root.mean(axis=0)
+    prior_root = (root - centre) @ yaw.T * scale + centre + offset
+    valid = rng.random(n) >= config.lost
+    if not valid.any():
+        valid[int(rng.integers(n))] = True
+    kept = np.flatnonzero(valid)
+    nearest = kept[np.abs(np.arange(n)[:, None] - kept[None]).argmin(axis=1)]  # lost frames hold the nearest kept
+    values = np.clip(np.array(list(asdict(body.phenotype).values()))
+                     + rng.normal(0, config.phenotype_noise, 6), 0.0, 1.0)
+    return {"rotations": world[nearest], "root": prior_root[nearest], "valid": valid, "scale": scale,
+            "phenotype": Phenotype(**dict(zip(asdict(body.phenotype), map(float, values))))}
+
+
+def registered_mpjpe(joints: np.ndarray, truth: np.ndarray) -> float:
+    """MPJPE (m) after one rigid registration with scale of all frames' joints onto the truth (HMR2.0+RR's
+    measure).  (frame, joint, 3) x 2 -> float"""
+    a, b = joints.reshape(-1, 3), truth.reshape(-1, 3)
+    ca, cb = a.mean(axis=0), b.mean(axis=0)
+    s = np.sqrt(((b - cb) ** 2).sum() / ((a - ca) ** 2).sum())
+    rot, trans = rigid_fit((a - ca) * s + ca, b)
+    return float(np.linalg.norm(((a - ca) * s + ca) @ rot.T + trans - b, axis=1).mean())
+
+
+def simulated_prior(markers: xr.Dataset, config: SimulatedPriorConfig) -> xr.Dataset:
+    """Stage ``prior`` (simulated): a studio take's true body, degraded like a monocular estimate."""
+    missing = [k for k in ("gt_bone_rotations", "gt_root", "gt_joints") if k not in markers] + \
+        ([] if "phenotype" in markers.attrs else ["phenotype attribute"])
+    if missing:
+        raise PriorError(f"a simulated prior degrades the studio's truth, and these markers lack {missing}; use "
+                         "prior: file (a monocular estimate you bring) or prior: none on recorded markers")
+    body = mesh_body(Phenotype(**markers.attrs["phenotype"]))
+    rotations = Rotation.from_quat(markers["gt_bone_rotations"].values.reshape(-1, 4)).as_matrix()
+    rotations = rotations.reshape(markers.sizes["frame"], -1, 3, 3)
+    fps = float(markers.attrs["fps"])
+    out = degrade(body, rotations, markers["gt_root"].values, fps, config, np.random.default_rng(config.seed))
+    prior_body = mesh_body(out["phenotype"])
+    posed = pose_mesh(prior_body, out["rotations"], out["root"])
+    joints = posed.heads[:, prior_body.joint_bones()]
+    truth = markers["gt_joints"].values.astype(np.float64)
+    quats = Rotation.from_matrix(out["rotations"].reshape(-1, 3, 3)).as_quat().reshape(rotations.shape[:2] + (4,))
+    return xr.Dataset(
+        {"bone_rotation": (("frame", "bone", "quat"), quats), "root": (("frame", "xyz"), out["root"]),
+         "joints": (("frame", "joint", "xyz"), joints.astype(np.float32)), "valid": (("frame",), out["valid"])},
+        coords={"frame": markers["frame"].values, "bone": np.array(body.bone_names, dtype=object),
+                "joint": np.array(JOINT_NAMES, dtype=object), "xyz": np.array(["x", "y", "z"], dtype=object),
+                "quat": np.array(["x", "y", "z", "w"], dtype=object)},
+        attrs={"fps": fps, "phenotype": asdict(out["phenotype"]), "source": "simulated",
+               "registered_mpjpe_mm": 1000.0 * registered_mpjpe(joints[out["valid"]], truth[out["valid"]])})
