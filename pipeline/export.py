@@ -29,6 +29,7 @@ from mocapflow.pipeline.evaluate import stage_writing
 from mocapflow.pipeline.plan import build_plan, select
 from mocapflow.pipeline.storage import Store
 from mocapflow.tasks.shared.body import JOINT_NAMES, PARENTS
+from mocapflow.tasks.shared.kinematics import Y_UP_TO_Z_UP
 from mocapflow.tasks.studio.bvh import parse_bvh
 
 UNIT_SCALE = 1000.0  # metres -> millimetres
@@ -127,7 +128,7 @@ def read_c3d(path: Path) -> tuple[np.ndarray, list[str], float, np.ndarray]:
 
 
 # mocapflow world (Z up) -> TRC Y up: x stays, y = z, z = -y (a rotation about x, so handedness is kept)
-TRC_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+TRC_Y_UP = Y_UP_TO_Z_UP.T  # the inverse rotation
 TRC_UP = ("y", "z")
 
 

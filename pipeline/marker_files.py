@@ -21,9 +21,9 @@ import numpy as np
 import xarray as xr
 
 from mocapflow.pipeline.errors import InputError
+from mocapflow.tasks.shared.kinematics import Y_UP_TO_Z_UP
 
 UNITS_M = {"mm": 0.001, "cm": 0.01, "m": 1.0, "dm": 0.1, "in": 0.0254}
-Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 UPS = ("z", "y")
 LABELS = ("ignore", "use")
 

@@ -57,6 +57,10 @@ def rigid_fit(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.nd
     return r, mu_t - r @ mu_s
 
 
+# A Y-up file's axes onto the project's Z up, by a proper rotation about x: (x, y, z) -> (x, -z, y).
+Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+
 class SkeletonError(ValueError):
     """Parent indices that do not form one tree."""
 

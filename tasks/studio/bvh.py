@@ -15,10 +15,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from mocapflow.tasks.shared.body import JOINT_INDEX, JOINT_NAMES, PARENTS, Subject, rest_offsets
-from mocapflow.tasks.shared.kinematics import forward_kinematics
+from mocapflow.tasks.shared.kinematics import Y_UP_TO_Z_UP, forward_kinematics
 from mocapflow.tasks.studio.motion import Motion, lowest_foot_point
 
-Y_UP_TO_Z_UP = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])
 
 # template joint: (BVH joint whose rotation it follows, BVH bone start, BVH bone end) or "inherit"
 def _cmu_map(spine, limbs, wrist: str, finger: str) -> dict:

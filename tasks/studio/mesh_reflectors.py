@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mocapflow.tasks.shared.body import JOINT_NAMES, PARENTS, Primitive, Subject, rest_offsets
+from mocapflow.tasks.shared.kinematics import forward_kinematics
 from mocapflow.tasks.shared.mesh_body import MeshBody
 from mocapflow.tasks.shared.reflectors import TAPE_WIDTH, Placement
 from mocapflow.tasks.studio.mesh_motion import SEGMENTS, rest_alignment
@@ -44,10 +45,8 @@ class MeshPlacement:
 def _rest_positions(subject: Subject) -> np.ndarray:
     """Template joints in the rest T-pose (every joint frame aligned with the world).  # (joint, 3)"""
     offsets = rest_offsets(subject)
-    pos = np.zeros_like(offsets)
-    for j, parent in enumerate(PARENTS):
-        pos[j] = offsets[j] + (pos[parent] if parent >= 0 else 0.0)
-    return pos
+    rest = np.tile(np.eye(3), (1, len(offsets), 1, 1))
+    return forward_kinematics(rest, offsets[None, 0], offsets, PARENTS)[1][0]
 
 
 def _segment(body: MeshBody, subject: Subject, bone: str, tmpl_rest: np.ndarray):

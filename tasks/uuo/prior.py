@@ -22,7 +22,7 @@ from scipy.ndimage import gaussian_filter1d
 from scipy.spatial.transform import Rotation
 
 from mocapflow.tasks.shared.body import JOINT_NAMES
-from mocapflow.tasks.shared.kinematics import rigid_fit
+from mocapflow.tasks.shared.kinematics import rigid_fit, world_rotations
 from mocapflow.tasks.shared.mesh_body import MeshBody, Phenotype, mesh_body, pose_mesh
 
 
@@ -50,20 +50,12 @@ class SimulatedPriorConfig:
 
 
 def local_rotations(world: np.ndarray, parents: np.ndarray) -> np.ndarray:
-    """Each bone's rotation relative to its parent's.  (frame, bone, 3, 3) -> (frame, bone, 3, 3)"""
+    """Each bone's rotation relative to its parent's (the inverse of kinematics.world_rotations).
+    (frame, bone, 3, 3) -> (frame, bone, 3, 3)"""
     local = world.copy()
     has = parents >= 0
     local[:, has] = np.swapaxes(world[:, parents[has]], -1, -2) @ world[:, has]
     return local
-
-
-def world_from_local(local: np.ndarray, parents: np.ndarray) -> np.ndarray:
-    """Inverse of ``local_rotations`` (parents come first)."""
-    world = local.copy()
-    for b, p in enumerate(parents):
-        if p >= 0:
-            world[:, b] = world[:, p] @ local[:, b]
-    return world
 
 
 def degrade(body: MeshBody, rotations: np.ndarray, root: np.ndarray, fps: float, config: SimulatedPriorConfig,
@@ -80,7 +72,7 @@ def degrade(body: MeshBody, rotations: np.ndarray, root: np.ndarray, fps: float,
     local = Rotation.from_rotvec(noise.reshape(-1, 3)).as_matrix().reshape(n, n_bones, 3, 3) @ local
     yaw = Rotation.from_euler("z", rng.uniform(-config.yaw_deg, config.yaw_deg), degrees=True).as_matrix()
     local[:, 0] = yaw @ local[:, 0]  # the root's world orientation, turned by one yaw for the take
-    world = world_from_local(local, body.bone_parents)
+    world = world_rotations(local, body.bone_parents)
     scale = rng.uniform(*config.scale_range)
     direction = rng.standard_normal(3)
     offset = direction / np.linalg.norm(direction) * config.translation_m
