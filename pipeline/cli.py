@@ -293,6 +293,38 @@ def init(folder, force):
     click.echo(f"wrote {path}; check it with `mocapflow run --catalog {path} --dry-run`")
 
 
+@main.group()
+def calibration():
+    """Camera calibrations from other systems."""
+
+
+@calibration.command("import")
+@click.argument("files", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--format", "fmt", required=True, type=click.Choice(["qca", "toml", "opencv"]),
+              help="qca: Qualisys .qca(.txt); toml: anipose/Pose2Sim Calib.toml; opencv: a cv2.FileStorage YAML/XML "
+                   "file of one camera (named by the file)")
+@click.option("--unit", type=click.Choice(["mm", "m"]), default=None,
+              help="length unit of the file's positions/translations [qca: mm; toml: m; opencv: required]")
+@click.option("--up", type=click.Choice(["y", "z"]), default="z", show_default=True,
+              help="the file's up axis (y: turned onto the project's Z up)")
+@click.option("--fps", required=True, type=float, help="the recordings' frame rate (calibration.yaml needs it)")
+@click.option("--out", required=True, type=click.Path(dir_okay=False), help="the calibration.yaml to write")
+@click.option("--force", is_flag=True, help="overwrite an existing --out")
+def import_calibration(files, fmt, unit, up, fps, out, force):
+    """Write the cameras of FILES (one or more, their views merged) as the project's calibration.yaml."""
+    from mocapflow.pipeline.calibration_import import read_calibration, write_calibration
+
+    views: dict = {}
+    for file in files:
+        for name, values in read_calibration(Path(file), fmt, unit=unit, up=up).items():
+            if name in views:
+                raise MocapflowError(f"{file}: camera {name!r} is also in an earlier file; give every camera its "
+                                     "own name")
+            views[name] = values
+    path = write_calibration(Path(out), views, fps, force=force)
+    click.echo(f"wrote {path}: {len(views)} view(s) {', '.join(views)}")
+
+
 @main.command()
 @click.option("--catalog", "catalog_path", default="training/catalog.yaml", show_default=True,
               type=click.Path(dir_okay=False), help="training catalog")

@@ -1,6 +1,7 @@
 """The real data some tests read from ``../shared/data`` beside the checkout, and the ``needs_shared`` marker.
 
-Tests read the CMU BVH clips (``../shared/data/motions``) and the labelled C3D recordings (``c3d``). A test
+Tests read the CMU BVH clips (``../shared/data/motions``), the labelled C3D recordings (``c3d``) and a Qualisys
+camera calibration (``calibration``). A test
 marked ``needs_shared`` is
 skipped, with a message naming what is missing and where it is expected, when that folder is absent; with
 ``MOCAPFLOW_REQUIRE_SHARED=1`` (CI) it fails instead. ``MOCAPFLOW_SHARED_DATA`` points the tests at
@@ -18,8 +19,10 @@ ROOT = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("MOCAPFLOW_SHARED_DATA") or ROOT.parent / "shared" / "data")
 MOTIONS = SHARED / "motions"
 C3D = SHARED / "c3d"
+CALIBRATION = SHARED / "calibration"
 C3D_FILES = ("ezc3d_qualisys_gait_forceplates.c3d", "ktk_kinematics_tennis_serve.c3d", "bts_c3d_sample_gait_with_gaps.c3d",
              "qualisys_duplicate_labels_fragmented.c3d")
+CALIBRATION_FILES = ("pose2sim_demo_Calib.qca.txt",)
 # The clips the tests name; a fuller copy of the folder may hold more, and every clip there is tested.
 CMU_CLIPS = ("cmu_12_01_walk.bvh", "cmu_14_14_jumping_jacks.bvh", "cmu_14_14_jog_in_place_excerpt_f0440-1035.bvh",
              "cmu_14_14_squats_excerpt_f1020-1600.bvh", "cmu_14_14_knee_raise_excerpt_f1590-2270.bvh")
@@ -44,6 +47,9 @@ def missing() -> str | None:
     absent = [name for name in C3D_FILES if not (C3D / name).is_file()]
     if absent:
         return f"C3D recording(s) missing from {C3D}: {', '.join(absent)}; see the README, 'Test data'"
+    absent = [name for name in CALIBRATION_FILES if not (CALIBRATION / name).is_file()]
+    if absent:
+        return f"calibration file(s) missing from {CALIBRATION}: {', '.join(absent)}; see the README, 'Test data'"
     return None
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from shared_data import C3D_FILES, CMU_CLIPS
+from shared_data import C3D_FILES, CALIBRATION_FILES, CMU_CLIPS
 
 PROBE = """\
 import pytest
@@ -58,6 +58,11 @@ def test_a_missing_clip_is_named_and_present_data_runs_the_test(tmp_path):
     (tmp_path / "data" / "c3d").mkdir()
     for name in C3D_FILES:
         (tmp_path / "data" / "c3d" / name).write_text("")
+    proc = run_probe(tmp_path, tmp_path / "data", require=False)  # the C3D files are there, the calibration not yet
+    assert "1 skipped" in proc.stdout and CALIBRATION_FILES[0] in proc.stdout, proc.stdout + proc.stderr
+    (tmp_path / "data" / "calibration").mkdir()
+    for name in CALIBRATION_FILES:
+        (tmp_path / "data" / "calibration" / name).write_text("")
     for require in (False, True):
         proc = run_probe(tmp_path, tmp_path / "data", require)
         assert proc.returncode == 0 and "1 passed" in proc.stdout, proc.stdout + proc.stderr

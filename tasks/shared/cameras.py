@@ -7,6 +7,10 @@ the camera-frame z of the surface (Kinect convention), so a point is ``ray * z /
 
 A raw sequence stores each view's calibration as variables (``fx fy cx cy dist cam_to_world width
 height``); :func:`camera_of` builds the :class:`Camera` from them once, checked (:func:`calibrated_camera`).
+
+Other systems state a pose otherwise: OpenCV, anipose and Pose2Sim as a world-to-camera rotation and translation
+(:func:`pose_from_extrinsics`), Qualisys as a camera position and a rotation of its own camera axes
+(:func:`pose_from_qualisys`); :func:`reframed` turns a pose into another world frame (e.g. Y up onto Z up).
 """
 
 from __future__ import annotations
@@ -18,6 +22,8 @@ from typing import Any
 import cv2
 import numpy as np
 
+# A Qualisys camera's axes in the OpenCV camera's: x right, y up, z backward (the camera looks along -z).
+QUALISYS_CAMERA_AXES = np.diag([1.0, -1.0, -1.0])
 CALIBRATION_VARIABLES = ("fx", "fy", "cx", "cy", "dist", "width", "height", "cam_to_world")
 _UNDISTORT = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-9)
 
@@ -176,3 +182,44 @@ def project(points: np.ndarray, K: np.ndarray, dist, cam_to_world: np.ndarray) -
                                      np.asarray(dist, float))
         uv[ok] = found.reshape(-1, 2)
     return uv, np.where(ok, cam[:, 2], np.nan)
+
+
+def pose_from_extrinsics(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
+    """The 4x4 camera-to-world pose of OpenCV extrinsics: ``rotation`` world-to-camera, a 3x3 matrix or a Rodrigues
+    vector (3,), and ``translation`` world-to-camera (3,), so that ``x_cam = rotation @ x_world + translation``."""
+    rotation = np.asarray(rotation, np.float64)
+    if rotation.shape != (3, 3):
+        rotation = cv2.Rodrigues(rotation.reshape(3, 1))[0]
+    world_to_cam = np.eye(4)
+    world_to_cam[:3, :3], world_to_cam[:3, 3] = rotation, np.asarray(translation, np.float64).reshape(3)
+    return np.linalg.inv(world_to_cam)
+
+
+def extrinsics_of(cam_to_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The OpenCV extrinsics of a pose: world-to-camera Rodrigues vector (3,) and translation (3,); the inverse of
+    :func:`pose_from_extrinsics`."""
+    world_to_cam = np.linalg.inv(np.asarray(cam_to_world, np.float64))
+    return cv2.Rodrigues(world_to_cam[:3, :3])[0].reshape(3), world_to_cam[:3, 3].copy()
+
+
+def pose_from_qualisys(rotation: np.ndarray, position: np.ndarray) -> np.ndarray:
+    """The 4x4 camera-to-world pose of a Qualisys camera (a .qca ``transform``).
+
+    ``rotation`` is the 3x3 matrix of the file's ``r11 .. r33`` laid out as named (``rotation[i - 1, j - 1] = rij``);
+    its rows are the Qualisys camera's axes in the world (x right, y up, z backward: the camera looks along -z,
+    :data:`QUALISYS_CAMERA_AXES`), i.e. its transpose is the camera-to-world rotation of those axes. ``position`` is
+    the camera centre in the world, in the unit wanted (the file's millimetres turned into metres by the caller).
+    """
+    rotation = np.asarray(rotation, np.float64)
+    pose = np.eye(4)
+    pose[:3, :3] = rotation.T @ QUALISYS_CAMERA_AXES
+    pose[:3, 3] = np.asarray(position, np.float64).reshape(3)
+    return pose
+
+
+def reframed(cam_to_world: np.ndarray, world_rotation: np.ndarray) -> np.ndarray:
+    """A camera-to-world pose in a rotated world frame: ``world_rotation`` (3x3) maps the old world's coordinates
+    onto the new one's (e.g. ``kinematics.Y_UP_TO_Z_UP``)."""
+    turn = np.eye(4)
+    turn[:3, :3] = world_rotation
+    return turn @ np.asarray(cam_to_world, np.float64)
