@@ -6,7 +6,7 @@ from mocapflow.pipeline.registry import Lazy, NoParams, TaskSpec, register
 from mocapflow.tasks.deepmocap import flow, markers3d, masks, poses, refine2d, reflectors2d, skeleton, smoothing, training
 from mocapflow.tasks.deepmocap.heatmaps import HeatmapConfig
 from mocapflow.tasks.shared.cameras import CALIBRATION_VARIABLES as CALIBRATION
-from mocapflow.tasks.uuo import prior, segmentation
+from mocapflow.tasks.uuo import prior, segmentation, solve
 
 
 # The `frames` stage: every raw sequence of a dataset synthesized (studio) or imported
@@ -129,13 +129,42 @@ register(TaskSpec(
 
 # UUO (Milef et al. 2024): unlabelled markers anywhere on the body.
 register(TaskSpec(
-    name="rigid_segments", fn=segmentation.rigid_segments, version="1", params=segmentation.SegmentConfig,
+    name="rigid_segments", fn=segmentation.rigid_segments, version="2", params=segmentation.SegmentConfig,
     output="marker_segments", partition="sequence", inputs={"markers": "raw_markers"}, reads={"markers": ("position",)},
+    whole_sequence=True,
     description="group unlabelled markers by the bone they ride: spread of pairwise distances, agglomerative clustering",
 ))
 register(TaskSpec(
-    name="simulated_prior", fn=prior.simulated_prior, version="1", params=prior.SimulatedPriorConfig,
-    output="body_prior", partition="sequence", inputs={"markers": "raw_markers"},
+    name="simulated_prior", fn=prior.simulated_prior, version="2", params=prior.SimulatedPriorConfig,
+    output="body_prior", partition="sequence", inputs={"markers": "raw_markers"}, whole_sequence=True,
     description="the studio's true body degraded like a monocular estimate (rotation errors, yaw, size, position, "
                 "lost frames)",
+))
+register(TaskSpec(
+    name="no_prior", fn=prior.no_prior, version="1", params=prior.NoPriorConfig,
+    output="body_prior", partition="sequence", inputs={"markers": "raw_markers"}, reads={"markers": ("position",)},
+    whole_sequence=True,
+    description="markers only: a neutral body standing in its rest pose as the prior (the paper's marker-only rows)",
+))
+register(TaskSpec(
+    name="solve_hypothesis", fn=solve.solve_hypothesis, version="1", params=solve.HypothesisConfig,
+    output="uuo_body", partition="sequence", whole_sequence=True,
+    inputs={"markers": "raw_markers", "segments": "marker_segments", "prior": "body_prior"},
+    reads={"markers": ("position",)},
+    description="UUO from one root-yaw hypothesis: part matching, chamfer pose fit, marker-vertex correspondence, "
+                "inverse kinematics (§3.4-3.5, stages 2-4)",
+))
+register(TaskSpec(
+    name="best_hypothesis", fn=solve.best_hypothesis, version="1", params=solve.RefineConfig,
+    output="uuo_body", partition="sequence", whole_sequence=True,
+    inputs={"markers": "raw_markers", "yaw0": "uuo_body", "yaw90": "uuo_body", "yaw180": "uuo_body",
+            "yaw270": "uuo_body"},
+    reads={"markers": ("position",)},
+    description="the root-yaw hypothesis of least chamfer (Eq. 3), refined (stage 5)",
+))
+register(TaskSpec(
+    name="single_hypothesis", fn=solve.single_hypothesis, version="1", params=solve.RefineConfig,
+    output="uuo_body", partition="sequence", whole_sequence=True, inputs={"markers": "raw_markers", "yaw0": "uuo_body"},
+    reads={"markers": ("position",)},
+    description="one root-yaw hypothesis, refined (the paper's '- MHT' ablation, Table 3)",
 ))

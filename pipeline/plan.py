@@ -214,7 +214,12 @@ def cache_params(params) -> dict:
     """A stage's params as its cache key sees them: every field but the run-time ones (``registry.runtime_fields``:
     how a task runs, not what it computes), so changing those recomputes nothing."""
     runtime = registry.runtime_fields(type(params))
-    return {f.name: getattr(params, f.name) for f in dataclasses.fields(params) if f.name not in runtime}
+    out = {}
+    for f in dataclasses.fields(params):
+        if f.name not in runtime:
+            value = getattr(params, f.name)
+            out[f.name] = cache_params(value) if dataclasses.is_dataclass(value) else value  # a nested group
+    return out
 
 
 def _weights(catalog, stage) -> dict[str, tuple[str, str]]:

@@ -200,6 +200,12 @@ def coerce(value: Any, hint: Any, where: str) -> Any:
         return tuple(items) if origin is tuple else items
     if hint is Any:
         return value
+    if dataclasses.is_dataclass(hint) and isinstance(hint, type):
+        if isinstance(value, hint):
+            return value
+        if not isinstance(value, Mapping):
+            raise CatalogError(f"{where}: expected a mapping of {hint.__name__} fields, got {value!r}")
+        return _build_dataclass(hint, value, where)
     if hint is float and isinstance(value, (int, float)) and not isinstance(value, bool):
         return float(value)
     if hint is int and isinstance(value, bool):
@@ -207,6 +213,20 @@ def coerce(value: Any, hint: Any, where: str) -> Any:
     if isinstance(hint, type) and isinstance(value, hint):
         return value
     raise CatalogError(f"{where}: expected {_type_name(hint)}, got {type(value).__name__} {value!r}")
+
+
+def _build_dataclass(cls: type, raw: Mapping[str, Any], where: str) -> Any:
+    """A nested settings group (a frozen dataclass field of a config) from a mapping, checked like the config."""
+    fields = {f.name for f in dataclasses.fields(cls)}
+    hints = typing.get_type_hints(cls)
+    for key in raw:
+        if key not in fields:
+            raise CatalogError(f"{where}.{key}: {cls.__name__} has no field {key!r}{did_you_mean(key, fields)}; "
+                               f"its fields are {sorted(fields)}")
+    try:
+        return cls(**{k: coerce(v, hints[k], f"{where}.{k}") for k, v in raw.items()})
+    except (TypeError, ValueError) as exc:
+        raise CatalogError(f"{where}: {exc}") from exc
 
 
 def _type_name(hint: Any) -> str:

@@ -32,3 +32,28 @@ BODY_PRIOR = register_schema(ArtifactSchema(
     description="a rough body per frame from monocular video (UUO §3.3): pose, root and shape, with unknown "
                 "global translation, size and yaw",
 ))
+
+UUO_BODY = register_schema(ArtifactSchema(
+    name="uuo_body",
+    version=1,
+    coords={"frame": VarSpec(("frame",), "int64"), "bone": VarSpec(("bone",), "str"),
+            "joint": VarSpec(("joint",), "str"), "marker": VarSpec(("marker",), "str"),
+            "stage": VarSpec(("stage",), "str", description="matching, pose_fit, ik, refined (§3.4-3.5)")},
+    variables={
+        "bone_rotation": VarSpec(("frame", "bone", "quat"), "float64", "",
+                                 description="each mesh bone's world rotation from its rest orientation, x y z w"),
+        "root": VarSpec(("frame", "xyz"), "float64", "m", description="the root bone's head"),
+        "joints": VarSpec(("frame", "joint", "xyz"), "float32", "m", description="the 20 template joints"),
+        "bone_heads": VarSpec(("frame", "bone", "xyz"), "float32", "m", description="every Anny bone's head"),
+        "stage_joints": VarSpec(("stage", "frame", "joint", "xyz"), "float32", "m",
+                                description="the joints after each solver stage (NaN: not run); Table 4's rows"),
+        "vertex": VarSpec(("marker",), "int64", description="the body vertex of each trajectory, -1 unlabelled"),
+        "part": VarSpec(("marker",), "str", description="the body part of that vertex, empty when unlabelled"),
+        "marker_distance": VarSpec(("marker",), "float64", "m",
+                                   description="mean distance from the trajectory to its vertex (Eq. 6)"),
+    },
+    required_attrs={"phenotype": dict, "chamfer": float, "yaw_deg": float, "parts": list},
+    frame_chunk=64,
+    description="a body solved from unlabelled markers (UUO §3.5): pose, root and shape per take, each marker's "
+                "vertex and part",
+))

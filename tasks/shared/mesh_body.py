@@ -47,6 +47,11 @@ for _side in _SIDES:
     PARTS[f"{_side}_arm"] = tuple(f"{_side}_{limb}" for limb in ("upper_arm", "forearm", "hand"))
     PARTS[f"{_side}_leg"] = tuple(f"{_side}_{limb}" for limb in ("thigh", "shank", "foot"))
 PARTS["body"] = _FINE
+# UUO's shoulder layouts (Milef et al. 2024, Table 5: spine3, collar, shoulder, elbow): the upper arm and forearm
+# with the shoulder girdle's bones, which the fine parts count as torso.
+PART_BONES = {f"{side}_shoulder": (f"clavicle{suffix}", f"shoulder01{suffix}") for side, suffix in _SIDES.items()}
+for _side in _SIDES:
+    PARTS[f"{_side}_shoulder"] = (f"{_side}_upper_arm", f"{_side}_forearm")
 _LIMB_BONES = (("upperarm", "upper_arm"), ("lowerarm", "forearm"), ("wrist", "hand"), ("finger", "hand"),
                ("metacarpal", "hand"), ("upperleg", "thigh"), ("lowerleg", "shank"), ("foot", "foot"), ("toe", "foot"))
 _SKIN_EXCLUDED = ("tongue", "mouth_cavity", "eye_cavity.L", "eye_cavity.R", "eye_back.L", "eye_back.R")
@@ -124,7 +129,8 @@ class MeshBody:
         """Skin faces of a named part (PARTS), by the bone that moves their vertices most.  # (face,) bool"""
         if part not in PARTS:
             raise MeshBodyError(f"unknown body part {part!r}; parts are {', '.join(PARTS)}")
-        bones = np.array([part_of_bone(n) in PARTS[part] for n in self.bone_names])
+        extra = PART_BONES.get(part, ())
+        bones = np.array([part_of_bone(n) in PARTS[part] or n in extra for n in self.bone_names])
         return self.skin & bones[self.vertex_bone[self.faces]].all(axis=1)
 
     def joint_bones(self) -> np.ndarray:

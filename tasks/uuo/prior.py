@@ -9,7 +9,7 @@ single yaw offset). Implementations of the stage ``prior``:
   scaled by one factor and moved by one translation; a few frames lost (tracking failures, held by the
   nearest kept frame and marked invalid); the phenotype off by a little. Its error is reported as MPJPE after
   a rigid registration with scale (the paper's HMR2.0+RR measures 132-150 mm MPJPE on its three datasets);
-- ``no_prior``: markers only (the paper's marker-only rows): an empty prior.
+- ``no_prior``: markers only (the paper's marker-only rows): a neutral body in its rest pose.
 """
 
 from __future__ import annotations
@@ -87,6 +87,28 @@ def degrade(body: MeshBody, rotations: np.ndarray, root: np.ndarray, fps: float,
                      + rng.normal(0, config.phenotype_noise, 6), 0.0, 1.0)
     return {"rotations": world[nearest], "root": prior_root[nearest], "valid": valid, "scale": scale,
             "phenotype": Phenotype(**dict(zip(asdict(body.phenotype), map(float, values))))}
+
+
+@dataclass(frozen=True)
+class NoPriorConfig:
+    phenotype: Phenotype = Phenotype()  # the neutral body's shape (Anny's middle values, an adult)
+
+
+def no_prior(markers: xr.Dataset, config: NoPriorConfig) -> xr.Dataset:
+    """Stage ``prior`` (none): markers only. A neutral body in its rest pose on every frame at the origin; the
+    solver's part matching places and turns it (the paper's marker-only baselines)."""
+    body = mesh_body(config.phenotype)
+    n, n_bones = markers.sizes["frame"], len(body.bone_names)
+    root = np.broadcast_to(body.rest_heads[0], (n, 3)).copy()
+    joints = np.broadcast_to(body.rest_heads[body.joint_bones()], (n, len(JOINT_NAMES), 3)).astype(np.float32)
+    quats = np.broadcast_to(np.array([0.0, 0.0, 0.0, 1.0]), (n, n_bones, 4)).copy()
+    return xr.Dataset(
+        {"bone_rotation": (("frame", "bone", "quat"), quats), "root": (("frame", "xyz"), root),
+         "joints": (("frame", "joint", "xyz"), joints), "valid": (("frame",), np.ones(n, bool))},
+        coords={"frame": markers["frame"].values, "bone": np.array(body.bone_names, dtype=object),
+                "joint": np.array(JOINT_NAMES, dtype=object), "xyz": np.array(["x", "y", "z"], dtype=object),
+                "quat": np.array(["x", "y", "z", "w"], dtype=object)},
+        attrs={"fps": float(markers.attrs.get("fps", 0.0)), "phenotype": asdict(config.phenotype), "source": "none"})
 
 
 def registered_mpjpe(joints: np.ndarray, truth: np.ndarray) -> float:

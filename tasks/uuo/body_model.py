@@ -1,0 +1,127 @@
+"""The solver's body: Anny's rig as a differentiable function of pose and shape, evaluated where it is needed.
+
+UUO fits a parametric body to markers (Milef et al. 2024, §3.5); here the body is Anny (tasks/shared/mesh_body).
+Anny poses all 13,718 vertices per call; the solver needs a few dozen per frame (the vertex each marker sample
+is assigned to) over a whole take, and its gradient. ``SolverBody`` holds the rig in torch tensors and evaluates
+the same skinning as ``mesh_body.pose_mesh`` (tests check it to 1e-9 m) on any subset of vertices:
+
+- forward kinematics in Anny's 'world-orient' form, one vectorized step per depth of the tree:
+  ``M_b = M_parent(b) L_b`` (world rotation from the bone's rest orientation), ``h_b = h_parent +
+  M_parent (r_b - r_parent)`` (bone heads follow their parents; r the rest heads);
+- linear blend skinning: ``v = sum_k w_k (M_k (v_rest - r_k) + h_k)`` over each vertex's nine bone weights;
+- shape from the phenotype through Anny's blend shapes (differentiable), so the rest vertices and heads are
+  functions of six numbers.
+
+A pose is a ``Pose``: local rotations (frame, bone, 3, 3) and the root head (frame, 3).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mocapflow.tasks.shared.kinematics import world_rotations
+from mocapflow.tasks.shared.mesh_body import FACING, PHENOTYPE_NAMES, MeshBody, anny_model
+
+# Bones a marker can tell about: everything but the fingers, toes and face (their rotations stay the prior's).
+_UNSEEN_PREFIXES = ("finger", "toe", "metacarpal", "eye", "jaw", "tongue", "special", "orbicularis", "levator",
+                    "oris", "risorius", "temporalis", "cheek", "nose")
+
+
+@dataclass(frozen=True)
+class Pose:
+    local: np.ndarray  # (frame, bone, 3, 3) each bone's world rotation relative to its parent's (root: world)
+    root: np.ndarray  # (frame, 3) the root bone's head, metres
+
+
+def local_rotations(world: np.ndarray, parents: np.ndarray) -> np.ndarray:
+    """Each bone's rotation relative to its parent's (the inverse of kinematics.world_rotations).
+    (frame, bone, 3, 3) -> (frame, bone, 3, 3)"""
+    local = world.copy()
+    has = parents >= 0
+    local[:, has] = np.swapaxes(world[:, parents[has]], -1, -2) @ world[:, has]
+    return local
+
+
+def world_pose(pose: Pose, parents: np.ndarray) -> np.ndarray:
+    """World rotations of a pose.  -> (frame, bone, 3, 3)"""
+    return world_rotations(pose.local, parents)
+
+
+def torch_rodrigues(rotvec):
+    """Rotation matrices of rotation vectors, differentiable at zero.  (..., 3) -> (..., 3, 3)"""
+    import torch
+
+    theta2 = (rotvec ** 2).sum(-1, keepdim=True)[..., None]  # (..., 1, 1)
+    small = theta2 < 1e-10
+    theta = torch.sqrt(torch.where(small, torch.ones_like(theta2), theta2))
+    a = torch.where(small, 1.0 - theta2 / 6.0, torch.sin(theta) / theta)  # sin θ / θ
+    b = torch.where(small, 0.5 - theta2 / 24.0, (1.0 - torch.cos(theta)) / theta2.clamp_min(1e-10))  # (1 - cos θ) / θ²
+    x, y, z = rotvec.unbind(-1)
+    zero = torch.zeros_like(x)
+    k = torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], -1).reshape(rotvec.shape[:-1] + (3, 3))
+    eye = torch.eye(3, dtype=rotvec.dtype, device=rotvec.device)
+    return eye + a * k + b * (k @ k)  # Rodrigues' formula
+
+
+class SolverBody:
+    """Anny's rig in torch: rest shape from a phenotype, forward kinematics, skinning of chosen vertices.
+
+    Holds arrays only; no IO. ``body`` gives the topology (the same for every phenotype).
+    """
+
+    def __init__(self, body: MeshBody):
+        import torch
+
+        model = anny_model()
+        self.body = body
+        self.parents = body.bone_parents
+        self.n_bones = len(body.bone_names)
+        self.weights = model.vertex_bone_weights.to(torch.float64)  # (vertex, 9)
+        self.indices = model.vertex_bone_indices.long()  # (vertex, 9)
+        depth = np.zeros(self.n_bones, np.int64)
+        for b in range(1, self.n_bones):  # parents come first
+            depth[b] = depth[self.parents[b]] + 1
+        self.levels = [(torch.from_numpy(np.flatnonzero(depth == d)), torch.from_numpy(self.parents[depth == d]))
+                       for d in range(1, depth.max() + 1)]
+        self.seen_bones = np.array([not n.startswith(_UNSEEN_PREFIXES) for n in body.bone_names])
+        self.facing = torch.from_numpy(FACING)
+
+    def rest(self, phenotype):
+        """Rest vertices (vertex, 3) and rest bone heads (bone, 3) in the studio's axes (unlifted) for a phenotype
+        tensor (6,) in PHENOTYPE_NAMES order; differentiable in it."""
+        model = anny_model()
+        kwargs = {name: phenotype[i:i + 1] for i, name in enumerate(PHENOTYPE_NAMES)}
+        out = model(phenotype_kwargs=kwargs)
+        return out["rest_vertices"][0] @ self.facing.T, out["rest_bone_poses"][0, :, :3, 3] @ self.facing.T
+
+    def kinematics(self, local, root, rest_heads):
+        """World rotations and heads.  local (frame, bone, 3, 3), root (frame, 3), rest_heads (bone, 3)
+        -> (frame, bone, 3, 3), (frame, bone, 3)"""
+        import torch
+
+        rots = local.clone()
+        heads = torch.zeros(local.shape[:2] + (3,), dtype=local.dtype)
+        heads[:, 0] = root
+        for bones, up in self.levels:  # one vectorized step per depth
+            rots[:, bones] = rots[:, up] @ local[:, bones]
+            offset = rest_heads[bones] - rest_heads[up]  # (k, 3)
+            heads[:, bones] = heads[:, up] + (rots[:, up] @ offset[..., None])[..., 0]
+        return rots, heads
+
+    def skin(self, rots, heads, rest_vertices, rest_heads, vertices):
+        """Posed positions of chosen vertices.  rots (frame, bone, 3, 3), heads (frame, bone, 3), vertices: index
+        tensor (n,) the same every frame, or (frame, n) per frame -> (frame, n, 3)"""
+        import torch
+
+        w, idx = self.weights[vertices], self.indices[vertices]  # (..., n, 9)
+        local = rest_vertices[vertices][..., None, :] - rest_heads[idx]  # (..., n, 9, 3)
+        if vertices.dim() == 1:
+            m = rots[:, idx]  # (frame, n, 9, 3, 3)
+            h = heads[:, idx]  # (frame, n, 9, 3)
+        else:
+            f = torch.arange(rots.shape[0])[:, None, None]
+            m, h = rots[f, idx], heads[f, idx]
+        moved = (m @ local[..., None])[..., 0] + h  # (frame, n, 9, 3)
+        return (w[..., None] * moved).sum(-2)  # Eq. of linear blend skinning, as Anny's kernel

@@ -1,0 +1,120 @@
+"""What UUO's solver stages optimize (Milef et al. 2024, §3.5): a body over a whole take, relative to a reference.
+
+A ``BodyFit`` is a body over a take: each bone's local rotation and the root's head per frame, one phenotype.
+``Fit`` makes one differentiable around a start: per frame a rotation vector for every bone a marker can tell
+about (applied after the start's local rotation), the take's extra rotation of the root (the yaw offset b of
+§3.5.1), the root's head per frame and the phenotype (Anny's shape, for SMPL's beta). Its regularizers are the
+paper's, against an anchor body (the prior, or the previous stage's result in the refinement): E_Theta (Eq. 5),
+the mean squared rotation of each bone from the anchor's (2 (1 - cos angle) per bone, the squared angle for
+small ones, over its three parameters), zero on frames the prior lost, and E_beta (Eq. 2), the mean squared
+departure from the anchor's phenotype. ``minimize`` runs L-BFGS with strong
+Wolfe line search (§3.6) on any energy of it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mocapflow.tasks.uuo.body_model import SolverBody, torch_rodrigues
+
+
+@dataclass(frozen=True)
+class BodyFit:
+    local: np.ndarray  # (frame, bone, 3, 3) local rotations (root: world)
+    root: np.ndarray  # (frame, 3) root head, metres
+    phenotype: np.ndarray  # (6,) Anny's phenotype, mesh_body.PHENOTYPE_NAMES order
+
+
+class Fit:
+    """A BodyFit as torch parameters around a reference (see the module's text)."""
+
+    def __init__(self, body: SolverBody, start: BodyFit, anchor: BodyFit, valid: np.ndarray):
+        import torch
+
+        self.body = body
+        self.seen = torch.from_numpy(np.flatnonzero(body.seen_bones))
+        n_frames = start.root.shape[0]
+        self.start_local = torch.from_numpy(start.local)
+        self.anchor_local = torch.from_numpy(anchor.local[:, body.seen_bones])
+        self.anchor_phenotype = torch.from_numpy(np.asarray(anchor.phenotype, np.float64))
+        self.valid = torch.from_numpy(valid.astype(np.float64))  # (frame,) weight of E_Theta
+        self.delta = torch.zeros((n_frames, len(self.seen), 3), dtype=torch.float64, requires_grad=True)
+        self.turn = torch.zeros(3, dtype=torch.float64, requires_grad=True)
+        self.root = torch.tensor(start.root, dtype=torch.float64, requires_grad=True)
+        self.phenotype = torch.tensor(np.asarray(start.phenotype, np.float64), requires_grad=True)
+
+    def parameters(self, shape: bool = True) -> list:
+        return [self.delta, self.turn, self.root] + ([self.phenotype] if shape else [])
+
+    def local(self):
+        """Local rotations (frame, bone, 3, 3)."""
+        local = self.start_local.clone()
+        local[:, self.seen] = self.start_local[:, self.seen] @ torch_rodrigues(self.delta)
+        local[:, 0] = torch_rodrigues(self.turn) @ local[:, 0]  # §3.5.1: the yaw offset b, one for the take
+        return local
+
+    def pose(self):
+        """Local rotations, world rotations (frame, bone, 3, 3), heads (frame, bone, 3), rest vertices, rest heads."""
+        local = self.local()
+        rest_vertices, rest_heads = self.body.rest(self.phenotype.clamp(0.0, 1.0))
+        rots, heads = self.body.kinematics(local, self.root, rest_heads)
+        return local, rots, heads, rest_vertices, rest_heads
+
+    def pose_prior(self, local):
+        """E_Theta, Eq. (5): each bone's squared rotation from the anchor, per parameter, over valid frames."""
+        relative = self.anchor_local.transpose(-1, -2) @ local[:, self.seen]  # (frame, seen bone, 3, 3)
+        angle2 = 2.0 * (1.0 - (relative.diagonal(dim1=-2, dim2=-1).sum(-1) - 1.0) / 2.0)  # 2 (1 - cos a) ~ a^2
+        per_frame = angle2.mean(1) / 3.0
+        return (per_frame * self.valid).sum() / self.valid.sum().clamp_min(1.0)
+
+    def shape_prior(self):
+        return ((self.phenotype - self.anchor_phenotype) ** 2).mean()  # E_beta, Eq. (2)
+
+    def result(self) -> BodyFit:
+        import torch
+
+        with torch.no_grad():
+            return BodyFit(self.local().numpy(), self.root.detach().numpy().copy(),
+                           self.phenotype.detach().clamp(0.0, 1.0).numpy().copy())
+
+
+def minimize(parameters: list, energy, iterations: int) -> float:
+    """L-BFGS with strong Wolfe line search (§3.6) on ``energy()``; the last energy."""
+    import torch
+
+    opt = torch.optim.LBFGS(parameters, lr=1.0, max_iter=iterations, history_size=20,
+                            line_search_fn="strong_wolfe", tolerance_grad=1e-9, tolerance_change=1e-12)
+
+    def closure():
+        opt.zero_grad()
+        value = energy()
+        value.backward()
+        return value
+
+    return float(opt.step(closure).detach())
+
+
+def posed_vertices(body: SolverBody, fit: BodyFit, vertices: np.ndarray, chunk: int = 64) -> np.ndarray:
+    """Skinned positions of chosen vertices over the take.  -> (frame, n, 3)"""
+    import torch
+
+    with torch.no_grad():
+        rest_vertices, rest_heads = body.rest(torch.from_numpy(np.asarray(fit.phenotype, np.float64)))
+        out = []
+        index = torch.from_numpy(np.asarray(vertices, np.int64))
+        for s in range(0, fit.root.shape[0], chunk):
+            rots, heads = body.kinematics(torch.from_numpy(fit.local[s:s + chunk]),
+                                          torch.from_numpy(fit.root[s:s + chunk]), rest_heads)
+            out.append(body.skin(rots, heads, rest_vertices, rest_heads, index).numpy())
+    return np.concatenate(out)
+
+
+def posed_heads(body: SolverBody, fit: BodyFit) -> np.ndarray:
+    """Every bone's head over the take.  -> (frame, bone, 3)"""
+    import torch
+
+    with torch.no_grad():
+        _, rest_heads = body.rest(torch.from_numpy(np.asarray(fit.phenotype, np.float64)))
+        return body.kinematics(torch.from_numpy(fit.local), torch.from_numpy(fit.root), rest_heads)[1].numpy()

@@ -1,0 +1,67 @@
+"""Stages 4 and 5 of UUO's mocap solver: inverse kinematics on the found correspondences and its refinement
+(Milef et al. 2024, §3.5.4-3.5.5).
+
+With each labelled trajectory tied to one skin vertex, the body is fitted to the markers (Eq. 7): every marker's
+distance to its vertex should be the marker offset delta = 9.5 mm (Eq. 8), while E_Theta and E_beta hold it to an
+anchor: the prior in stage 4, stage 4's result in the refinement (stage 5, after stage 3 is run again). A small
+optional term on the second differences of the bone heads (``smooth_weight``, off in the paper) damps jitter.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mocapflow.tasks.uuo.body_model import SolverBody
+from mocapflow.tasks.uuo.fitting import BodyFit, Fit, minimize
+
+
+class IKError(ValueError):
+    """Settings or correspondences inverse kinematics cannot use."""
+
+
+@dataclass(frozen=True)
+class IKConfig:
+    marker_weight: float = 1.0  # lambda_M (§3.6)
+    pose_weight: float = 0.1  # lambda_Theta
+    shape_weight: float = 1.0  # lambda_beta
+    smooth_weight: float = 0.0  # on the bone heads' second differences, m^2 (not in the paper)
+    offset_m: float = 0.0095  # delta of Eq. (8)
+    iterations: int = 100
+
+    def __post_init__(self):
+        if min(self.marker_weight, self.pose_weight, self.shape_weight, self.smooth_weight, self.offset_m) < 0 \
+                or self.iterations < 1:
+            raise IKError(f"inverse kinematics settings out of range: weights, offset >= 0, iterations >= 1 ({self})")
+
+
+def inverse_kinematics(body: SolverBody, markers: np.ndarray, vertex: np.ndarray, start: BodyFit, anchor: BodyFit,
+                       valid: np.ndarray, config: IKConfig) -> BodyFit:
+    """markers (frame, marker, 3); vertex (marker,) each trajectory's vertex, -1 for none."""
+    import torch
+
+    labelled = np.flatnonzero(vertex >= 0)
+    if not len(labelled):
+        raise IKError("no marker has a vertex to fit (every trajectory unlabelled); check the markers and the prior")
+    m = markers[:, labelled]
+    seen = torch.from_numpy(np.isfinite(m).all(-1).astype(np.float64))  # (frame, labelled)
+    target = torch.from_numpy(np.nan_to_num(m))
+    index = torch.from_numpy(vertex[labelled])
+    fit = Fit(body, start, anchor, valid)
+    bones = torch.from_numpy(np.flatnonzero(body.seen_bones))
+
+    def energy():
+        local, rots, heads, rest_vertices, rest_heads = fit.pose()
+        v = body.skin(rots, heads, rest_vertices, rest_heads, index)  # (frame, labelled, 3)
+        d = torch.sqrt(((v - target) ** 2).sum(-1) + 1e-12)
+        e_m = ((d - config.offset_m) ** 2 * seen).sum() / seen.sum().clamp_min(1.0)  # Eq. (8)
+        value = config.marker_weight * e_m + config.pose_weight * fit.pose_prior(local) \
+            + config.shape_weight * fit.shape_prior()  # Eq. (7)
+        if config.smooth_weight and heads.shape[0] > 2:
+            h = heads[:, bones]
+            value = value + config.smooth_weight * ((h[2:] - 2 * h[1:-1] + h[:-2]) ** 2).sum(-1).mean()
+        return value
+
+    minimize(fit.parameters(), energy, config.iterations)
+    return fit.result()

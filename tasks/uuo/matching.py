@@ -1,0 +1,189 @@
+"""Step 2 of UUO's marker-part matching: where on the body are the markers? (Milef et al. 2024, §3.4.2)
+
+The K rigid groups of the segmentation (segmentation.py) are read as a kinematic chain of K parts. Every
+connected chain of K parts of the body (the fine parts of mesh_body.PARTS joined as the skeleton joins them) is a
+candidate; the prior body's skin vertices of that chain are fitted to all the markers of the take: one rotation
+about the vertical for the take (started at the hypothesis' yaw) and one translation per frame (started from the
+median marker, §3.4), by iterated closest points; the candidate with the least one-directional chamfer
+distance from the markers to its vertices (Eq. 1) wins. Chains of 15 parts or more are the whole body.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mocapflow.tasks.shared.mesh_body import MeshBody, part_of_bone
+
+_SIDE_CHAINS = (("torso", "{s}_upper_arm"), ("{s}_upper_arm", "{s}_forearm"), ("{s}_forearm", "{s}_hand"),
+                ("hips", "{s}_thigh"), ("{s}_thigh", "{s}_shank"), ("{s}_shank", "{s}_foot"))
+PART_EDGES = (("hips", "torso"), ("torso", "head")) + tuple(
+    (a.format(s=side), b.format(s=side)) for side in ("left", "right") for a, b in _SIDE_CHAINS)
+PART_NAMES = tuple(sorted({p for edge in PART_EDGES for p in edge}))
+
+
+class MatchingError(ValueError):
+    """Markers or settings part matching cannot use."""
+
+
+@dataclass(frozen=True)
+class MatchConfig:
+    min_group: int = 1  # groups with fewer markers do not count toward the chain's length K
+    frames: int = 60  # frames the search fits (evenly spaced over the take)
+    vertices: int = 1000  # skin vertices per candidate chain in the search (evenly spaced)
+    iterations: int = 20  # closest-point iterations per candidate
+    whole_body_from: int = 7  # chains this long or longer are the whole body
+    grow_until_m: float = 0.03  # the chain grows while its RMS chamfer distance exceeds this ...
+    grow_gain: float = 0.05  # ... and a neighbouring part cuts the chamfer by this share
+
+    def __post_init__(self):
+        if self.min_group < 1 or self.frames < 2 or self.vertices < 10 or self.iterations < 1:
+            raise MatchingError(f"matching needs min_group >= 1, frames >= 2, vertices >= 10 and iterations >= 1, "
+                                f"got {self.min_group}, {self.frames}, {self.vertices}, {self.iterations}")
+
+
+@dataclass(frozen=True)
+class Match:
+    parts: tuple[str, ...]  # the chosen chain
+    yaw: float  # radians, the take's rotation about z that brings the prior onto the markers
+    translation: np.ndarray  # (frame, 3) after the rotation
+    chamfer: float  # Eq. (1), m^2
+    candidates: int
+
+
+def chain_length(segments: np.ndarray, min_group: int) -> int:
+    """K: the rigid groups with at least ``min_group`` markers (at least 1).  segments (marker,) -> int"""
+    sizes = np.bincount(segments[segments >= 0]) if len(segments) else np.zeros(0, int)
+    return int(max(1, (sizes >= min_group).sum()))
+
+
+def connected_chains(k: int) -> list[tuple[str, ...]]:
+    """Every connected set of ``k`` parts of the body graph (PART_EDGES), each sorted; all parts when k >= 15."""
+    if k >= len(PART_NAMES):
+        return [PART_NAMES]
+    near = {p: set() for p in PART_NAMES}
+    for a, b in PART_EDGES:
+        near[a].add(b)
+        near[b].add(a)
+    level = {frozenset([p]) for p in PART_NAMES}
+    for _ in range(k - 1):
+        level = {s | {n} for s in level for p in s for n in near[p] if n not in s}
+    return sorted(tuple(sorted(s)) for s in level)
+
+
+def part_vertices(body: MeshBody, parts: tuple[str, ...]) -> np.ndarray:
+    """Skin vertices whose strongest bone belongs to one of ``parts``.  -> (n,) vertex indices"""
+    inside = np.array([part_of_bone(n) in parts for n in body.bone_names])[body.vertex_bone]
+    skin = np.zeros(len(body.vertices), bool)
+    skin[body.faces[body.skin].ravel()] = True
+    return np.flatnonzero(inside & skin)
+
+
+def yaw_matrix(theta: float) -> np.ndarray:
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def closest(points: np.ndarray, vertices: np.ndarray, chunk: int = 16) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's closest vertex in its frame and the squared distance, a few frames at a time.
+    points (frame, n, 3), vertices (frame, vertex, 3) -> (frame, n) int, (frame, n)"""
+    index, d2 = np.empty(points.shape[:2], np.int64), np.empty(points.shape[:2])
+    for s in range(0, len(points), chunk):
+        d = ((points[s:s + chunk, :, None] - vertices[s:s + chunk, None]) ** 2).sum(-1)  # (chunk, n, vertex)
+        index[s:s + chunk] = d.argmin(-1)
+        d2[s:s + chunk] = np.take_along_axis(d, index[s:s + chunk, :, None], -1)[..., 0]
+    return index, d2
+
+
+def fit_yaw(markers: np.ndarray, vertices: np.ndarray, yaw: float, iterations: int,
+            keep: float = 0.9) -> tuple[float, np.ndarray, float]:
+    """Iterated closest points with one yaw for the take and a translation per frame.
+
+    The first half of the iterations moves the body by one translation for the whole take (well posed even
+    where a frame has few markers); the second half frees each frame's. Each step uses the ``keep`` share of
+    samples closest to the body (ghosts and markers off the candidate stay out).
+    markers (frame, marker, 3) NaN where unseen; vertices (frame, vertex, 3) the prior's posed candidate skin
+    -> (yaw, translation (frame, 3), chamfer Eq. (1) in m^2 over all samples)
+    """
+    seen = np.isfinite(markers).all(-1)  # (frame, marker)
+    m = np.where(seen[..., None], markers, 0.0)
+    rot = yaw_matrix(yaw)
+    t = np.nanmedian(markers[seen], axis=0) - np.median(vertices.reshape(-1, 3), axis=0) @ rot.T  # §3.4: medians
+    t = np.broadcast_to(t, (len(markers), 3)).copy()
+    t[:, 2] += _best_lift(m, seen, vertices @ rot.T + t[:, None])  # ICP slides slowly along a standing body
+    for it in range(iterations + 1):
+        nearest, d2 = closest(m, vertices @ rot.T + t[:, None])
+        chamfer = float(d2[seen].mean())  # Eq. (1)
+        if it == iterations:
+            break
+        use = seen & (d2 <= np.quantile(d2[seen], keep))
+        v = np.take_along_axis(vertices, nearest[..., None], 1)  # (frame, marker, 3) matched prior vertices
+        per_frame = it >= iterations // 2
+        count = np.maximum(use.sum(1), 1)[:, None] if per_frame else max(use.sum(), 1)
+        centre_m = np.where(use[..., None], m, 0.0).sum(1) / count if per_frame else m[use].mean(0)
+        centre_v = np.where(use[..., None], v, 0.0).sum(1) / count if per_frame else v[use].mean(0)
+        p = (v - (centre_v[:, None] if per_frame else centre_v))[use]
+        q = (m - (centre_m[:, None] if per_frame else centre_m))[use]
+        yaw = float(np.arctan2((p[:, 0] * q[:, 1] - p[:, 1] * q[:, 0]).sum(), (p[:, :2] * q[:, :2]).sum()))
+        rot = yaw_matrix(yaw)
+        step = centre_m - centre_v @ rot.T
+        t = np.where(use.any(1)[:, None], step, t) if per_frame else np.broadcast_to(step, t.shape).copy()
+    return yaw, t, chamfer
+
+
+def _best_lift(m: np.ndarray, seen: np.ndarray, placed: np.ndarray, reach: float = 0.6, step: float = 0.03) -> float:
+    """The vertical shift (of a grid) with the least chamfer on a few frames."""
+    frames = np.linspace(0, len(m) - 1, min(len(m), 8)).astype(int)
+    lifts = np.arange(-reach, reach + step / 2, step)
+    up = np.array([0.0, 0.0, 1.0])
+    scores = []
+    for lift in lifts:
+        _, d2 = closest(m[frames], placed[frames] + lift * up)
+        scores.append(np.median(d2[seen[frames]]) if seen[frames].any() else 0.0)
+    return float(lifts[int(np.argmin(scores))])
+
+
+def match_parts(markers: np.ndarray, segments: np.ndarray, body: MeshBody, prior_vertices, yaw: float,
+                config: MatchConfig) -> Match:
+    """The chain of parts the markers sit on and the prior's placement, for one yaw hypothesis.
+
+    markers (frame, marker, 3); segments (marker,); prior_vertices(frames, vertex_indices) -> (frame', n, 3) the
+    prior's posed skin at chosen frames and vertices (a callable, so only what the search needs is skinned).
+    """
+    n_frames = markers.shape[0]
+    seen_frames = np.flatnonzero(np.isfinite(markers).all(-1).any(1))
+    if not len(seen_frames):
+        raise MatchingError("no frame of the take has a marker; part matching needs markers")
+    frames = seen_frames[np.linspace(0, len(seen_frames) - 1, min(config.frames, len(seen_frames))).astype(int)]
+    k = chain_length(segments, config.min_group)
+    chains = connected_chains(len(PART_NAMES) if k >= config.whole_body_from else k)
+
+    def trial(parts: tuple[str, ...], start_yaw: float, iterations: int):
+        index = part_vertices(body, parts)
+        index = index[np.linspace(0, len(index) - 1, min(config.vertices, len(index))).astype(int)]
+        return fit_yaw(markers[frames], prior_vertices(frames, index), start_yaw, iterations)
+
+    parts, fit = min(((p, trial(p, yaw, config.iterations)) for p in chains), key=lambda c: c[1][2])
+    tried = len(chains)
+    while len(parts) < len(PART_NAMES) and fit[2] > config.grow_until_m ** 2:  # grow while a neighbour pays
+        grown = [tuple(sorted(parts + (n,))) for n in _neighbours(parts)]
+        tried += len(grown)
+        best_parts, best_fit = min(((p, trial(p, fit[0], config.iterations // 2 + 1)) for p in grown),
+                                   key=lambda c: c[1][2])
+        if best_fit[2] > (1.0 - config.grow_gain) * fit[2]:
+            break
+        parts, fit = best_parts, best_fit
+    yaw_fit, _, chamfer = fit
+    index = part_vertices(body, parts)
+    index = index[np.linspace(0, len(index) - 1, min(2 * config.vertices, len(index))).astype(int)]
+    _, t, _ = fit_yaw(markers, prior_vertices(np.arange(n_frames), index), yaw_fit, config.iterations)
+    have = np.isfinite(markers).all(-1).any(1)
+    for axis in range(3):  # frames without a marker take the translation of their neighbours
+        t[:, axis] = np.interp(np.arange(n_frames), np.flatnonzero(have), t[have, axis])
+    return Match(parts, yaw_fit, t, chamfer, tried)
+
+
+def _neighbours(parts: tuple[str, ...]) -> list[str]:
+    out = {b for a, b in PART_EDGES if a in parts} | {a for a, b in PART_EDGES if b in parts}
+    return sorted(out - set(parts))

@@ -1,0 +1,69 @@
+"""Stage 2 of UUO's mocap solver: pose fitting by chamfer distance (Milef et al. 2024, §3.5.2).
+
+The body (pose, the take's yaw offset b, root translation, shape) is fitted to the unlabelled markers: every
+marker sample is pulled toward its closest skin vertex of the matched chain (the one-directional chamfer of
+Eq. 1), while E_Theta (Eq. 5) and E_beta (Eq. 2) hold the body near the prior (Eq. 4). The closest vertices
+are found again between rounds of L-BFGS (iterated closest points), on an evenly spaced subset of the
+chain's skin; samples farther than ``outlier_m`` from every vertex (ghosts, a marker off the chain) are left
+out of the round, the bound shrinking over the rounds. The marker's centre sits ``offset_m`` above the
+skin, so the distance term is (|v - m| - offset)^2 rather than |v - m|^2.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mocapflow.tasks.uuo.body_model import SolverBody
+from mocapflow.tasks.uuo.fitting import BodyFit, Fit, minimize, posed_vertices
+from mocapflow.tasks.uuo.matching import closest
+
+
+class PoseFitError(ValueError):
+    """Settings pose fitting cannot use."""
+
+
+@dataclass(frozen=True)
+class PoseFitConfig:
+    chamfer_weight: float = 10.0  # lambda_3D (§3.6)
+    pose_weight: float = 1.0  # lambda_Theta
+    shape_weight: float = 1.0  # lambda_beta
+    offset_m: float = 0.0095  # the marker's centre above the skin
+    vertices: int = 3000  # skin vertices of the chain the closest points are searched among
+    rounds: int = 5  # closest-point assignments
+    iterations: int = 20  # L-BFGS iterations per round
+    outlier_m: tuple[float, float] = (0.3, 0.06)  # farthest sample kept, first round to last
+
+    def __post_init__(self):
+        if min(self.chamfer_weight, self.pose_weight, self.shape_weight, self.offset_m) < 0 or self.rounds < 1 \
+                or self.iterations < 1 or self.vertices < 10 or not 0 < self.outlier_m[1] <= self.outlier_m[0]:
+            raise PoseFitError(f"pose fitting settings out of range: weights and offset >= 0, rounds, iterations "
+                               f">= 1, vertices >= 10, 0 < outlier_m[1] <= outlier_m[0] (got {self})")
+
+
+def fit_pose(body: SolverBody, markers: np.ndarray, start: BodyFit, anchor: BodyFit, valid: np.ndarray,
+             chain: np.ndarray, config: PoseFitConfig) -> BodyFit:
+    """Stage 2 for one hypothesis.  markers (frame, marker, 3) NaN where unseen; chain (n,) candidate vertices."""
+    import torch
+
+    index = chain[np.linspace(0, len(chain) - 1, min(config.vertices, len(chain))).astype(int)]
+    seen = np.isfinite(markers).all(-1)
+    target = torch.from_numpy(np.where(seen[..., None], markers, 0.0))
+    fit = Fit(body, start, anchor, valid)
+    for r, bound in enumerate(np.geomspace(*config.outlier_m, config.rounds)):
+        current = fit.result() if r else start
+        nearest, d2 = closest(np.where(seen[..., None], markers, 0.0), posed_vertices(body, current, index))
+        keep = torch.from_numpy((seen & (d2 < bound ** 2)).astype(np.float64))  # (frame, marker)
+        assigned = torch.from_numpy(index[nearest])  # (frame, marker) vertex of each sample
+
+        def energy(keep=keep, assigned=assigned):
+            local, rots, heads, rest_vertices, rest_heads = fit.pose()
+            v = body.skin(rots, heads, rest_vertices, rest_heads, assigned)  # (frame, marker, 3)
+            d = torch.sqrt(((v - target) ** 2).sum(-1) + 1e-12)
+            chamfer = ((d - config.offset_m) ** 2 * keep).sum() / keep.sum().clamp_min(1.0)  # Eq. (1), offset
+            return (config.chamfer_weight * chamfer + config.pose_weight * fit.pose_prior(local)
+                    + config.shape_weight * fit.shape_prior())  # Eq. (4)
+
+        minimize(fit.parameters(), energy, config.iterations)
+    return fit.result()

@@ -1,0 +1,178 @@
+"""UUO's mocap solver as pipeline stages (Milef et al. 2024, §3.4-3.5), one per root-yaw hypothesis and one to
+choose and refine.
+
+``solve_hypothesis`` (a stage per hypothesis y of B = {0, 90, 180, 270} degrees, so each runs as its own task):
+part matching (§3.4.2) from the yaw y, pose fitting (stage 2), marker-vertex correspondence (stage 3) and
+inverse kinematics (stage 4); its result carries the one-directional chamfer distance of Eq. (3).
+``best_hypothesis`` keeps the hypothesis of least chamfer (Eq. 3, stage 1) and refines it (stage 5: stages 3
+and 4 again, anchored to stage 4's result); ``single_hypothesis`` is the same on one hypothesis (the paper's
+"- MHT" ablation). Every result is a body over the take (bone rotations, root, phenotype, joints) and a vertex
+and body part per marker trajectory.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import xarray as xr
+from scipy.spatial.transform import Rotation
+
+from mocapflow.tasks.shared.body import JOINT_NAMES
+from mocapflow.tasks.shared.cache import BoundedCache
+from mocapflow.tasks.shared.mesh_body import PHENOTYPE_NAMES, MeshBody, Phenotype, mesh_body, part_of_bone
+from mocapflow.tasks.uuo.body_model import SolverBody, local_rotations
+from mocapflow.tasks.uuo.correspondence import CorrespondenceConfig, correspond
+from mocapflow.tasks.uuo.fitting import BodyFit, posed_heads, posed_vertices
+from mocapflow.tasks.uuo.ik import IKConfig, inverse_kinematics
+from mocapflow.tasks.uuo.matching import MatchConfig, closest, match_parts, part_vertices, yaw_matrix
+from mocapflow.tasks.uuo.pose_fit import PoseFitConfig, fit_pose
+
+STAGES = ("matching", "pose_fit", "ik", "refined")
+_BODIES: BoundedCache[tuple, tuple] = BoundedCache(2)
+
+
+class SolveError(ValueError):
+    """Inputs the solver cannot use."""
+
+
+@dataclass(frozen=True)
+class HypothesisConfig:
+    yaw_deg: float = 0.0  # the hypothesis' starting root yaw (§3.5.1)
+    matching: MatchConfig = field(default_factory=MatchConfig)
+    pose_fit: PoseFitConfig = field(default_factory=PoseFitConfig)
+    correspondence: CorrespondenceConfig = field(default_factory=CorrespondenceConfig)
+    ik: IKConfig = field(default_factory=IKConfig)
+    outlier_m: float = 0.1  # a sample's distance is capped here in the chamfer of Eq. (3), so ghosts do not choose
+
+
+@dataclass(frozen=True)
+class RefineConfig:
+    correspondence: CorrespondenceConfig = field(default_factory=CorrespondenceConfig)
+    ik: IKConfig = field(default_factory=IKConfig)
+
+
+def _bodies(phenotype: dict) -> tuple[MeshBody, SolverBody]:
+    key = tuple(sorted(phenotype.items()))
+    return _BODIES.get_or_make(key, lambda: (lambda b: (b, SolverBody(b)))(mesh_body(Phenotype(**phenotype))))
+
+
+def _marker_positions(markers: xr.Dataset) -> np.ndarray:
+    positions = markers["position"].transpose("frame", "marker", "xyz").values.astype(np.float64)
+    if not np.isfinite(positions).all(-1).any():
+        raise SolveError("the take has no marker sample at all; UUO needs markers (check the marker file)")
+    return positions
+
+
+def body_fit(ds: xr.Dataset) -> BodyFit:
+    """The BodyFit of a body_prior or uuo_body dataset."""
+    n_frames, n_bones = ds.sizes["frame"], ds.sizes["bone"]
+    world = Rotation.from_quat(ds["bone_rotation"].values.reshape(-1, 4)).as_matrix().reshape(n_frames, n_bones, 3, 3)
+    parents = _bodies(ds.attrs["phenotype"])[0].bone_parents
+    return BodyFit(local_rotations(world, parents), ds["root"].values.astype(np.float64),
+                   np.array([ds.attrs["phenotype"][k] for k in PHENOTYPE_NAMES]))
+
+
+def _subset(fit: BodyFit, frames: np.ndarray) -> BodyFit:
+    return BodyFit(fit.local[frames], fit.root[frames], fit.phenotype)
+
+
+def chamfer(body: SolverBody, markers: np.ndarray, fit: BodyFit, chain: np.ndarray, cap_m: float,
+            vertices: int = 3000) -> float:
+    """Eq. (1)/(3): mean squared distance from each marker sample to the closest chain vertex, capped at cap_m."""
+    index = chain[np.linspace(0, len(chain) - 1, min(vertices, len(chain))).astype(int)]
+    seen = np.isfinite(markers).all(-1)
+    _, d2 = closest(np.where(seen[..., None], markers, 0.0), posed_vertices(body, fit, index))
+    return float(np.minimum(d2[seen], cap_m ** 2).mean())
+
+
+def solve_hypothesis(markers: xr.Dataset, segments: xr.Dataset, prior: xr.Dataset,
+                     config: HypothesisConfig) -> xr.Dataset:
+    """Stage ``uuo_yaw*``: part matching and solver stages 2-4 from one root-yaw hypothesis."""
+    m = _marker_positions(markers)
+    if prior.sizes["frame"] != m.shape[0]:
+        raise SolveError(f"the prior has {prior.sizes['frame']} frames and the markers {m.shape[0]}; a prior must "
+                         "give a body for every frame of the take")
+    body, solver = _bodies(prior.attrs["phenotype"])
+    prior_fit = body_fit(prior)
+    valid = prior["valid"].values.astype(bool)
+    match = match_parts(m, segments["segment"].values, body,
+                        lambda frames, index: posed_vertices(solver, _subset(prior_fit, frames), index),
+                        np.radians(config.yaw_deg), config.matching)
+    rot = yaw_matrix(match.yaw)
+    local = prior_fit.local.copy()
+    local[:, 0] = rot @ local[:, 0]
+    start = BodyFit(local, prior_fit.root @ rot.T + match.translation, prior_fit.phenotype)  # §3.4: placed prior
+    chain = part_vertices(body, match.parts)
+    fitted = fit_pose(solver, m, start, start, valid, chain, config.pose_fit)  # stage 2
+    vertex, distance = correspond(solver, m, fitted, chain, config.correspondence)  # stage 3
+    solved = inverse_kinematics(solver, m, vertex, fitted, start, valid, config.ik) if (vertex >= 0).any() \
+        else fitted  # stage 4 (a hypothesis that labels nothing keeps stage 2's body and loses on Eq. 3)
+    score = chamfer(solver, m, solved, chain, config.outlier_m)
+    stage_joints = {name: posed_heads(solver, f)[:, body.joint_bones()]
+                    for name, f in (("matching", start), ("pose_fit", fitted), ("ik", solved))}
+    return body_dataset(markers, body, solver, solved, vertex, distance, stage_joints,
+                        {"yaw_deg": float(config.yaw_deg), "chamfer": score, "parts": list(match.parts),
+                         "matched_yaw_deg": float(np.degrees(match.yaw)), "candidates": match.candidates})
+
+
+def _refine(markers: xr.Dataset, hypotheses: list[xr.Dataset], config: RefineConfig) -> xr.Dataset:
+    scores = [h.attrs["chamfer"] for h in hypotheses]
+    best = hypotheses[int(np.argmin(scores))]  # Eq. (3)
+    m = _marker_positions(markers)
+    body, solver = _bodies(best.attrs["phenotype"])
+    solved = body_fit(best)
+    chain = part_vertices(body, tuple(best.attrs["parts"]))
+    valid = np.ones(m.shape[0], bool)
+    vertex, distance = correspond(solver, m, solved, chain, config.correspondence)  # stage 5: stage 3 again ...
+    if not (vertex >= 0).any():
+        raise SolveError("no marker trajectory lies near the best hypothesis' body (every one unlabelled); check "
+                         "that the markers and the prior show the same take")
+    refined = inverse_kinematics(solver, m, vertex, solved, solved, valid, config.ik)  # ... and 4, anchored to 4
+    stage_joints = {name: best["stage_joints"].sel(stage=name).values for name in ("matching", "pose_fit", "ik")}
+    stage_joints["refined"] = posed_heads(solver, refined)[:, body.joint_bones()]
+    return body_dataset(markers, body, solver, refined, vertex, distance, stage_joints,
+                        {**best.attrs, "hypothesis_chamfer": [float(s) for s in scores],
+                         "hypotheses_deg": [float(h.attrs["yaw_deg"]) for h in hypotheses]})
+
+
+def best_hypothesis(markers: xr.Dataset, yaw0: xr.Dataset, yaw90: xr.Dataset, yaw180: xr.Dataset,
+                    yaw270: xr.Dataset, config: RefineConfig) -> xr.Dataset:
+    """Stage ``uuo_solve``: the hypothesis of least chamfer (Eq. 3) of four, refined (stage 5)."""
+    return _refine(markers, [yaw0, yaw90, yaw180, yaw270], config)
+
+
+def single_hypothesis(markers: xr.Dataset, yaw0: xr.Dataset, config: RefineConfig) -> xr.Dataset:
+    """Stage ``uuo_single``: one hypothesis, refined (the paper's "- MHT" ablation, Table 3)."""
+    return _refine(markers, [yaw0], config)
+
+
+def body_dataset(markers: xr.Dataset, body: MeshBody, solver: SolverBody, fit: BodyFit, vertex: np.ndarray,
+                 distance: np.ndarray, stage_joints: dict[str, np.ndarray], attrs: dict) -> xr.Dataset:
+    """A uuo_body dataset: the body over the take, each stage's joints, each trajectory's vertex and part."""
+    from mocapflow.tasks.shared.kinematics import world_rotations
+
+    n_frames = fit.root.shape[0]
+    joint_bones = body.joint_bones()
+    heads = posed_heads(solver, fit)
+    world = world_rotations(fit.local, body.bone_parents)
+    quats = Rotation.from_matrix(world.reshape(-1, 3, 3)).as_quat().reshape(n_frames, -1, 4)
+    joints = np.full((len(STAGES), n_frames, len(JOINT_NAMES), 3), np.nan, np.float32)  # NaN: a stage not run
+    for name, values in stage_joints.items():
+        joints[STAGES.index(name)] = values
+    part = np.array([part_of_bone(body.bone_names[body.vertex_bone[v]]) if v >= 0 else "" for v in vertex],
+                    dtype=object)
+    phenotype = dict(zip(PHENOTYPE_NAMES, map(float, fit.phenotype)))
+    return xr.Dataset(
+        {"bone_rotation": (("frame", "bone", "quat"), quats), "root": (("frame", "xyz"), fit.root),
+         "joints": (("frame", "joint", "xyz"), heads[:, joint_bones].astype(np.float32)),
+         "bone_heads": (("frame", "bone", "xyz"), heads.astype(np.float32)),
+         "stage_joints": (("stage", "frame", "joint", "xyz"), joints),
+         "vertex": (("marker",), vertex.astype(np.int64)), "part": (("marker",), part),
+         "marker_distance": (("marker",), distance.astype(np.float64))},
+        coords={"frame": markers["frame"].values, "bone": np.array(body.bone_names, dtype=object),
+                "joint": np.array(JOINT_NAMES, dtype=object), "marker": markers["marker"].values,
+                "xyz": np.array(["x", "y", "z"], dtype=object), "quat": np.array(["x", "y", "z", "w"], dtype=object),
+                "stage": np.array(STAGES, dtype=object)},
+        attrs={**attrs, "phenotype": phenotype, "fps": float(markers.attrs.get("fps", 0.0))})
+
