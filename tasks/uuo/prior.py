@@ -24,6 +24,7 @@ from scipy.spatial.transform import Rotation
 from mocapflow.tasks.shared.body import JOINT_NAMES
 from mocapflow.tasks.shared.kinematics import rigid_fit, world_rotations
 from mocapflow.tasks.shared.mesh_body import MeshBody, Phenotype, mesh_body, pose_mesh
+from mocapflow.tasks.uuo.body_model import local_rotations
 
 
 class PriorError(ValueError):
@@ -47,15 +48,6 @@ class SimulatedPriorConfig:
             raise PriorError(f"simulated prior settings out of range: rotation_deg {self.rotation_deg} >= 0, "
                              f"correlation_s {self.correlation_s} > 0, 0 < scale_range {self.scale_range}, "
                              f"lost {self.lost} in [0, 1)")
-
-
-def local_rotations(world: np.ndarray, parents: np.ndarray) -> np.ndarray:
-    """Each bone's rotation relative to its parent's (the inverse of kinematics.world_rotations).
-    (frame, bone, 3, 3) -> (frame, bone, 3, 3)"""
-    local = world.copy()
-    has = parents >= 0
-    local[:, has] = np.swapaxes(world[:, parents[has]], -1, -2) @ world[:, has]
-    return local
 
 
 def degrade(body: MeshBody, rotations: np.ndarray, root: np.ndarray, fps: float, config: SimulatedPriorConfig,
