@@ -42,9 +42,17 @@ def evaluate(catalog, plan: Plan, store: Store) -> dict:
     stages_3d = {(kind, schema): stage_writing(catalog, schema)
                  for kind, schema in (("fused", "markers3d"), ("smoothed", "smoothed_markers"))}
     stage_poses = stage_writing(catalog, "poses")
-    if "flow" not in catalog.stages and stage_2d is None and stage_poses is None:
-        raise PlanError("the catalog has no `flow` or reflectors2d stage to evaluate; add one (see catalog.yaml)")
+    uuo_stages = [s.name for s in catalog.stages.values() if s.spec.output == "uuo_body"
+                  and "uuo_body" in s.spec.inputs.values()]
+    if "flow" not in catalog.stages and stage_2d is None and stage_poses is None and not uuo_stages:
+        raise PlanError("the catalog has no `flow`, reflectors2d or UUO stage to evaluate; add one (see catalog.yaml)")
     result: dict = {"sequences": {}}
+    if uuo_stages:
+        from mocapflow.pipeline.evaluate_uuo import evaluate_uuo
+
+        result["uuo"] = evaluate_uuo(catalog, plan, store, uuo_stages, result["sequences"])
+    if "flow" not in catalog.stages and stage_2d is None and stage_poses is None:
+        return result
     raws = {}
     for seq in plan.sequences:
         raw = plan.open(store, "frames", seq.id)
@@ -189,6 +197,10 @@ def headline(result: dict) -> dict:
         p = result["poses"]
         out.update({"pck3d_20cm": p["pck_20cm"], "pck3d_5cm": p["pck_5cm"], "mae3d_cm": p["mae_cm"],
                     "rmse3d_cm": p["rmse_cm"], "poses_solved": p["solved"]})
+    if "uuo" in result:
+        from mocapflow.pipeline.evaluate_uuo import uuo_headline
+
+        out.update(uuo_headline(result["uuo"]))
     return out
 
 
@@ -209,6 +221,10 @@ def table(result: dict) -> str:
         lines += ([""] if lines else []) + _markers_table(result)
     if "poses" in result:
         lines += ([""] if lines else []) + poses_table(result["poses"])
+    if "uuo" in result:
+        from mocapflow.pipeline.evaluate_uuo import uuo_table
+
+        lines += ([""] if lines else []) + uuo_table(result["uuo"])
     return "\n".join(lines)
 
 

@@ -23,7 +23,7 @@ class CorrespondenceError(ValueError):
 @dataclass(frozen=True)
 class CorrespondenceConfig:
     offset_m: float = 0.0095
-    reject_m: float = 0.03  # mean distance beyond the offset above which a trajectory stays unlabelled
+    reject_m: float = 0.1  # mean distance beyond the offset above which a trajectory stays unlabelled
     min_frames: int = 5  # trajectories seen in fewer frames stay unlabelled
 
     def __post_init__(self):

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mocapflow.tasks.shared.kinematics import rigid_fit
 from mocapflow.tasks.shared.mesh_body import MeshBody, part_of_bone
 
 _SIDE_CHAINS = (("torso", "{s}_upper_arm"), ("{s}_upper_arm", "{s}_forearm"), ("{s}_forearm", "{s}_hand"),
@@ -36,6 +37,9 @@ class MatchConfig:
     whole_body_from: int = 7  # chains this long or longer are the whole body
     grow_until_m: float = 0.03  # the chain grows while its RMS chamfer distance exceeds this ...
     grow_gain: float = 0.05  # ... and a neighbouring part cuts the chamfer by this share
+    rigid_min_markers: int = 6  # a frame with this many samples on the chain gets its own rotation
+    keep: float = 0.9  # each closest-point step places the body by this share of the samples closest to it ...
+    keep_rotation: float = 0.9  # ... and turns it by this share (lower: only the parts the prior has right)
 
     def __post_init__(self):
         if self.min_group < 1 or self.frames < 2 or self.vertices < 10 or self.iterations < 1:
@@ -47,6 +51,7 @@ class MatchConfig:
 class Match:
     parts: tuple[str, ...]  # the chosen chain
     yaw: float  # radians, the take's rotation about z that brings the prior onto the markers
+    rotation: np.ndarray  # (frame, 3, 3) each frame's rotation of the prior (the yaw, refined per frame)
     translation: np.ndarray  # (frame, 3) after the rotation
     chamfer: float  # Eq. (1), m^2
     candidates: int
@@ -96,13 +101,14 @@ def closest(points: np.ndarray, vertices: np.ndarray, chunk: int = 16) -> tuple[
     return index, d2
 
 
-def fit_yaw(markers: np.ndarray, vertices: np.ndarray, yaw: float, iterations: int,
-            keep: float = 0.9) -> tuple[float, np.ndarray, float]:
+def fit_yaw(markers: np.ndarray, vertices: np.ndarray, yaw: float, iterations: int, keep: float = 0.9,
+            keep_rotation: float = 0.9) -> tuple[float, np.ndarray, float]:
     """Iterated closest points with one yaw for the take and a translation per frame.
 
     The first half of the iterations moves the body by one translation for the whole take (well posed even
-    where a frame has few markers); the second half frees each frame's. Each step uses the ``keep`` share of
-    samples closest to the body (ghosts and markers off the candidate stay out).
+    where a frame has few markers); the second half frees each frame's. Each step moves the body by the ``keep``
+    share of samples closest to it (ghosts and markers off the candidate stay out) and turns it by the
+    ``keep_rotation`` share (the limbs the prior has wrong would turn it).
     markers (frame, marker, 3) NaN where unseen; vertices (frame, vertex, 3) the prior's posed candidate skin
     -> (yaw, translation (frame, 3), chamfer Eq. (1) in m^2 over all samples)
     """
@@ -118,18 +124,31 @@ def fit_yaw(markers: np.ndarray, vertices: np.ndarray, yaw: float, iterations: i
         if it == iterations:
             break
         use = seen & (d2 <= np.quantile(d2[seen], keep))
+        turn = seen & (d2 <= np.quantile(d2[seen], keep_rotation))
         v = np.take_along_axis(vertices, nearest[..., None], 1)  # (frame, marker, 3) matched prior vertices
         per_frame = it >= iterations // 2
-        count = np.maximum(use.sum(1), 1)[:, None] if per_frame else max(use.sum(), 1)
-        centre_m = np.where(use[..., None], m, 0.0).sum(1) / count if per_frame else m[use].mean(0)
-        centre_v = np.where(use[..., None], v, 0.0).sum(1) / count if per_frame else v[use].mean(0)
-        p = (v - (centre_v[:, None] if per_frame else centre_v))[use]
-        q = (m - (centre_m[:, None] if per_frame else centre_m))[use]
-        yaw = float(np.arctan2((p[:, 0] * q[:, 1] - p[:, 1] * q[:, 0]).sum(), (p[:, :2] * q[:, :2]).sum()))
+        yaw = _yaw_step(m, v, turn, per_frame)
         rot = yaw_matrix(yaw)
-        step = centre_m - centre_v @ rot.T
-        t = np.where(use.any(1)[:, None], step, t) if per_frame else np.broadcast_to(step, t.shape).copy()
+        if per_frame:
+            count = np.maximum(use.sum(1), 1)[:, None]
+            step = (np.where(use[..., None], m, 0.0).sum(1) - np.where(use[..., None], v, 0.0).sum(1) @ rot.T) / count
+            t = np.where(use.any(1)[:, None], step, t)
+        else:
+            t = np.broadcast_to(m[use].mean(0) - v[use].mean(0) @ rot.T, t.shape).copy()
     return yaw, t, chamfer
+
+
+def _yaw_step(m: np.ndarray, v: np.ndarray, use: np.ndarray, per_frame: bool) -> float:
+    """The yaw best turning matched prior vertices onto their markers, each centred per frame or over the take.
+    m, v (frame, marker, 3), use (frame, marker) -> radians"""
+    if per_frame:
+        count = np.maximum(use.sum(1), 1)[:, None, None]
+        p = v - np.where(use[..., None], v, 0.0).sum(1, keepdims=True) / count
+        q = m - np.where(use[..., None], m, 0.0).sum(1, keepdims=True) / count
+        p, q = p[use], q[use]
+    else:
+        p, q = v[use] - v[use].mean(0), m[use] - m[use].mean(0)
+    return float(np.arctan2((p[:, 0] * q[:, 1] - p[:, 1] * q[:, 0]).sum(), (p[:, :2] * q[:, :2]).sum()))
 
 
 def _best_lift(m: np.ndarray, seen: np.ndarray, placed: np.ndarray, reach: float = 0.6, step: float = 0.03) -> float:
@@ -162,7 +181,8 @@ def match_parts(markers: np.ndarray, segments: np.ndarray, body: MeshBody, prior
     def trial(parts: tuple[str, ...], start_yaw: float, iterations: int):
         index = part_vertices(body, parts)
         index = index[np.linspace(0, len(index) - 1, min(config.vertices, len(index))).astype(int)]
-        return fit_yaw(markers[frames], prior_vertices(frames, index), start_yaw, iterations)
+        return fit_yaw(markers[frames], prior_vertices(frames, index), start_yaw, iterations, config.keep,
+                       config.keep_rotation)
 
     parts, fit = min(((p, trial(p, yaw, config.iterations)) for p in chains), key=lambda c: c[1][2])
     tried = len(chains)
@@ -177,11 +197,40 @@ def match_parts(markers: np.ndarray, segments: np.ndarray, body: MeshBody, prior
     yaw_fit, _, chamfer = fit
     index = part_vertices(body, parts)
     index = index[np.linspace(0, len(index) - 1, min(2 * config.vertices, len(index))).astype(int)]
-    _, t, _ = fit_yaw(markers, prior_vertices(np.arange(n_frames), index), yaw_fit, config.iterations)
+    _, t, _ = fit_yaw(markers, prior_vertices(np.arange(n_frames), index), yaw_fit, config.iterations, config.keep,
+                      config.keep_rotation)
     have = np.isfinite(markers).all(-1).any(1)
     for axis in range(3):  # frames without a marker take the translation of their neighbours
         t[:, axis] = np.interp(np.arange(n_frames), np.flatnonzero(have), t[have, axis])
-    return Match(parts, yaw_fit, t, chamfer, tried)
+    rotation, t = fit_rigid(markers, prior_vertices(np.arange(n_frames), index), yaw_matrix(yaw_fit), t,
+                            config.iterations // 2 + 1, config.rigid_min_markers, config.keep,
+                            config.keep_rotation)
+    return Match(parts, yaw_fit, rotation, t, chamfer, tried)
+
+
+def fit_rigid(markers: np.ndarray, vertices: np.ndarray, rot: np.ndarray, t: np.ndarray, iterations: int,
+              min_markers: int, keep: float = 0.9, keep_rotation: float = 0.9) -> tuple[np.ndarray, np.ndarray]:
+    """Each frame's own rotation and translation by iterated closest points (Kabsch), from the take's; frames
+    with fewer than ``min_markers`` usable samples keep the take's rotation. The monocular prior's root turns
+    and drifts a little over a take; this registers every frame (RR, per frame).
+    markers (frame, marker, 3), vertices (frame, vertex, 3), rot (3, 3), t (frame, 3) -> (frame, 3, 3), (frame, 3)"""
+    seen = np.isfinite(markers).all(-1)
+    m = np.where(seen[..., None], markers, 0.0)
+    rots = np.broadcast_to(rot, (len(markers), 3, 3)).copy()
+    t = t.copy()
+    for _ in range(iterations):
+        placed = np.einsum("fij,fvj->fvi", rots, vertices) + t[:, None]
+        nearest, d2 = closest(m, placed)
+        v = np.take_along_axis(vertices, nearest[..., None], 1)
+        for f in range(len(markers)):
+            if not seen[f].any():
+                continue
+            use = seen[f] & (d2[f] <= np.quantile(d2[f][seen[f]], keep))
+            turn = seen[f] & (d2[f] <= np.quantile(d2[f][seen[f]], keep_rotation))
+            if turn.sum() >= min_markers:
+                rots[f] = rigid_fit(v[f, turn], m[f, turn])[0]
+            t[f] = m[f, use].mean(0) - rots[f] @ v[f, use].mean(0)
+    return rots, t
 
 
 def _neighbours(parts: tuple[str, ...]) -> list[str]:

@@ -17,7 +17,7 @@ import numpy as np
 
 from mocapflow.tasks.uuo.body_model import SolverBody
 from mocapflow.tasks.uuo.fitting import BodyFit, Fit, minimize, posed_vertices
-from mocapflow.tasks.uuo.matching import closest
+from mocapflow.tasks.uuo.matching import closest, part_vertices
 
 
 class PoseFitError(ValueError):
@@ -34,6 +34,8 @@ class PoseFitConfig:
     rounds: int = 5  # closest-point assignments
     iterations: int = 20  # L-BFGS iterations per round
     outlier_m: tuple[float, float] = (0.3, 0.06)  # farthest sample kept, first round to last
+    core_rounds: int = 2  # first rounds on the trunk alone (torso, hips, head), from the trunk outward
+    core_outlier_m: float = 0.1  # farthest sample kept in those rounds
 
     def __post_init__(self):
         if min(self.chamfer_weight, self.pose_weight, self.shape_weight, self.offset_m) < 0 or self.rounds < 1 \
@@ -48,13 +50,19 @@ def fit_pose(body: SolverBody, markers: np.ndarray, start: BodyFit, anchor: Body
     import torch
 
     index = chain[np.linspace(0, len(chain) - 1, min(config.vertices, len(chain))).astype(int)]
+    core = np.isin(index, part_vertices(body.body, ("torso", "hips", "head")))
     seen = np.isfinite(markers).all(-1)
     target = torch.from_numpy(np.where(seen[..., None], markers, 0.0))
     fit = Fit(body, start, anchor, valid)
-    for r, bound in enumerate(np.geomspace(*config.outlier_m, config.rounds)):
+    trunk = [config.core_outlier_m] * (config.core_rounds if core.sum() >= 10 else 0)
+    bounds = trunk + list(np.geomspace(*config.outlier_m, config.rounds))
+    for r, bound in enumerate(bounds):
         current = fit.result() if r else start
         nearest, d2 = closest(np.where(seen[..., None], markers, 0.0), posed_vertices(body, current, index))
-        keep = torch.from_numpy((seen & (d2 < bound ** 2)).astype(np.float64))  # (frame, marker)
+        keep = seen & (d2 < bound ** 2)
+        if r < len(trunk):  # the trunk first: samples whose closest vertex is on it, within the trunk's bound
+            keep &= core[nearest]
+        keep = torch.from_numpy(keep.astype(np.float64))  # (frame, marker)
         assigned = torch.from_numpy(index[nearest])  # (frame, marker) vertex of each sample
 
         def energy(keep=keep, assigned=assigned):

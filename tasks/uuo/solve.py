@@ -25,7 +25,7 @@ from mocapflow.tasks.uuo.body_model import SolverBody, local_rotations
 from mocapflow.tasks.uuo.correspondence import CorrespondenceConfig, correspond
 from mocapflow.tasks.uuo.fitting import BodyFit, posed_heads, posed_vertices
 from mocapflow.tasks.uuo.ik import IKConfig, inverse_kinematics
-from mocapflow.tasks.uuo.matching import MatchConfig, closest, match_parts, part_vertices, yaw_matrix
+from mocapflow.tasks.uuo.matching import MatchConfig, closest, match_parts, part_vertices
 from mocapflow.tasks.uuo.pose_fit import PoseFitConfig, fit_pose
 
 STAGES = ("matching", "pose_fit", "ik", "refined")
@@ -99,10 +99,10 @@ def solve_hypothesis(markers: xr.Dataset, segments: xr.Dataset, prior: xr.Datase
     match = match_parts(m, segments["segment"].values, body,
                         lambda frames, index: posed_vertices(solver, _subset(prior_fit, frames), index),
                         np.radians(config.yaw_deg), config.matching)
-    rot = yaw_matrix(match.yaw)
     local = prior_fit.local.copy()
-    local[:, 0] = rot @ local[:, 0]
-    start = BodyFit(local, prior_fit.root @ rot.T + match.translation, prior_fit.phenotype)  # §3.4: placed prior
+    local[:, 0] = match.rotation @ local[:, 0]
+    start = BodyFit(local, np.einsum("fij,fj->fi", match.rotation, prior_fit.root) + match.translation,
+                    prior_fit.phenotype)  # §3.4: the prior placed on the markers
     chain = part_vertices(body, match.parts)
     fitted = fit_pose(solver, m, start, start, valid, chain, config.pose_fit)  # stage 2
     vertex, distance = correspond(solver, m, fitted, chain, config.correspondence)  # stage 3

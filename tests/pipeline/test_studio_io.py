@@ -152,7 +152,7 @@ datasets:
     markers: {{count: 30, dropout: 0.02, ghosts: 2}}
     sequences:
       walk: {{motion: {shared}/motions/cmu_12_01_walk.bvh, seed: 8}}
-      arm: {{motion: side_reaches, seed: 9, markers: {{count: 12, part: right_arm, dropout: 0.0, ghosts: 0}}}}
+      arm: {{motion: elbow_flexion, seed: 9, markers: {{count: 12, part: right_arm, dropout: 0.0, ghosts: 0}}}}
 stages:
   markers: {{task: ingest_markers, dataset: uuo}}
   segments: {{task: rigid_segments, inputs: [markers]}}

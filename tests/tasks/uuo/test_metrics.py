@@ -1,0 +1,29 @@
+"""UUO's accuracy measures on hand-computed cases."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mocapflow.tasks.uuo import metrics
+
+
+def test_mpjpe_and_mpjve_match_hand_computed_values():
+    truth = np.zeros((3, 2, 3))
+    joints = truth.copy()
+    joints[:, 0, 0] = [0.01, 0.02, 0.04]  # one joint off along x by 1, 2 and 4 cm
+    assert metrics.mpjpe(joints, truth) == pytest.approx((0.01 + 0.02 + 0.04) / 6)
+    assert metrics.mpjve(joints, truth) == pytest.approx((0.01 + 0.02) / 4)  # velocities 1 and 2 cm/frame, one joint
+    assert np.isnan(metrics.mpjve(joints[:1], truth[:1]))
+    assert metrics.v2v(joints, truth) == metrics.mpjpe(joints, truth)
+
+
+def test_surface_distance_is_exact_on_a_square():
+    vertices = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    points = np.array([[0.3, 0.6, 0.01], [0.5, 0.5, -0.2], [2.0, 0.5, 0.0], [0.2, 0.1, 0.0]])
+    d = metrics.surface_distance(points, vertices, faces, metrics.incident_faces(faces, 4), neighbours=2)
+    np.testing.assert_allclose(d, [0.01, 0.2, 1.0, 0.0], atol=1e-12)
+    markers = np.broadcast_to(points[:2], (3, 2, 3)).copy()
+    markers[1, 0] = np.nan  # an unseen sample is left out
+    assert metrics.m2s(markers, np.broadcast_to(vertices, (3, 4, 3)), faces) == pytest.approx((0.01 * 2 + 0.2 * 3) / 5)
