@@ -90,15 +90,19 @@ def yaw_matrix(theta: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def closest(points: np.ndarray, vertices: np.ndarray, chunk: int = 16) -> tuple[np.ndarray, np.ndarray]:
+def closest(points: np.ndarray, vertices: np.ndarray, chunk: int = 32) -> tuple[np.ndarray, np.ndarray]:
     """Each point's closest vertex in its frame and the squared distance, a few frames at a time.
     points (frame, n, 3), vertices (frame, vertex, 3) -> (frame, n) int, (frame, n)"""
-    index, d2 = np.empty(points.shape[:2], np.int64), np.empty(points.shape[:2])
+    import torch
+
+    index = np.empty(points.shape[:2], np.int64)
     for s in range(0, len(points), chunk):
-        d = ((points[s:s + chunk, :, None] - vertices[s:s + chunk, None]) ** 2).sum(-1)  # (chunk, n, vertex)
-        index[s:s + chunk] = d.argmin(-1)
-        d2[s:s + chunk] = np.take_along_axis(d, index[s:s + chunk, :, None], -1)[..., 0]
-    return index, d2
+        d = torch.cdist(torch.from_numpy(np.ascontiguousarray(points[s:s + chunk], np.float64)),
+                        torch.from_numpy(np.ascontiguousarray(vertices[s:s + chunk], np.float64)),
+                        compute_mode="use_mm_for_euclid_dist")  # (chunk, n, vertex); float64: ties aside, exact
+        index[s:s + chunk] = d.argmin(-1).numpy()
+    nearest = np.take_along_axis(vertices, index[..., None], 1)  # (frame, n, 3)
+    return index, ((points - nearest) ** 2).sum(-1)
 
 
 def fit_yaw(markers: np.ndarray, vertices: np.ndarray, yaw: float, iterations: int, keep: float = 0.9,
