@@ -30,13 +30,13 @@ class MatchingError(ValueError):
 
 @dataclass(frozen=True)
 class MatchConfig:
-    min_group: int = 1  # groups with fewer markers do not count toward the chain's length K
+    min_group: int = 2  # groups with fewer markers do not count toward the chain's length K
     frames: int = 60  # frames the search fits (evenly spaced over the take)
     vertices: int = 1000  # skin vertices per candidate chain in the search (evenly spaced)
     iterations: int = 20  # closest-point iterations per candidate
     whole_body_from: int = 7  # chains this long or longer are the whole body
-    grow_until_m: float = 0.03  # the chain grows while its RMS chamfer distance exceeds this ...
-    grow_gain: float = 0.05  # ... and a neighbouring part cuts the chamfer by this share
+    grow_until_m: float = 0.045  # the chain grows while its RMS chamfer distance exceeds this ...
+    grow_gain: float = 0.1  # ... and a neighbouring part cuts the chamfer by this share
     rigid_min_markers: int = 6  # a frame with this many samples on the chain gets its own rotation
     keep: float = 0.9  # each closest-point step places the body by this share of the samples closest to it ...
     keep_rotation: float = 0.9  # ... and turns it by this share (lower: only the parts the prior has right)
