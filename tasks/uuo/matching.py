@@ -36,7 +36,7 @@ class MatchConfig:
     iterations: int = 20  # closest-point iterations per candidate
     whole_body_from: int = 7  # chains this long or longer are the whole body
     grow_until_m: float = 0.045  # the chain grows while its RMS chamfer distance exceeds this ...
-    grow_gain: float = 0.1  # ... and a neighbouring part cuts the chamfer by this share
+    grow_gain: float = 0.01  # ... and a neighbouring part cuts the chamfer by this share
     rigid_min_markers: int = 6  # a frame with this many samples on the chain gets its own rotation
     keep: float = 0.9  # each closest-point step places the body by this share of the samples closest to it ...
     keep_rotation: float = 0.9  # ... and turns it by this share (lower: only the parts the prior has right)
