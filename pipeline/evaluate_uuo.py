@@ -29,23 +29,33 @@ def _layout(markers) -> str:
     return f"body{count}" if part == "body" else part
 
 
-def score_take(markers, solved) -> dict:
-    """Every figure of one take (mm, shares)."""
-    truth = markers["gt_joints"].values.astype(np.float64)
-    joints = solved["joints"].values.astype(np.float64)
-    names = [str(j) for j in solved["joint"].values]
+def take_truth(markers) -> dict:
+    """What every stage of one take is scored against: joints, the true mesh, the real markers, their parts."""
     true_body, true_vertices = _mesh(markers.attrs["phenotype"], markers["gt_bone_rotations"].values,
                                      markers["gt_root"].values)
-    _, vertices = _mesh(solved.attrs["phenotype"], solved["bone_rotation"].values, solved["root"].values)
-    source = markers["gt_source"].values
-    real = source >= 0
+    real = markers["gt_source"].values >= 0
     positions = markers["position"].transpose("frame", "marker", "xyz").values.astype(np.float64)[:, real]
-    out = {"layout": _layout(markers), "frames": len(truth),
+    parts = np.array([part_of_bone(true_body.bone_names[true_body.vertex_bone[true_body.faces[f, 0]]])
+                      if f >= 0 else "" for f in markers["gt_face"].values])
+    return {"joints": markers["gt_joints"].values.astype(np.float64), "body": true_body, "vertices": true_vertices,
+            "real": real, "positions": positions, "parts": parts, "layout": _layout(markers),
+            "part": str(markers.attrs.get("marker_part", "body")),
+            "m2s_truth_mm": 1000 * metrics.m2s(positions, true_vertices, true_body.faces)}
+
+
+def score_take(truth_of: dict, solved) -> dict:
+    """Every figure of one take (mm, shares) against its ``take_truth``."""
+    truth = truth_of["joints"]
+    joints = solved["joints"].values.astype(np.float64)
+    names = [str(j) for j in solved["joint"].values]
+    _, vertices = _mesh(solved.attrs["phenotype"], solved["bone_rotation"].values, solved["root"].values)
+    real = truth_of["real"]
+    out = {"layout": truth_of["layout"], "frames": len(truth),
            "mpjpe_mm": 1000 * metrics.mpjpe(joints, truth), "mpjve_mm": 1000 * metrics.mpjve(joints, truth),
-           "v2v_mm": 1000 * metrics.v2v(vertices, true_vertices),
-           "m2s_mm": 1000 * metrics.m2s(positions, vertices, true_body.faces),
-           "m2s_truth_mm": 1000 * metrics.m2s(positions, true_vertices, true_body.faces)}
-    part = str(markers.attrs.get("marker_part", "body"))
+           "v2v_mm": 1000 * metrics.v2v(vertices, truth_of["vertices"]),
+           "m2s_mm": 1000 * metrics.m2s(truth_of["positions"], vertices, truth_of["body"].faces),
+           "m2s_truth_mm": truth_of["m2s_truth_mm"]}
+    part = truth_of["part"]
     if part in metrics.PART_JOINTS:
         chosen = [names.index(j) for j in metrics.PART_JOINTS[part]]
         out["part_mpjpe_mm"] = 1000 * metrics.mpjpe(joints[:, chosen], truth[:, chosen])
@@ -53,8 +63,7 @@ def score_take(markers, solved) -> dict:
                               for s in solved["stage"].values
                               if np.isfinite(solved["stage_joints"].sel(stage=s).values).all()}
     vertex = solved["vertex"].values
-    true_part = np.array([part_of_bone(true_body.bone_names[true_body.vertex_bone[true_body.faces[f, 0]]])
-                          if f >= 0 else "" for f in markers["gt_face"].values])
+    true_part = truth_of["parts"]
     labelled = real & (vertex >= 0)
     out["labelled"] = float(labelled[real].mean()) if real.any() else float("nan")
     out["part_right"] = float((solved["part"].values[labelled] == true_part[labelled]).mean()) if labelled.any() \
@@ -70,14 +79,17 @@ def evaluate_uuo(catalog, plan, store, stages: list[str], per_sequence: dict) ->
     markers_stage = stage_writing(catalog, "raw_markers")
     if markers_stage is None:
         raise PlanError("the catalog solves UUO bodies but has no stage writing raw_markers to score them against")
+    truths = {}
+    for seq in plan.sequences:
+        markers = plan.open(store, markers_stage, seq.id).load()
+        if "gt_joints" not in markers:
+            raise PlanError(f"sequence {seq.id!r} has no ground truth (gt_joints); evaluate UUO on studio takes")
+        truths[seq.id] = take_truth(markers)
     out = {}
     for stage in stages:
         takes = {}
         for seq in plan.sequences:
-            markers = plan.open(store, markers_stage, seq.id).load()
-            if "gt_joints" not in markers:
-                raise PlanError(f"sequence {seq.id!r} has no ground truth (gt_joints); evaluate UUO on studio takes")
-            takes[seq.id] = score_take(markers, plan.open(store, stage, seq.id).load())
+            takes[seq.id] = score_take(truths[seq.id], plan.open(store, stage, seq.id).load())
             per_sequence.setdefault(seq.id, {})[f"uuo_{stage}"] = takes[seq.id]
         out[stage] = {"overall": _mean(list(takes.values())), "takes": takes,
                       "layouts": {layout: _mean([t for t in takes.values() if t["layout"] == layout])

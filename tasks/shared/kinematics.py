@@ -94,6 +94,16 @@ def world_rotations(local_rot: np.ndarray, parents) -> np.ndarray:
     return rot
 
 
+def local_rotations(world: np.ndarray, parents) -> np.ndarray:
+    """Each joint's rotation relative to its parent's (the inverse of world_rotations).
+    (batch, joint, 3, 3) world rotations, (joint,) parents -> (batch, joint, 3, 3)"""
+    parents = np.asarray(parents)
+    local = world.copy()
+    has = parents >= 0
+    local[:, has] = np.swapaxes(world[:, parents[has]], -1, -2) @ world[:, has]
+    return local
+
+
 def forward_kinematics(local_rot: np.ndarray, root_pos: np.ndarray, offsets: np.ndarray,
                        parents) -> tuple[np.ndarray, np.ndarray]:
     """World rotations and positions of every joint.

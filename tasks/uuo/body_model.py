@@ -11,42 +11,17 @@ the same skinning as ``mesh_body.pose_mesh`` (tests check it to 1e-9 m) on any s
 - linear blend skinning: ``v = sum_k w_k (M_k (v_rest - r_k) + h_k)`` over each vertex's nine bone weights;
 - shape from the phenotype through Anny's blend shapes (differentiable), so the rest vertices and heads are
   functions of six numbers.
-
-A pose is a ``Pose``: local rotations (frame, bone, 3, 3) and the root head (frame, 3).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from mocapflow.tasks.shared.kinematics import world_rotations
 from mocapflow.tasks.shared.mesh_body import FACING, PHENOTYPE_NAMES, MeshBody, anny_model
 
 # Bones a marker can tell about: everything but the fingers, toes and face (their rotations stay the prior's).
 _UNSEEN_PREFIXES = ("finger", "toe", "metacarpal", "eye", "jaw", "tongue", "special", "orbicularis", "levator",
                     "oris", "risorius", "temporalis", "cheek", "nose")
-
-
-@dataclass(frozen=True)
-class Pose:
-    local: np.ndarray  # (frame, bone, 3, 3) each bone's world rotation relative to its parent's (root: world)
-    root: np.ndarray  # (frame, 3) the root bone's head, metres
-
-
-def local_rotations(world: np.ndarray, parents: np.ndarray) -> np.ndarray:
-    """Each bone's rotation relative to its parent's (the inverse of kinematics.world_rotations).
-    (frame, bone, 3, 3) -> (frame, bone, 3, 3)"""
-    local = world.copy()
-    has = parents >= 0
-    local[:, has] = np.swapaxes(world[:, parents[has]], -1, -2) @ world[:, has]
-    return local
-
-
-def world_pose(pose: Pose, parents: np.ndarray) -> np.ndarray:
-    """World rotations of a pose.  -> (frame, bone, 3, 3)"""
-    return world_rotations(pose.local, parents)
 
 
 def torch_rodrigues(rotvec):

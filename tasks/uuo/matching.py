@@ -57,6 +57,11 @@ class Match:
     candidates: int
 
 
+def evenly(items: np.ndarray, count: int) -> np.ndarray:
+    """At most ``count`` evenly spaced entries of ``items`` (all of them when fewer)."""
+    return items[np.linspace(0, len(items) - 1, min(count, len(items))).astype(int)]
+
+
 def chain_length(segments: np.ndarray, min_group: int) -> int:
     """K: the rigid groups with at least ``min_group`` markers (at least 1).  segments (marker,) -> int"""
     sizes = np.bincount(segments[segments >= 0]) if len(segments) else np.zeros(0, int)
@@ -157,7 +162,7 @@ def _yaw_step(m: np.ndarray, v: np.ndarray, use: np.ndarray, per_frame: bool) ->
 
 def _best_lift(m: np.ndarray, seen: np.ndarray, placed: np.ndarray, reach: float = 0.6, step: float = 0.03) -> float:
     """The vertical shift (of a grid) with the least chamfer on a few frames."""
-    frames = np.linspace(0, len(m) - 1, min(len(m), 8)).astype(int)
+    frames = evenly(np.arange(len(m)), 8)
     lifts = np.arange(-reach, reach + step / 2, step)
     up = np.array([0.0, 0.0, 1.0])
     scores = []
@@ -178,13 +183,13 @@ def match_parts(markers: np.ndarray, segments: np.ndarray, body: MeshBody, prior
     seen_frames = np.flatnonzero(np.isfinite(markers).all(-1).any(1))
     if not len(seen_frames):
         raise MatchingError("no frame of the take has a marker; part matching needs markers")
-    frames = seen_frames[np.linspace(0, len(seen_frames) - 1, min(config.frames, len(seen_frames))).astype(int)]
+    frames = evenly(seen_frames, config.frames)
     k = chain_length(segments, config.min_group)
     chains = connected_chains(len(PART_NAMES) if k >= config.whole_body_from else k)
 
     def trial(parts: tuple[str, ...], start_yaw: float, iterations: int):
         index = part_vertices(body, parts)
-        index = index[np.linspace(0, len(index) - 1, min(config.vertices, len(index))).astype(int)]
+        index = evenly(index, config.vertices)
         return fit_yaw(markers[frames], prior_vertices(frames, index), start_yaw, iterations, config.keep,
                        config.keep_rotation)
 
@@ -200,7 +205,7 @@ def match_parts(markers: np.ndarray, segments: np.ndarray, body: MeshBody, prior
         parts, fit = best_parts, best_fit
     yaw_fit, _, chamfer = fit
     index = part_vertices(body, parts)
-    index = index[np.linspace(0, len(index) - 1, min(2 * config.vertices, len(index))).astype(int)]
+    index = evenly(index, 2 * config.vertices)
     _, t, _ = fit_yaw(markers, prior_vertices(np.arange(n_frames), index), yaw_fit, config.iterations, config.keep,
                       config.keep_rotation)
     have = np.isfinite(markers).all(-1).any(1)

@@ -17,7 +17,7 @@ import numpy as np
 
 from mocapflow.tasks.uuo.body_model import SolverBody
 from mocapflow.tasks.uuo.fitting import BodyFit, Fit, minimize, posed_vertices
-from mocapflow.tasks.uuo.matching import closest, part_vertices
+from mocapflow.tasks.uuo.matching import closest, evenly, part_vertices
 
 
 class PoseFitError(ValueError):
@@ -49,7 +49,7 @@ def fit_pose(body: SolverBody, markers: np.ndarray, start: BodyFit, anchor: Body
     """Stage 2 for one hypothesis.  markers (frame, marker, 3) NaN where unseen; chain (n,) candidate vertices."""
     import torch
 
-    index = chain[np.linspace(0, len(chain) - 1, min(config.vertices, len(chain))).astype(int)]
+    index = evenly(chain, config.vertices)
     core = np.isin(index, part_vertices(body.body, ("torso", "hips", "head")))
     seen = np.isfinite(markers).all(-1)
     target = torch.from_numpy(np.where(seen[..., None], markers, 0.0))

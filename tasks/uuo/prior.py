@@ -25,9 +25,8 @@ from scipy.ndimage import gaussian_filter1d
 from scipy.spatial.transform import Rotation
 
 from mocapflow.tasks.shared.body import JOINT_NAMES
-from mocapflow.tasks.shared.kinematics import rigid_fit, world_rotations
+from mocapflow.tasks.shared.kinematics import local_rotations, rigid_fit, world_rotations
 from mocapflow.tasks.shared.mesh_body import MeshBody, Phenotype, mesh_body, pose_mesh
-from mocapflow.tasks.uuo.body_model import local_rotations
 
 
 class PriorError(ValueError):

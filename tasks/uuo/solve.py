@@ -21,11 +21,12 @@ from scipy.spatial.transform import Rotation
 from mocapflow.tasks.shared.body import JOINT_NAMES
 from mocapflow.tasks.shared.cache import BoundedCache
 from mocapflow.tasks.shared.mesh_body import PHENOTYPE_NAMES, MeshBody, Phenotype, mesh_body, part_of_bone
-from mocapflow.tasks.uuo.body_model import SolverBody, local_rotations
+from mocapflow.tasks.shared.kinematics import local_rotations
+from mocapflow.tasks.uuo.body_model import SolverBody
 from mocapflow.tasks.uuo.correspondence import CorrespondenceConfig, correspond
 from mocapflow.tasks.uuo.fitting import BodyFit, posed_heads, posed_vertices
 from mocapflow.tasks.uuo.ik import IKConfig, inverse_kinematics
-from mocapflow.tasks.uuo.matching import MatchConfig, closest, match_parts, part_vertices
+from mocapflow.tasks.uuo.matching import MatchConfig, closest, evenly, match_parts, part_vertices
 from mocapflow.tasks.uuo.pose_fit import PoseFitConfig, fit_pose
 
 STAGES = ("matching", "pose_fit", "ik", "refined")
@@ -80,7 +81,7 @@ def _subset(fit: BodyFit, frames: np.ndarray) -> BodyFit:
 def chamfer(body: SolverBody, markers: np.ndarray, fit: BodyFit, chain: np.ndarray, cap_m: float,
             vertices: int = 3000) -> float:
     """Eq. (1)/(3): mean squared distance from each marker sample to the closest chain vertex, capped at cap_m."""
-    index = chain[np.linspace(0, len(chain) - 1, min(vertices, len(chain))).astype(int)]
+    index = evenly(chain, vertices)
     seen = np.isfinite(markers).all(-1)
     _, d2 = closest(np.where(seen[..., None], markers, 0.0), posed_vertices(body, fit, index))
     return float(np.minimum(d2[seen], cap_m ** 2).mean())

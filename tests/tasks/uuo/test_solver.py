@@ -12,7 +12,8 @@ from mocapflow.tasks.shared import mesh_body as mb
 from mocapflow.tasks.studio import uuo_takes as uuo
 from mocapflow.tasks.studio.synth import SequenceSpec, build_rig
 from mocapflow.tasks.uuo import correspondence, matching, prior, segmentation, solve
-from mocapflow.tasks.uuo.body_model import SolverBody, local_rotations
+from mocapflow.tasks.shared.kinematics import local_rotations
+from mocapflow.tasks.uuo.body_model import SolverBody
 from mocapflow.tasks.uuo.fitting import BodyFit, posed_vertices
 
 FRAMES = 24
