@@ -38,6 +38,20 @@ register(
     )
 )
 
+# The suit's counterpart: a `studio_suit` dataset's takes as grey images with calibration and the pattern.
+register(
+    TaskSpec(
+        name="ingest_suit",
+        fn=None,
+        version="1",
+        params=NoParams,
+        output="suit_images",
+        partition="sequence",
+        source=True,
+        description="film or import a dataset's checkerboard-suit takes: grey images, calibration, the suit's pattern",
+    )
+)
+
 register(TaskSpec(
     name="reflector_mask", fn=masks.masks, version="1", params=masks.MaskConfig, output="reflector_masks",
     partition="view", inputs={"frames": "raw_sequence"}, reads={"frames": ("depth", "ir")},

@@ -7,6 +7,7 @@ Kinds:
           ``<id>/calibration.yaml`` and ``<id>/<view>/{depth,ir}/<frame:06d>.png``
   markers a folder of optical marker recordings, C3D or TRC (``<id>.c3d``), read as raw_markers
   studio_markers  unlabelled marker takes filmed on the studio's mesh body, as raw_markers with ground truth
+  studio_suit  checkerboard-suit takes filmed on the mesh body by grey cameras, as suit_images with ground truth
 
 Each reader discovers sequences (id, views, frame count, fingerprint of the raw input) on the
 driver, and reads a frame region on a worker. Discovery checks the raw input before any stage runs:
@@ -447,5 +448,23 @@ class StudioMarkersReader:
         return studio_io.read_markers(dataset, seq, start, stop)
 
 
+class StudioSuitReader:
+    """Checkerboard-suit takes filmed in the studio by a ring of grey cameras (pipeline/suit_io.py)."""
+
+    options = ("sequences", "defaults", "suit", "cameras", "look")
+
+    @staticmethod
+    def discover(catalog, dataset) -> list[SequenceInfo]:
+        from mocapflow.pipeline import suit_io
+
+        return suit_io.discover(catalog, dataset)
+
+    @staticmethod
+    def read(dataset, seq: SequenceInfo, start: int, stop: int) -> xr.Dataset:
+        from mocapflow.pipeline import suit_io
+
+        return suit_io.read(dataset, seq, start, stop)
+
+
 DATASET_KINDS = {"studio": StudioReader, "zarr": ZarrReader, "images": ImageFolderReader, "markers": MarkerFileReader,
-                 "studio_markers": StudioMarkersReader}
+                 "studio_markers": StudioMarkersReader, "studio_suit": StudioSuitReader}

@@ -127,4 +127,4 @@ def get_schema(name: str) -> ArtifactSchema:
 
 
 def _load_builtin() -> None:
-    from mocapflow.schemas import fcn, markers, raw, skeleton, stages, uuo  # noqa: F401  (register on import)
+    from mocapflow.schemas import fcn, markers, raw, skeleton, stages, suit, uuo  # noqa: F401  (register on import)
