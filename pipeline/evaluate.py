@@ -44,13 +44,20 @@ def evaluate(catalog, plan: Plan, store: Store) -> dict:
     stage_poses = stage_writing(catalog, "poses")
     uuo_stages = [s.name for s in catalog.stages.values() if s.spec.output == "uuo_body"
                   and "uuo_body" in s.spec.inputs.values()]
-    if "flow" not in catalog.stages and stage_2d is None and stage_poses is None and not uuo_stages:
-        raise PlanError("the catalog has no `flow`, reflectors2d or UUO stage to evaluate; add one (see catalog.yaml)")
+    from mocapflow.pipeline.evaluate_suit import evaluate_suit, suit_stages
+
+    suit = suit_stages(catalog)
+    if "flow" not in catalog.stages and stage_2d is None and stage_poses is None and not uuo_stages \
+            and len(suit) < 2:
+        raise PlanError("the catalog has no `flow`, reflectors2d, UUO or suit stage to evaluate; add one (see "
+                        "catalog.yaml)")
     result: dict = {"sequences": {}}
     if uuo_stages:
         from mocapflow.pipeline.evaluate_uuo import evaluate_uuo
 
         result["uuo"] = evaluate_uuo(catalog, plan, store, uuo_stages, result["sequences"])
+    if len(suit) >= 2:  # a suit stage besides the images
+        result["suit"] = evaluate_suit(plan, store, suit, result["sequences"])
     if "flow" not in catalog.stages and stage_2d is None and stage_poses is None:
         return result
     raws = {}
@@ -197,6 +204,10 @@ def headline(result: dict) -> dict:
         p = result["poses"]
         out.update({"pck3d_20cm": p["pck_20cm"], "pck3d_5cm": p["pck_5cm"], "mae3d_cm": p["mae_cm"],
                     "rmse3d_cm": p["rmse_cm"], "poses_solved": p["solved"]})
+    if "suit" in result:
+        from mocapflow.pipeline.evaluate_suit import suit_headline
+
+        out.update(suit_headline(result["suit"]))
     if "uuo" in result:
         from mocapflow.pipeline.evaluate_uuo import uuo_headline
 
@@ -221,6 +232,10 @@ def table(result: dict) -> str:
         lines += ([""] if lines else []) + _markers_table(result)
     if "poses" in result:
         lines += ([""] if lines else []) + poses_table(result["poses"])
+    if "suit" in result:
+        from mocapflow.pipeline.evaluate_suit import suit_table
+
+        lines += ([""] if lines else []) + suit_table(result["suit"])
     if "uuo" in result:
         from mocapflow.pipeline.evaluate_uuo import uuo_table
 

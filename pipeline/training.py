@@ -1,9 +1,9 @@
 """`mocapflow train`: run a training catalog through the engine and export its weights artifact.
 
-The catalog's per-dataset stage whose task is ``train_fcn`` produces the weights as a cached artifact
-(its key covers the training data, every parameter and the code version); this module writes that
-artifact as a plain-tensor file for the ``heatmaps`` stage, which loads it with
-``torch.load(..., weights_only=True)``.
+The catalog's per-dataset training stage (``train_fcn``, or a stage named with ``--stage`` that writes network
+weights, like the suit's ``train_cornerdet``) produces the weights as a cached artifact (its key covers the
+training data, every parameter and the code version); this module writes that artifact as a plain-tensor file for
+the stage that uses the network, which loads it with ``torch.load(..., weights_only=True)``.
 """
 
 from __future__ import annotations
@@ -32,10 +32,14 @@ def export_weights(store: Store, item: WorkItem, out: Path) -> bytes:
     import torch
 
     from mocapflow.tasks.deepmocap.training import weights_from_dataset
+    from mocapflow.tasks.shared.weights import unpack
 
     ds = store.open(item.partition.stage, item.key, item.stage.schema)
     buffer = io.BytesIO()
-    torch.save(weights_from_dataset(ds.load()), buffer)
+    if item.stage.schema.name == "fcn_weights":
+        torch.save(weights_from_dataset(ds.load()), buffer)
+    else:
+        torch.save(unpack(ds.load()), buffer)
     data = buffer.getvalue()
     try:
         out.parent.mkdir(parents=True, exist_ok=True)

@@ -85,10 +85,12 @@ SUIT_CODES = register_schema(ArtifactSchema(
     version=1,
     coords={**_VIEW, **_FRAME},
     variables={
-        "square": VarSpec(("view", "frame", "quad"), "int32",
-                          description="the suit square whose code was read, -1 rejected or not on the suit"),
+        "accepted": VarSpec(("view", "frame", "quad"), "bool", description="RejectorNet: a valid quad with a legible code"),
         "rotation": VarSpec(("view", "frame", "quad"), "int8",
                             description="quarter turns from the quad's order to the upright code's, -1 rejected"),
+        "code": VarSpec(("view", "frame", "quad"), "int16",
+                        description="RecogNet's reading: first * 25 + second character's index in the alphabet, "
+                                    "-1 rejected"),
         "confidence": VarSpec(("view", "frame", "quad"), "float32", description="RecogNet's code probability"),
     },
     frame_chunk=16,
@@ -134,4 +136,16 @@ SUIT_FILLED = register_schema(ArtifactSchema(
     required_attrs={"length_unit": str, "up_axis": str, "fps": float},
     frame_chunk=64,
     description="the whole suit per frame: observed corners kept, holes filled by the spatio-temporal Laplacian (§5)",
+))
+
+SUIT_NET_WEIGHTS = register_schema(ArtifactSchema(
+    name="suit_net_weights",
+    version=1,
+    variables={
+        "weights": VarSpec(("parameter",), "float32", description="every tensor of the state dict, flattened"),
+        "loss": VarSpec(("iteration",), "float32", description="training loss per iteration"),
+    },
+    required_attrs={"architecture": dict, "layout": list, "training": dict},
+    description="a trained network of the suit's 2D chain (CornerdetNet, RejectorNet or RecogNet): its "
+                "architecture, tensor layout, weights and training record",
 ))

@@ -21,6 +21,7 @@ import xarray as xr
 
 from mocapflow.tasks.deepmocap import targets
 from mocapflow.tasks.shared.reflectors import REFLECTOR_NAMES
+from mocapflow.tasks.shared.weights import pack, unpack
 
 log = logging.getLogger(__name__)
 
@@ -282,25 +283,12 @@ def _sample_pool(samples: xr.Dataset, config: TrainConfig) -> dict:
 
 def weights_dataset(model, crop: CropConfig, config: TrainConfig, losses, *, n_samples: int, seconds: float,
                     device: str) -> xr.Dataset:
-    state = model.state_dict()
-    layout = [[name, list(t.shape), str(t.dtype).removeprefix("torch.")] for name, t in state.items()]
-    flat = np.concatenate([t.detach().cpu().numpy().astype(np.float32).ravel() for t in state.values()])
-    return xr.Dataset(
-        {"weights": (("parameter",), flat), "loss": (("iteration",), np.asarray(losses, np.float32))},
-        attrs={"architecture": asdict(model.arch), "layout": layout,
-               "training": {"config": asdict(config), "crop": asdict(crop), "samples": int(n_samples),
-                            "seconds": round(float(seconds), 1), "device": device}},
-    )
+    return pack(model.state_dict(), asdict(model.arch),
+                {"config": asdict(config), "crop": asdict(crop), "samples": int(n_samples),
+                 "seconds": round(float(seconds), 1), "device": device}, losses)
 
 
 def weights_from_dataset(ds: xr.Dataset) -> dict:
     """The plain-tensor weights (tasks/deepmocap/fcn.py ``unpack`` format, plus the crop) of a trained artifact."""
-    import torch
-
-    flat, state, at = ds["weights"].values, {}, 0
-    for name, shape, dtype in ds.attrs["layout"]:
-        n = int(np.prod(shape))
-        state[name] = torch.from_numpy(flat[at:at + n].reshape(shape).astype(dtype))
-        at += n
-    assert at == len(flat), (at, len(flat))
-    return {"architecture": dict(ds.attrs["architecture"]), "crop": dict(ds.attrs["training"]["crop"]), "state": state}
+    net = unpack(ds)
+    return {"architecture": net["architecture"], "crop": dict(net["training"]["crop"]), "state": net["state"]}

@@ -1,0 +1,176 @@
+"""`mocapflow evaluate` for the checkerboard-suit stages against the studio's truth (tasks/suit/metrics.py).
+
+Per catalog stage that the suit chain has: CornerdetNet's detections (share of visible corners found within
+1.5 px, false detections), RejectorNet's and RecogNet's accuracy over the candidate quads, the labelled corners
+(share of readable and of visible corners labelled right, wrong labels, localisation error), the triangulated
+corners (3D error, reprojection error percentiles) and the filled suit (3D error of observed and of filled
+corners: the studio knows where every hidden corner is).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mocapflow.pipeline.errors import PlanError
+from mocapflow.tasks.suit import metrics
+from mocapflow.tasks.suit.pattern import ALPHABET
+
+TRUTH = ("gt_corners2d", "gt_visible", "gt_readable", "gt_corners", "square_corners", "code")
+
+
+def suit_stages(catalog) -> dict[str, str]:
+    """schema -> the catalog's last stage writing it, for the suit chain's schemas."""
+    from mocapflow.pipeline.evaluate import stage_writing
+
+    schemas = ("suit_images", "suit_corners", "suit_quads", "suit_codes", "suit_labels", "suit_points", "suit_filled")
+    return {s: stage_writing(catalog, s) for s in schemas if stage_writing(catalog, s) is not None}
+
+
+def evaluate_suit(plan, store, stages: dict[str, str], per_sequence: dict) -> dict:
+    if "suit_images" not in stages:
+        raise PlanError("the catalog has suit stages but no stage writing suit_images to score them against")
+    sums: dict = {"detect": [], "quads": [], "labels": [], "points": [], "reproj": [], "filled": [], "observed": []}
+    for seq in plan.sequences:
+        images = plan.open(store, stages["suit_images"], seq.id)
+        missing = [v for v in TRUTH if v not in images]
+        if missing:
+            raise PlanError(f"sequence {seq.id!r} has no suit ground truth ({', '.join(missing)}); evaluate on studio "
+                            "suit takes")
+        truth = images[list(TRUTH)].load()
+        seq_sums = {k: [] for k in sums}
+        for v, view in enumerate(seq.views):
+            _score_view(plan, store, stages, seq.id, view, truth.isel(view=v), seq_sums)
+        _score_3d(plan, store, stages, seq.id, truth, seq_sums)
+        per_sequence.setdefault(seq.id, {})["suit"] = _figures(seq_sums)
+        for k in sums:
+            sums[k] += seq_sums[k]
+    out = _figures(sums)
+    out["stages"] = stages
+    return out
+
+
+def _score_view(plan, store, stages, seq_id, view, truth, sums) -> None:
+    gt_xy, visible = truth["gt_corners2d"].values, truth["gt_visible"].values  # (frame, corner, 2), (frame, corner)
+    if "suit_labels" in stages:
+        lab = plan.open(store, stages["suit_labels"], seq_id, view).sel(view=view).load()
+        xy = np.stack([lab["x"].values, lab["y"].values], axis=-1)
+        sums["labels"].append(metrics.label_counts(xy, gt_xy, visible, truth["gt_readable"].values))
+    if "suit_corners" in stages:
+        det = plan.open(store, stages["suit_corners"], seq_id, view).sel(view=view).load()
+        dxy = np.stack([det["x"].values, det["y"].values], axis=-1)  # (frame, detection, 2)
+        sums["detect"] += [metrics.detection_counts(dxy[f], gt_xy[f], visible[f]) for f in range(len(dxy))]
+        if "suit_quads" in stages and "suit_codes" in stages:
+            quads = plan.open(store, stages["suit_quads"], seq_id, view).sel(view=view)["detections"].values
+            codes = plan.open(store, stages["suit_codes"], seq_id, view).sel(view=view).load()
+            for f in range(len(dxy)):
+                square, rotation = metrics.quad_truth(dxy[f], quads[f], gt_xy[f], visible[f],
+                                                      truth["square_corners"].values)
+                real = quads[f][:, 0] >= 0
+                sums["quads"].append(_quad_counts(square[real], rotation[real], codes.isel(frame=f), real,
+                                                  code_numbers(truth["code"].values)))
+
+
+def code_numbers(codes) -> np.ndarray:
+    """Two-letter codes as RecogNet's numbers: first * 25 + second character's place in the alphabet."""
+    return np.array([ALPHABET.index(c[0]) * len(ALPHABET) + ALPHABET.index(c[1]) for c in codes])
+
+
+def _quad_counts(square, rotation, codes, real, numbers) -> dict:
+    """RejectorNet: accepted vs a true coded square in its upright order; RecogNet: the code of accepted true ones."""
+    accepted, turned = codes["accepted"].values[real], codes["rotation"].values[real]
+    code = codes["code"].values[real]
+    upright = (square >= 0) & (turned == rotation)
+    read = accepted & upright
+    return {"quads": int(real.sum()), "true": int((square >= 0).sum()), "accepted": int(accepted.sum()),
+            "true_accepted": int(read.sum()), "false_accepted": int((accepted & ~upright).sum()),
+            "read_right": int((code[read] == numbers[square[read]]).sum())}
+
+
+def _score_3d(plan, store, stages, seq_id, truth, sums) -> None:
+    gt = truth["gt_corners"].values.astype(np.float64)  # (frame, corner, 3)
+    if "suit_points" in stages:
+        pts = plan.open(store, stages["suit_points"], seq_id).load()
+        sums["points"].append(metrics.errors_mm(pts["position"].values, gt))
+        err, kept = pts["error"].values, pts["kept"].values
+        sums["reproj"].append(err[kept & np.isfinite(err)])
+    if "suit_filled" in stages:
+        filled = plan.open(store, stages["suit_filled"], seq_id).load()
+        observed = filled["observed"].values
+        sums["filled"].append(metrics.errors_mm(filled["position"].values, gt, ~observed))
+        sums["observed"].append(metrics.errors_mm(filled["position"].values, gt, observed))
+
+
+def _figures(sums: dict) -> dict:
+    out: dict = {}
+    if sums["detect"]:
+        d = sums["detect"]
+        visible = sum(c.visible for c in d)
+        out["corners"] = {"found": sum(c.found for c in d) / max(visible, 1), "visible": visible,
+                          "false_per_image": sum(c.false for c in d) / len(d)}
+    if sums["quads"]:
+        out["quads"] = _network_figures(sums["quads"])
+    if sums["labels"]:
+        lab = sums["labels"]
+        loc = np.concatenate([c.loc_error_px for c in lab])
+        out["labels"] = {"readable_found": sum(c.readable_found for c in lab) / max(sum(c.readable for c in lab), 1),
+                         "visible_found": sum(c.visible_found for c in lab) / max(sum(c.visible for c in lab), 1),
+                         "labelled": sum(c.labelled for c in lab), "wrong": sum(c.wrong for c in lab),
+                         "per_image": sum(c.labelled for c in lab) / max(len(lab), 1),
+                         "loc_error_px": metrics.summary(loc)}
+    for key in ("points", "reproj", "filled", "observed"):
+        if sums[key]:
+            out[key] = metrics.summary(np.concatenate(sums[key]))
+    return out
+
+
+def _network_figures(rows: list[dict]) -> dict:
+    keys = ("quads", "true", "accepted", "true_accepted", "false_accepted", "read_right")
+    total = {k: sum(r[k] for r in rows) for k in keys}
+    return {**total, "rejector_recall": total["true_accepted"] / max(total["true"], 1),
+            "rejector_precision": total["true_accepted"] / max(total["accepted"], 1),
+            "recog_accuracy": total["read_right"] / max(total["true_accepted"], 1)}
+
+
+def suit_headline(result: dict) -> dict:
+    """`--json` figures of the suit chain."""
+    out = {}
+    if "labels" in result:
+        lab = result["labels"]
+        out.update({"suit_detect_rate": lab["readable_found"], "suit_wrong_labels": lab["wrong"],
+                    "suit_loc_err_px": lab["loc_error_px"]["mean"]})
+    if "points" in result:
+        out["suit_err3d_median_mm"] = result["points"]["median"]
+    if "filled" in result:
+        out["suit_fill_err_median_mm"] = result["filled"]["median"]
+    return out
+
+
+def suit_table(result: dict) -> list[str]:
+    from mocapflow.pipeline.evaluate import _format
+
+    rows = [("suit", "figure", "value")]
+    if "corners" in result:
+        c = result["corners"]
+        rows += [("corners", "visible corners found (1.5 px)", f"{c['found']:.1%}"),
+                 ("corners", "false detections per image", f"{c['false_per_image']:.1f}")]
+    if "quads" in result:
+        q = result["quads"]
+        rows += [("quads", "candidates / true coded squares", f"{q['quads']} / {q['true']}"),
+                 ("quads", "RejectorNet recall / precision",
+                  f"{q['rejector_recall']:.1%} / {q['rejector_precision']:.1%}"),
+                 ("quads", "RecogNet codes read right", f"{q['recog_accuracy']:.2%} of {q['true_accepted']}")]
+    if "labels" in result:
+        lab = result["labels"]
+        rows += [("labels", "readable corners labelled right", f"{lab['readable_found']:.1%}"),
+                 ("labels", "visible corners labelled right", f"{lab['visible_found']:.1%}"),
+                 ("labels", "wrong labels / labels", f"{lab['wrong']} / {lab['labelled']}"),
+                 ("labels", "localisation error mean / p99 px",
+                  f"{lab['loc_error_px']['mean']:.3f} / {lab['loc_error_px']['p99']:.3f}")]
+    for key, what, unit in (("points", "3D error of observed corners", "mm"),
+                            ("reproj", "reprojection error", "px"), ("observed", "filled suit: observed corners", "mm"),
+                            ("filled", "filled suit: filled corners", "mm")):
+        if key in result:
+            s = result[key]
+            rows.append((key, f"{what} median / p95 / p99 {unit}",
+                         f"{s['median']:.2f} / {s['p95']:.2f} / {s['p99']:.2f} (n={s['n']})"))
+    return _format(rows)
