@@ -19,17 +19,35 @@ TRUTH = ("gt_corners2d", "gt_visible", "gt_readable", "gt_corners", "square_corn
 
 
 def suit_stages(catalog) -> dict[str, str]:
-    """schema -> the catalog's last stage writing it, for the suit chain's schemas."""
+    """What to score: per schema of the suit chain the catalog's last stage writing it (suit_points: the last one
+    that reads labels, not a hold-out), and ``suit_filled_hidden``: a filling whose points had observations hidden
+    (tasks/suit/holdout.py) — then ``suit_filled`` is the last filling of the points themselves."""
     from mocapflow.pipeline.evaluate import stage_writing
 
-    schemas = ("suit_images", "suit_corners", "suit_quads", "suit_codes", "suit_labels", "suit_points", "suit_filled")
-    return {s: stage_writing(catalog, s) for s in schemas if stage_writing(catalog, s) is not None}
+    schemas = ("suit_images", "suit_corners", "suit_quads", "suit_codes", "suit_labels")
+    out = {s: stage_writing(catalog, s) for s in schemas if stage_writing(catalog, s) is not None}
+    points = [s.name for s in catalog.stages.values() if s.spec.output == "suit_points"
+              and "suit_points" not in s.spec.inputs.values()]
+    if points:
+        out["suit_points"] = points[-1]
+    for s in catalog.stages.values():
+        if s.spec.output == "suit_filled":
+            source = catalog.stages[s.inputs["points"]]
+            out["suit_filled_hidden" if source.spec.output == "suit_points" and "suit_points" in
+                source.spec.inputs.values() else "suit_filled"] = s.name
+    return out
+
+
+def plan_input(plan, stage: str, role: str = "points") -> str:
+    """The upstream stage feeding ``role`` of ``stage``."""
+    item = next(i for i in plan.items.values() if i.partition.stage == stage)
+    return item.stage.upstream[role].stage
 
 
 def evaluate_suit(plan, store, stages: dict[str, str], per_sequence: dict) -> dict:
     if "suit_images" not in stages:
         raise PlanError("the catalog has suit stages but no stage writing suit_images to score them against")
-    sums: dict = {"detect": [], "quads": [], "labels": [], "points": [], "reproj": [], "filled": [], "observed": []}
+    sums: dict = {k: [] for k in ("detect", "quads", "labels", "points", "reproj", "filled", "observed", "hidden")}
     for seq in plan.sequences:
         images = plan.open(store, stages["suit_images"], seq.id)
         missing = [v for v in TRUTH if v not in images]
@@ -98,6 +116,10 @@ def _score_3d(plan, store, stages, seq_id, truth, sums) -> None:
         observed = filled["observed"].values
         sums["filled"].append(metrics.errors_mm(filled["position"].values, gt, ~observed))
         sums["observed"].append(metrics.errors_mm(filled["position"].values, gt, observed))
+    if "suit_filled_hidden" in stages:
+        filled = plan.open(store, stages["suit_filled_hidden"], seq_id).load()
+        hidden = plan.open(store, plan_input(plan, stages["suit_filled_hidden"]), seq_id)["hidden"].values
+        sums["hidden"].append(metrics.errors_mm(filled["position"].values, gt, hidden & ~filled["observed"].values))
 
 
 def _figures(sums: dict) -> dict:
@@ -117,7 +139,7 @@ def _figures(sums: dict) -> dict:
                          "labelled": sum(c.labelled for c in lab), "wrong": sum(c.wrong for c in lab),
                          "per_image": sum(c.labelled for c in lab) / max(len(lab), 1),
                          "loc_error_px": metrics.summary(loc)}
-    for key in ("points", "reproj", "filled", "observed"):
+    for key in ("points", "reproj", "filled", "observed", "hidden"):
         if sums[key]:
             out[key] = metrics.summary(np.concatenate(sums[key]))
     return out
@@ -140,8 +162,10 @@ def suit_headline(result: dict) -> dict:
                     "suit_loc_err_px": lab["loc_error_px"]["mean"]})
     if "points" in result:
         out["suit_err3d_median_mm"] = result["points"]["median"]
+    if "hidden" in result:
+        out["suit_fill_err_median_mm"] = result["hidden"]["median"]
     if "filled" in result:
-        out["suit_fill_err_median_mm"] = result["filled"]["median"]
+        out["suit_fill_all_err_median_mm"] = result["filled"]["median"]
     return out
 
 
@@ -168,7 +192,8 @@ def suit_table(result: dict) -> list[str]:
                   f"{lab['loc_error_px']['mean']:.3f} / {lab['loc_error_px']['p99']:.3f}")]
     for key, what, unit in (("points", "3D error of observed corners", "mm"),
                             ("reproj", "reprojection error", "px"), ("observed", "filled suit: observed corners", "mm"),
-                            ("filled", "filled suit: filled corners", "mm")):
+                            ("filled", "filled suit: filled corners", "mm"),
+                            ("hidden", "filled suit: hidden observations", "mm")):
         if key in result:
             s = result[key]
             rows.append((key, f"{what} median / p95 / p99 {unit}",

@@ -33,8 +33,9 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
+import xarray as xr
 
-from mocapflow.tasks.shared.cameras import Camera
+from mocapflow.tasks.shared.cameras import Camera, camera_of
 from mocapflow.tasks.shared.triangulation import (
     TriangulationError,
     check_cameras,
@@ -189,3 +190,20 @@ def _checked(xy: np.ndarray, cameras: Sequence[Camera], shape: str) -> np.ndarra
     except TriangulationError as exc:
         raise ReconstructError(str(exc)) from exc
     return xy
+
+
+def triangulate_corners(labels: xr.Dataset, images: xr.Dataset, config: ReconstructConfig) -> xr.Dataset:
+    """Task: the labelled corners of every view (suit_labels) -> triangulated corners (suit_points), the cameras
+    from the images' calibration."""
+    views = [str(v) for v in labels["view"].values]
+    cameras = [camera_of(images, v) for v in views]
+    xy = np.stack([labels["x"].transpose("frame", "view", "corner").values,
+                   labels["y"].transpose("frame", "view", "corner").values], axis=-1).astype(np.float64)
+    out = reconstruct_frames(xy, cameras, config)  # (frame, corner, 3), (frame, view, corner) x 2
+    return xr.Dataset(
+        {"position": (("frame", "corner", "xyz"), out.position.astype(np.float32)),
+         "kept": (("frame", "view", "corner"), out.kept),
+         "error": (("frame", "view", "corner"), out.error_px.astype(np.float32))},
+        coords={"frame": labels["frame"].values, "corner": labels["corner"].values,
+                "view": np.array(views, dtype=object), "xyz": np.array(["x", "y", "z"], dtype=object)},
+        attrs={"length_unit": "m", "up_axis": "Z", "fps": float(images.attrs["fps"])})
