@@ -103,7 +103,7 @@ def retarget_quality(path: Path, seed: int) -> dict:
     take = mesh_motion.retarget(body, subject, motion)
     source = bvh.world_positions(clip)
     index = {n: i for i, n in enumerate(clip.names)}
-    mapping = bvh.mapping(clip.names)
+    mapping = bvh.joint_map(clip)
     angles = []
     for bone, (joint, end_bone, _) in mesh_motion.SEGMENTS.items():
         m = mapping.get(joint)

@@ -443,17 +443,21 @@ def evaluate(catalog_path, overrides, sequences, workers, threads, as_json):
               help="camera layout YAML (ring: {count, radius, height} or sensors: [{name, position}])")
 @click.option("--body", type=click.Choice(["capsule", "mesh"]), default="capsule", show_default=True,
               help="the subject: the template's capsules or the Anny mesh body")
+@click.option("--motion-map", "motion_map", default=None, type=click.Path(dir_okay=False, exists=True),
+              help="joint map YAML {template joint: BVH joint} for the BVH clips' skeleton")
 @click.option("--force", is_flag=True, help="overwrite existing sequences in --out")
-def synth(out_dir, motions, views, frames, fps, seed, subject_height, noise, layout_file, body, force):
+def synth(out_dir, motions, views, frames, fps, seed, subject_height, noise, layout_file, body, motion_map, force):
     """Render studio sequences (raw-sequence zarr stores with ground truth)."""
     from mocapflow.pipeline.studio_io import build_rig, make_spec, read_layout, write_sequence
+    from mocapflow.tasks.studio.motion import EXERCISES
 
     layout = read_layout(Path(layout_file), "--layout") if layout_file else None
     out = Path(out_dir)
     jobs = []
     for motion in motions:
         raw = {"motion": motion, "views": views, "fps": fps, "seed": seed, "noise": noise, "body": body,
-               "subject_height": subject_height, **({"frames": frames} if frames is not None else {})}
+               "subject_height": subject_height, **({"frames": frames} if frames is not None else {}),
+               **({"motion_map": motion_map} if motion_map and motion not in EXERCISES else {})}
         spec, text, _ = make_spec(raw, f"--motion {motion}", lambda p: Path(p).resolve(), layout)
         name = Path(motion).stem if text is not None else motion
         target = out / f"{name}.zarr"

@@ -11,8 +11,9 @@ A studio dataset in catalog.yaml::
           jj_s1: {motion: jumping_jack, seed: 1, subject_height: 1.72}
           walk:  {motion: ../shared/data/motions/cmu_12_01_walk.bvh, seed: 7}
 
-``motion`` is an exercise name or a .bvh path (inside ``data_roots``). Files are read here; the
-studio itself (tasks/studio) only sees parsed values.
+``motion`` is an exercise name or a .bvh path (inside ``data_roots``); ``motion_map: my_map.yaml`` gives a
+BVH skeleton no known naming fits a joint map (YAML ``{template joint: BVH joint}``). Files are read here;
+the studio itself (tasks/studio) only sees parsed values.
 """
 
 from __future__ import annotations
@@ -69,8 +70,11 @@ def make_spec(raw: Mapping[str, Any], where: str, resolve: Callable[[str], Path]
                            f"use one of {sorted(EXERCISES)} or a .bvh file")
     if layout is not None:
         raw.setdefault("layout", layout)
+    if raw.get("motion_map") is not None:
+        raw["motion_map"] = read_motion_map(resolve(str(raw["motion_map"])), f"{where}.motion_map")
     hints = typing.get_type_hints(SequenceSpec)
-    values = {k: coerce(v, hints[k], f"{where}.{k}") if k != "layout" else v for k, v in raw.items()}
+    values = {k: coerce(v, hints[k], f"{where}.{k}") if k not in ("layout", "motion_map") else v
+              for k, v in raw.items()}
     try:
         spec = SequenceSpec(**values)
         if spec.layout is not None:
@@ -83,6 +87,18 @@ def make_spec(raw: Mapping[str, Any], where: str, resolve: Callable[[str], Path]
         except bvh_mod.BVHError as exc:
             raise InputError(f"{where}: {bvh_path} is not a valid BVH file: {exc}") from exc
     return spec, bvh_text, bvh_path
+
+
+def read_motion_map(path: Path, where: str) -> dict[str, str]:
+    """A BVH joint map file: YAML ``{template joint: BVH joint}`` (tasks/studio/bvh.py, joint_map)."""
+    try:
+        data = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise InputError(f"{where}: cannot read the joint map {path}: {exc}") from exc
+    if not isinstance(data, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in data.items()):
+        raise InputError(f"{where}: the joint map {path} must be a YAML mapping of template joint to BVH joint, "
+                         f"e.g. 'LeftHip: thigh_l', one a line; got {data!r:.80}")
+    return data
 
 
 def read_layout(path: Path, where: str) -> dict:
@@ -112,7 +128,7 @@ def view_names(spec: SequenceSpec) -> tuple[str, ...]:
 
 # Spec fields added after a studio version enter the fingerprint only when set, so caches of sequences
 # that leave them at their default stay valid.
-LATER_FIELDS = ("variation", "body")
+LATER_FIELDS = ("variation", "body", "motion_map")
 
 
 def fingerprint(spec: SequenceSpec, bvh_text: str | None) -> str:

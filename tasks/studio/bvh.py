@@ -1,15 +1,24 @@
 """BVH motion: parsing, forward kinematics, and retargeting onto the template body.
 
-Retargeting transfers each mapped bone's global rotation change from the BVH rest pose, then
-corrects it by the smallest rotation that makes the template bone point where the BVH bone
-points. The template keeps its own bone lengths (so they are constant), the root translation is
-scaled by the ratio of leg lengths, the clip is centred on the capture centre, and a constant
-height offset puts the lowest foot contact on the floor. CMU (cgspeed) skeletons are supported.
+Retargeting transfers each mapped bone's global rotation change from the file's own rest pose (every
+rotation channel at zero; the template's rest pose is a T-pose, arms along -X/+X), then corrects it by
+the smallest rotation that makes the template bone point where the BVH bone points. A skeleton whose
+rest pose is a T-pose (Mixamo's) thus transfers exactly; another rest pose (CMU's splayed legs) is
+absorbed by the correction. The template keeps its own bone lengths (so they are constant), the root
+translation is scaled by the ratio of leg lengths (so the file's unit drops out: inches, centimetres or
+metres alike), the clip is centred on the capture centre, and a constant height offset puts the lowest
+foot contact on the floor. Files are Y up (the format's convention); the facing comes from the rest pose.
+
+Which BVH joint drives which template joint is a joint map: CMU's two cgspeed namings (``CMU_MAP``,
+``CMU_MAP_ALT``), Mixamo's (``MIXAMO_NAMES``, with or without a ``mixamorig:``-style prefix), the CMU
+database's ASF bones (``CMU_ASF_NAMES``, for tasks/studio/asf_amc.py) or a map the user gives
+(``{template joint: BVH joint}``, see :func:`joint_map`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, Mapping
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
@@ -46,8 +55,38 @@ CMU_MAP_ALT = _cmu_map((("Hips", "Hips", "Chest2"), ("Chest2", "Chest", "lowerne
                        (("Shoulder", "Shoulder", "Elbow"), ("Elbow", "Elbow", "Wrist"), ("Hip", "Hip", "Knee"),
                         ("Knee", "Knee", "Ankle"), ("Ankle", "Ankle", "Toe")),
                        "{side}Wrist", "{s}Fingers")
-MAPPINGS = (CMU_MAP, CMU_MAP_ALT)
+CMU_SIGNATURE = ("LHipJoint", "RHipJoint")  # both cgspeed namings have them; other skeletons do not
 
+SIDES = ("Left", "Right")
+# The end of each rotating template joint's bone: its first child, and "HeadTop" (the top of the head) for the
+# head, which has none. The neck inherits the spine's rotation (it carries the shoulders).
+BONE_END = {"Hips": "SpineBase", "SpineBase": "Neck", "Head": "HeadTop",
+            **{f"{side}{joint}": f"{side}{end}" for side in SIDES
+               for joint, end in (("Shoulder", "Elbow"), ("Elbow", "Wrist"), ("Wrist", "Hand"), ("Hip", "Knee"),
+                                  ("Knee", "Ankle"), ("Ankle", "Foot"))}}
+REQUIRED_KEYS = (*BONE_END, "Neck")  # a name map names each of these
+END_KEYS = ("HeadTop", *(f"{side}{end}" for side in SIDES for end in ("Hand", "Foot")))  # these where ambiguous
+MAP_KEYS = REQUIRED_KEYS + END_KEYS
+
+
+def _sided(table: dict) -> dict:
+    """A name table with "{side}" in its keys and names written out for both sides."""
+    return {key.format(side=side): tuple(n.format(side=side, s=side[0].lower()) for n in names)
+            for key, names in table.items() for side in (SIDES if "{side}" in key else SIDES[:1])}
+
+
+# template joint -> BVH joints to try (the first the file has wins). Mixamo-style skeletons: zero rotation is a
+# T-pose, Y up, centimetres; any spine chain between Spine and Neck (Spine1, Spine2, Chest) is followed whole.
+MIXAMO_NAMES = _sided({"Hips": ("Hips",), "SpineBase": ("Spine",), "Neck": ("Neck",), "Head": ("Head",),
+                       "HeadTop": ("HeadTop_End",), "{side}Shoulder": ("{side}Arm",),
+                       "{side}Elbow": ("{side}ForeArm",), "{side}Wrist": ("{side}Hand",),
+                       "{side}Hand": ("{side}HandMiddle1", "{side}HandIndex1"), "{side}Hip": ("{side}UpLeg",),
+                       "{side}Knee": ("{side}Leg",), "{side}Ankle": ("{side}Foot",), "{side}Foot": ("{side}ToeBase",)})
+# The CMU database's ASF bones, each a joint at the bone's start (tasks/studio/asf_amc.py).
+CMU_ASF_NAMES = _sided({"Hips": ("root",), "SpineBase": ("upperback",), "Neck": ("lowerneck",), "Head": ("head",),
+                        "{side}Shoulder": ("{s}humerus",), "{side}Elbow": ("{s}radius",), "{side}Wrist": ("{s}wrist",),
+                        "{side}Hand": ("{s}fingers",), "{side}Hip": ("{s}femur",), "{side}Knee": ("{s}tibia",),
+                        "{side}Ankle": ("{s}foot",), "{side}Foot": ("{s}toes",)})
 
 class BVHError(ValueError):
     """A BVH text that cannot be parsed or retargeted."""
@@ -157,43 +196,162 @@ def parse_bvh(text: str) -> BVH:
                values.reshape(n_frames, width))
 
 
-def world_positions(bvh: BVH) -> np.ndarray:
+def world_positions(bvh: BVH, user_map: Mapping[str, str] | None = None) -> np.ndarray:
     """The clip's joint positions in the studio's axes (Z up, facing +Y), in the file's units, its added T-pose
     frame dropped, as ``retarget`` sees them.  # (frame, joint, 3)"""
-    mapping = _mapping(bvh.names)
+    mapping = joint_map(bvh, user_map)
     index = {n: i for i, n in enumerate(bvh.names)}
     data = bvh.data[1:] if _starts_with_tpose(bvh) else bvh.data
     _, pos = BVH(bvh.names, bvh.parents, bvh.offsets, bvh.channels, bvh.frame_time, data).forward_kinematics()
-    world = _facing(bvh, index[mapping["LeftHip"][0]], index[mapping["RightHip"][0]]) @ Y_UP_TO_Z_UP
+    world = _facing(bvh, index[mapping["LeftHip"][1]], index[mapping["RightHip"][1]]) @ Y_UP_TO_Z_UP
     return pos @ world.T
 
 
-def mapping(names) -> dict:
-    """template joint -> (BVH joint it follows, BVH bone start, BVH bone end), "inherit" or absent: the first
-    known mapping (CMU's two cgspeed namings) that ``names`` satisfy; BVHError naming the missing joints."""
-    return _mapping(names)
+@dataclass(frozen=True)
+class Skeleton:
+    """A known skeleton: its joint map as triples or as a name table, and joints only it has."""
+
+    label: str
+    triples: Mapping[str, Any] | None = None  # template joint -> (followed, bone start, bone end) or "inherit"
+    names: Mapping[str, tuple[str, ...]] | None = None  # template joint -> BVH joints to try
+    signature: tuple[str, ...] = ()
 
 
-def _mapping(names) -> dict:
-    """The first known joint mapping that ``names`` satisfy."""
-    missing = []
-    for mapping in MAPPINGS:
-        needed = {n for m in mapping.values() if m != "inherit" for n in m}
-        missing.append(sorted(needed - set(names)))
-        if not missing[-1]:
-            return mapping
-    raise BVHError(f"the BVH skeleton lacks joints {min(missing, key=len)}; a CMU (cgspeed) skeleton is expected")
+KNOWN_SKELETONS = (Skeleton("CMU cgspeed", triples=CMU_MAP, signature=CMU_SIGNATURE),
+                   Skeleton("CMU cgspeed, subject 14 naming", triples=CMU_MAP_ALT, signature=CMU_SIGNATURE),
+                   Skeleton("Mixamo", names=MIXAMO_NAMES), Skeleton("CMU ASF", names=CMU_ASF_NAMES))
+
+
+def joint_map(bvh: BVH, user_map: Mapping[str, str] | None = None) -> dict:
+    """template joint -> (BVH joint whose rotation it follows, BVH bone start, BVH bone end), "inherit" (the neck),
+    absent for the end joints (hands, feet).
+
+    From ``user_map`` ({template joint: BVH joint}, keys among MAP_KEYS, every one of REQUIRED_KEYS) when given,
+    else from the first of KNOWN_SKELETONS the file's joints satisfy. Raises BVHError naming the joints missing.
+    """
+    mapping = _from_user_map(bvh, user_map) if user_map is not None else _known(bvh)
+    _check_lengths(bvh, mapping)
+    _check_y_up(bvh, mapping)
+    return mapping
+
+
+def _known(bvh: BVH) -> dict:
+    closest = []
+    for order, skeleton in enumerate(KNOWN_SKELETONS):
+        if skeleton.triples is not None:
+            needed = {n for m in skeleton.triples.values() if m != "inherit" for n in m}
+            missing = sorted(needed - set(bvh.names))
+        else:
+            needed = {key: names for key, names in skeleton.names.items() if key in REQUIRED_KEYS}
+            missing = [names[0] for names in needed.values() if _find(names, bvh.names) is None]
+        missing += [n for n in skeleton.signature if n not in bvh.names and n not in missing]
+        if not missing:
+            return dict(skeleton.triples) if skeleton.triples is not None else _triples(bvh, skeleton.names)
+        closest.append((len(missing) / (len(needed) + len(skeleton.signature)), order, missing))
+    share, order, missing = min(closest)
+    labels = ", ".join(s.label for s in KNOWN_SKELETONS)
+    nearest = ("none names a joint of this file" if share == 1 else
+               f"the closest, {KNOWN_SKELETONS[order].label}, lacks joints {missing}")
+    raise BVHError(f"the skeleton matches no known naming ({labels}); {nearest}; give a joint map "
+                   f"{{template joint: BVH joint}} naming a joint of the file for each of {list(REQUIRED_KEYS)}")
+
+
+def _from_user_map(bvh: BVH, user_map: Mapping[str, str]) -> dict:
+    unknown = sorted(set(user_map) - set(MAP_KEYS))
+    if unknown:
+        raise BVHError(f"the joint map names unknown template joints {unknown}; its keys are {list(MAP_KEYS)}")
+    absent = [k for k in REQUIRED_KEYS if k not in user_map]
+    if absent:
+        raise BVHError(f"the joint map lacks template joints {absent}; name a BVH joint for each of "
+                       f"{list(REQUIRED_KEYS)} (and {list(END_KEYS)} where a joint has several children)")
+    lacking = {k: v for k, v in user_map.items() if _find((v,), bvh.names) is None}
+    if lacking:
+        raise BVHError(f"the joint map names joints the file lacks: {lacking}; its joints are "
+                       f"{[n for n in bvh.names if not n.endswith('_End')]}")
+    return _triples(bvh, {k: (v,) for k, v in user_map.items()})
+
+
+def _find(candidates, names) -> int | None:
+    """Index of the first candidate among ``names``, exactly or after a namespace prefix ("mixamorig:Hips")."""
+    for name in candidates:
+        if name in names:
+            return names.index(name)
+        hits = [i for i, n in enumerate(names) if n.rsplit(":", 1)[-1] == name]
+        if len(hits) == 1:
+            return hits[0]
+    return None
+
+
+def _triples(bvh: BVH, table: Mapping[str, tuple[str, ...]]) -> dict:
+    """A name table's triples: each rotating template joint follows the BVH joint just above its bone's end
+    (the whole chain from the bone's start, e.g. every spine joint below the neck); the hips follow the root."""
+    found = {key: _find(names, bvh.names) for key, names in table.items()}
+    out: dict[str, tuple[str, str, str] | str] = {"Neck": "inherit"}
+    for joint, end in BONE_END.items():
+        start, stop = found[joint], found.get(end)
+        if stop is None:
+            stop = _only_child(bvh, start, end)
+        if not _below(bvh.parents, stop, start):
+            raise BVHError(f"{end} ({bvh.names[stop]}) is not below {joint} ({bvh.names[start]}) in the skeleton; "
+                           "map them to a joint and one of its descendants")
+        follow = start if joint == "Hips" else int(bvh.parents[stop])
+        out[joint] = (bvh.names[follow], bvh.names[start], bvh.names[stop])
+    return out
+
+
+def _only_child(bvh: BVH, joint: int, key: str) -> int:
+    children = np.flatnonzero(bvh.parents == joint)
+    if len(children) != 1:
+        raise BVHError(f"{bvh.names[joint]} has {len(children)} children ({[bvh.names[c] for c in children]}); "
+                       f"name the joint its bone points to as {key!r} in the joint map")
+    return int(children[0])
+
+
+def _below(parents: np.ndarray, joint: int, ancestor: int) -> bool:
+    while joint >= 0:
+        joint = int(parents[joint])
+        if joint == ancestor:
+            return True
+    return False
+
+
+def rest_positions(bvh: BVH) -> np.ndarray:
+    """Every joint's position with all rotations at zero, the root at its OFFSET, in the file's axes and units."""
+    rest = np.zeros((len(bvh.names), 3))  # (joint, 3); parents come before their children in a BVH
+    for j, parent in enumerate(bvh.parents):
+        rest[j] = bvh.offsets[j] + (rest[parent] if parent >= 0 else 0)
+    return rest
+
+
+def _check_lengths(bvh: BVH, mapping: dict) -> None:
+    rest = rest_positions(bvh)
+    size = np.ptp(rest, axis=0).max()
+    for joint, m in mapping.items():
+        if m != "inherit" and np.linalg.norm(rest[bvh.names.index(m[2])] - rest[bvh.names.index(m[1])]) <= 1e-6 * size:
+            raise BVHError(f"the bone of {joint} ({m[1]} -> {m[2]}) has no length in the rest pose, so it has no "
+                           "direction; map the joints to a bone that does")
+
+
+def _check_y_up(bvh: BVH, mapping: dict) -> None:
+    """BVH files are Y up: the rest pose's head must be above its ankles along +Y."""
+    rest = rest_positions(bvh)
+    index = {n: i for i, n in enumerate(bvh.names)}
+    ankles = np.mean([rest[index[mapping[f"{side}Ankle"][1]]] for side in SIDES], axis=0)
+    up = rest[index[mapping["Head"][1]]] - ankles
+    if not up[1] > 0.7 * np.linalg.norm(up):
+        raise BVHError(f"the rest pose is not upright along +Y (head minus ankles: {np.round(up, 2).tolist()}); "
+                       "BVH files are Y up: export the clip Y up")
 
 
 def retarget(bvh: BVH, subject: Subject, *, fps: float = 30.0, n_frames: int | None = None,
-             start_s: float = 0.0, label: str = "bvh") -> Motion:
-    """``bvh``'s motion on the template body of ``subject``, resampled to ``fps``."""
+             start_s: float = 0.0, label: str = "bvh", user_map: Mapping[str, str] | None = None) -> Motion:
+    """``bvh``'s motion on the template body of ``subject``, resampled to ``fps``; ``user_map``: see joint_map."""
     index = {n: i for i, n in enumerate(bvh.names)}
-    mapping = _mapping(bvh.names)
-    hip, knee, ankle = (mapping[j][0] for j in ("LeftHip", "LeftKnee", "LeftAnkle"))
+    mapping = joint_map(bvh, user_map)
+    hip, knee, ankle = (mapping[j][1] for j in ("LeftHip", "LeftKnee", "LeftAnkle"))
     data = bvh.data[1:] if _starts_with_tpose(bvh) else bvh.data
     rot, pos = BVH(bvh.names, bvh.parents, bvh.offsets, bvh.channels, bvh.frame_time, data).forward_kinematics()
-    world = _facing(bvh, index[hip], index[mapping["RightHip"][0]]) @ Y_UP_TO_Z_UP
+    world = _facing(bvh, index[hip], index[mapping["RightHip"][1]]) @ Y_UP_TO_Z_UP
     rot = world @ rot @ world.T  # rest global rotations are the identity
     pos = pos @ world.T
     offsets = rest_offsets(subject)
@@ -212,7 +370,7 @@ def retarget(bvh: BVH, subject: Subject, *, fps: float = 30.0, n_frames: int | N
         if parent >= 0:
             local[:, j] = np.swapaxes(glob[:, parent], 1, 2) @ glob[:, j]
     scale = _leg_length(offsets) / _leg_length_bvh(pos[0], index[hip], index[knee], index[ankle])
-    root = pos[:, index["Hips"]] * scale
+    root = pos[:, index[mapping["Hips"][1]]] * scale
     root[:, :2] -= root[:, :2].mean(axis=0)
     local, root = _resample(local, root, bvh.fps, fps, n_frames, start_s)
     root = root + np.array([0, 0, offsets[0, 2] - root[:, 2].mean()])
@@ -227,9 +385,7 @@ def _starts_with_tpose(bvh: BVH) -> bool:
 
 def _facing(bvh: BVH, left_hip: int, right_hip: int) -> np.ndarray:
     """Rotation about Z that turns the BVH rest pose to face +Y (its left side to -X)."""
-    rest = np.zeros((len(bvh.names), 3))
-    for j, parent in enumerate(bvh.parents):
-        rest[j] = bvh.offsets[j] + (rest[parent] if parent >= 0 else 0)
+    rest = rest_positions(bvh)
     left = Y_UP_TO_Z_UP @ (rest[left_hip] - rest[right_hip])
     angle = np.arctan2(left[1], left[0])
     return Rotation.from_euler("z", np.pi - angle).as_matrix()

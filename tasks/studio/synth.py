@@ -45,6 +45,7 @@ class SequenceSpec:
     layout: Mapping[str, Any] | None = None
     label: str = ""  # the motion's name in the ground truth (defaults to ``motion``)
     body: str = "capsule"  # the subject: "capsule" (the template's primitives) or "mesh" (Anny, tasks/studio/mesh_synth.py)
+    motion_map: Mapping[str, str] | None = None  # a BVH clip's joint map {template joint: BVH joint} (bvh.joint_map)
 
     def __post_init__(self):
         if self.frames is not None and self.frames <= 0:
@@ -55,6 +56,9 @@ class SequenceSpec:
             raise ValueError(f"variation must be >= 0 (0 = the textbook exercise), got {self.variation}")
         if self.body not in BODIES:
             raise ValueError(f"body must be one of {', '.join(BODIES)}, got {self.body!r}")
+        if self.motion_map is not None and self.motion != "bvh":
+            raise ValueError(f"motion_map maps a BVH clip's joints; the exercise {self.motion!r} has none, so leave "
+                             "motion_map out")
         if self.variation and self.motion == "bvh":
             raise ValueError(f"variation ({self.variation}) applies to the procedural exercises; a BVH clip is "
                              "played as recorded, so leave variation out")
@@ -95,7 +99,7 @@ def build_rig(spec: SequenceSpec, bvh_text: str | None = None) -> Rig | mesh_syn
         clip = bvh.parse_bvh(bvh_text)
         frames = None if spec.frames is None else spec.frames + 1
         mot = bvh.retarget(clip, subject, fps=spec.fps, n_frames=frames, start_s=spec.start_s,
-                           label=spec.label or "bvh")
+                           label=spec.label or "bvh", user_map=spec.motion_map)
     else:
         mot = motion.exercise(spec.motion, subject, n_frames=(spec.frames or 90) + 1, fps=spec.fps,
                               speed=spec.speed, amplitude=spec.amplitude, repetitions=spec.repetitions,

@@ -10,8 +10,12 @@ import pytest
 import xarray as xr
 
 from conftest import SHARED, last_json, mocapflow, read_artifacts
+from mocapflow.pipeline.errors import InputError
 from mocapflow.pipeline.hashing import digest
-from mocapflow.pipeline.studio_io import fingerprint
+from mocapflow.pipeline.studio_io import fingerprint, make_spec
+from mocapflow.tasks.shared.body import Subject
+from mocapflow.tasks.studio import bvh
+from motion_files import USER_MAP, mixamo_text
 from mocapflow.tasks.studio.synth import STUDIO_VERSION, SequenceSpec, build_rig, synthesize
 
 CATALOG = """\
@@ -104,7 +108,8 @@ def test_synth_refuses_to_overwrite_and_reports_bad_inputs(tmp_path):
 
 def test_later_fields_enter_the_fingerprint_only_when_set():
     plain = SequenceSpec("classic_squat", seed=3)
-    before_the_fields = {k: v for k, v in dataclasses.asdict(plain).items() if k not in ("variation", "body")}
+    before_the_fields = {k: v for k, v in dataclasses.asdict(plain).items()
+                         if k not in ("variation", "body", "motion_map")}
     assert fingerprint(plain, None) == digest({"spec": before_the_fields, "bvh": None, "studio": STUDIO_VERSION})
     assert fingerprint(SequenceSpec("classic_squat", seed=3, variation=0.5), None) != fingerprint(plain, None)
     assert fingerprint(SequenceSpec("classic_squat", seed=3, body="mesh"), None) != fingerprint(plain, None)
@@ -183,3 +188,19 @@ def test_unlabelled_marker_takes_on_the_mesh_body_run_through_the_engine(tmp_pat
     (tmp_path / "catalog.yaml").write_text(MARKER_CATALOG.format(shared=SHARED).replace("ghosts: 2", "ghost: 2"))
     proc = mocapflow("run", cwd=tmp_path, check=False)
     assert proc.returncode == 2 and "unknown markers field 'ghost' (did you mean 'ghosts'?)" in proc.stderr
+
+
+def test_a_joint_map_file_is_read_into_the_spec_and_drives_the_retargeting(tmp_path):
+    (tmp_path / "take.bvh").write_text(mixamo_text("rig_"))
+    (tmp_path / "rig.yaml").write_text("".join(f"{k}: rig_{v}\n" for k, v in USER_MAP.items()))
+    spec, text, path = make_spec({"motion": "take.bvh", "motion_map": "rig.yaml"}, "seq", lambda p: tmp_path / p)
+    assert spec.motion == "bvh" and spec.motion_map == {k: f"rig_{v}" for k, v in USER_MAP.items()}
+    motion = bvh.retarget(bvh.parse_bvh(text), Subject(1.7), user_map=spec.motion_map)
+    known = bvh.retarget(bvh.parse_bvh(mixamo_text()), Subject(1.7))
+    np.testing.assert_allclose(motion.local_rot, known.local_rot, atol=1e-12)
+    assert fingerprint(spec, text) != fingerprint(dataclasses.replace(spec, motion_map=None), text)
+    (tmp_path / "bad.yaml").write_text("- Hips\n- Spine\n")
+    with pytest.raises(InputError, match="seq.motion_map: the joint map .*bad.yaml must be a YAML mapping"):
+        make_spec({"motion": "take.bvh", "motion_map": "bad.yaml"}, "seq", lambda p: tmp_path / p)
+    with pytest.raises(InputError, match="seq: motion_map maps a BVH clip's joints"):
+        make_spec({"motion": "side_jumps", "motion_map": "rig.yaml"}, "seq", lambda p: tmp_path / p)

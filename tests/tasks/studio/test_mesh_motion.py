@@ -72,7 +72,7 @@ def test_the_mesh_bones_point_where_the_source_bvh_bones_point():
     take = mesh_motion.retarget(body, subject, bvh.retarget(clip, subject, fps=clip.fps, n_frames=60))
     source = bvh.world_positions(clip)[:60]
     index = {n: i for i, n in enumerate(clip.names)}
-    mapping = bvh.mapping(clip.names)
+    mapping = bvh.joint_map(clip)
     followed = 0
     for bone, (joint, end_bone, _) in mesh_motion.SEGMENTS.items():
         m = mapping.get(joint)

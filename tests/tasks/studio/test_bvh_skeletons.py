@@ -1,0 +1,98 @@
+"""Retargeting skeletons other than CMU's: a Mixamo-style T-pose skeleton (Y up, centimetres) and a user's joint map."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mocapflow.tasks.shared import body, kinematics
+from mocapflow.tasks.studio import bvh
+from motion_files import USER_MAP, mixamo_text
+
+def template_joints(motion, subject):
+    return kinematics.forward_kinematics(motion.local_rot, motion.root_pos, body.rest_offsets(subject), body.PARENTS)
+
+
+def unit(v):
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+@pytest.mark.parametrize("prefix", ["mixamorig:", ""])
+def test_a_mixamo_skeleton_is_found_and_followed_along_its_chains(prefix):
+    clip = bvh.parse_bvh(mixamo_text(prefix))
+    m = bvh.joint_map(clip)
+    assert m["SpineBase"] == (f"{prefix}Spine1", f"{prefix}Spine", f"{prefix}Neck")  # the whole spine chain
+    assert m["LeftWrist"] == (f"{prefix}LeftHand", f"{prefix}LeftHand", f"{prefix}LeftHandMiddle1")  # not the thumb
+    assert m["Head"] == (f"{prefix}Head", f"{prefix}Head", f"{prefix}Head_End")  # an end site ends the head
+    assert m["Hips"][0] == f"{prefix}Hips" and m["Neck"] == "inherit"
+
+
+@pytest.mark.parametrize("prefix", ["mixamorig:", ""])
+def test_a_mixamo_clip_lands_on_the_template_bone_by_bone(prefix):
+    subject = body.Subject(1.75)
+    clip = bvh.parse_bvh(mixamo_text(prefix))
+    motion = bvh.retarget(clip, subject, fps=30.0)
+    assert motion.n_frames == 4  # the leading T-pose dropped, the others kept at the file's own rate
+    rot, pos = template_joints(motion, subject)
+    # The T-pose is the template's rest pose: every local rotation the identity.
+    np.testing.assert_allclose(motion.local_rot[0], np.broadcast_to(np.eye(3), motion.local_rot[0].shape), atol=1e-9)
+    # Each mapped bone points where the file's bone points, in the studio's axes.
+    source = bvh.world_positions(clip)
+    index = {n: i for i, n in enumerate(clip.names)}
+    for joint, (_, start, end) in ((k, v) for k, v in bvh.joint_map(clip).items() if v != "inherit"):
+        want = unit(source[:, index[end]] - source[:, index[start]])
+        j = body.JOINT_INDEX[joint]
+        child = bvh.BONE_END[joint]
+        got = unit(pos[:, body.JOINT_INDEX[child]] - pos[:, j]) if child in body.JOINT_INDEX else rot[:, j, :, 2]
+        np.testing.assert_allclose(got, want, atol=1e-9, err_msg=joint)
+    j = body.JOINT_INDEX
+    np.testing.assert_allclose(unit(pos[1, j["LeftElbow"]] - pos[1, j["LeftShoulder"]]), [0, 0, 1], atol=1e-9)
+    np.testing.assert_allclose(unit(pos[2, j["RightAnkle"]] - pos[2, j["RightKnee"]]), [0, -1, 0], atol=1e-9)
+    np.testing.assert_allclose(unit(pos[0, j["LeftHip"]] - pos[0, j["RightHip"]]), [-1, 0, 0], atol=1e-9)
+    # Turned 90 degrees to its left (about +Z): its left now points backward (-Y), its forearm to its front (-X).
+    np.testing.assert_allclose(unit(pos[3, j["LeftHip"]] - pos[3, j["RightHip"]]), [0, -1, 0], atol=1e-9)
+    np.testing.assert_allclose(unit(pos[3, j["LeftWrist"]] - pos[3, j["LeftElbow"]]), [-1, 0, 0], atol=1e-9)
+    # 44 cm forward on a leg of 88 cm: half the template's leg, along the studio's facing (+Y).
+    leg = np.linalg.norm(body.rest_offsets(subject)[[j["LeftKnee"], j["LeftAnkle"]]], axis=1).sum()
+    np.testing.assert_allclose(motion.root_pos[3] - motion.root_pos[0], [0, leg / 2, 0], atol=1e-9)
+    bones = np.linalg.norm(pos[:, 1:] - pos[:, body.PARENTS[1:]], axis=-1)
+    np.testing.assert_allclose(bones, np.broadcast_to(bones[0], bones.shape), atol=1e-9)
+
+
+def test_a_user_map_retargets_a_skeleton_no_known_naming_fits():
+    subject = body.Subject(1.7)
+    clip = bvh.parse_bvh(mixamo_text("rig_"))
+    with pytest.raises(bvh.BVHError, match=r"matches no known naming .*; none names a joint of this file"):
+        bvh.retarget(clip, subject)
+    renamed = bvh.parse_bvh(mixamo_text().replace("LeftUpLeg", "LeftThigh"))
+    with pytest.raises(bvh.BVHError, match=r"the closest, Mixamo, lacks joints \['LeftUpLeg'\]; give a joint map"):
+        bvh.joint_map(renamed)
+    user_map = {k: f"rig_{v}" for k, v in USER_MAP.items()}
+    mine = bvh.retarget(clip, subject, user_map=user_map)
+    known = bvh.retarget(bvh.parse_bvh(mixamo_text()), subject)
+    np.testing.assert_allclose(mine.local_rot, known.local_rot, atol=1e-12)
+    np.testing.assert_allclose(mine.root_pos, known.root_pos, atol=1e-12)
+
+
+@pytest.mark.parametrize("change,message", [
+    ({"Pelvis": "rig_Hips"}, r"unknown template joints \['Pelvis'\]"),
+    ({"Neck": None}, r"lacks template joints \['Neck'\]"),
+    ({"Head": "rig_Skull"}, r"names joints the file lacks: \{'Head': 'rig_Skull'\}"),
+    ({"LeftHand": None}, r"rig_LeftHand has 2 children .* name the joint its bone points to as 'LeftHand'"),
+    ({"LeftElbow": "rig_RightForeArm"}, r"LeftElbow \(rig_RightForeArm\) is not below LeftShoulder \(rig_LeftArm\)"),
+    ({"SpineBase": "rig_Hips"}, r"the bone of Hips \(rig_Hips -> rig_Hips\)|is not below Hips"),
+])
+def test_a_bad_user_map_is_a_clear_error(change, message):
+    clip = bvh.parse_bvh(mixamo_text("rig_"))
+    user_map = {k: f"rig_{v}" for k, v in USER_MAP.items()}
+    user_map.update({k: v for k, v in change.items() if v})
+    for k in (k for k, v in change.items() if v is None):
+        del user_map[k]
+    with pytest.raises(bvh.BVHError, match=message):
+        bvh.joint_map(clip, user_map)
+
+
+def test_a_skeleton_that_is_not_y_up_is_refused():
+    lying = mixamo_text().replace("OFFSET 0 -45 0", "OFFSET 0 0 45").replace("OFFSET 0 -43 0", "OFFSET 0 0 43")
+    with pytest.raises(bvh.BVHError, match=r"not upright along \+Y .* export the clip Y up"):
+        bvh.joint_map(bvh.parse_bvh(lying))
