@@ -82,11 +82,31 @@ def make_spec(raw: Mapping[str, Any], where: str, resolve: Callable[[str], Path]
     except (ValueError, TypeError) as exc:
         raise InputError(f"{where}: {exc}") from exc
     if bvh_text is not None:
-        try:
-            bvh_mod.parse_bvh(bvh_text)
-        except bvh_mod.BVHError as exc:
-            raise InputError(f"{where}: {bvh_path} is not a valid BVH file: {exc}") from exc
+        check_clip(spec, bvh_text, bvh_path, where)
     return spec, bvh_text, bvh_path
+
+
+def check_clip(spec: SequenceSpec, bvh_text: str, bvh_path: str, where: str) -> None:
+    """Everything a worker would find wrong with a BVH clip, found now: its syntax, its skeleton (a joint map that
+    fits it) and its length at the sequence's fps, start and frames."""
+    try:
+        clip = bvh_mod.parse_bvh(bvh_text)
+    except bvh_mod.BVHError as exc:
+        raise InputError(f"{where}: {bvh_path} is not a valid BVH file: {exc}") from exc
+    try:
+        bvh_mod.joint_map(clip, spec.motion_map)
+    except bvh_mod.BVHError as exc:
+        fix = ("fix the map" if spec.motion_map is not None else
+               "write that map as YAML and name it in the sequence (or its dataset's defaults): motion_map: my_map.yaml")
+        raise InputError(f"{where}: the skeleton of {bvh_path} cannot be retargeted onto the template: {exc}; "
+                         f"{fix} (see the README's 'Motion files')") from exc
+    available = bvh_mod.available_frames(clip, spec.fps, spec.start_s)
+    needed = 2 if spec.frames is None else spec.frames + 1  # one more frame gives the last one's scene flow
+    if spec.start_s < 0 or available < needed:
+        duration = (clip.data.shape[0] - 1) * clip.frame_time
+        raise InputError(f"{where}: {bvh_path} holds {max(available - 1, 0)} frames at {spec.fps:g} fps from "
+                         f"start_s {spec.start_s:g} (the clip lasts {duration:.2f} s); asked for "
+                         f"{spec.frames or 'at least 1'}: lower frames or start_s")
 
 
 def read_motion_map(path: Path, where: str) -> dict[str, str]:

@@ -64,7 +64,7 @@ BONE_END = {"Hips": "SpineBase", "SpineBase": "Neck", "Head": "HeadTop",
             **{f"{side}{joint}": f"{side}{end}" for side in SIDES
                for joint, end in (("Shoulder", "Elbow"), ("Elbow", "Wrist"), ("Wrist", "Hand"), ("Hip", "Knee"),
                                   ("Knee", "Ankle"), ("Ankle", "Foot"))}}
-REQUIRED_KEYS = (*BONE_END, "Neck")  # a name map names each of these
+REQUIRED_KEYS = ("Hips", "SpineBase", "Neck", *(k for k in BONE_END if k not in ("Hips", "SpineBase")))  # map all
 END_KEYS = ("HeadTop", *(f"{side}{end}" for side in SIDES for end in ("Hand", "Foot")))  # these where ambiguous
 MAP_KEYS = REQUIRED_KEYS + END_KEYS
 
@@ -218,7 +218,7 @@ class Skeleton:
 
 
 KNOWN_SKELETONS = (Skeleton("CMU cgspeed", triples=CMU_MAP, signature=CMU_SIGNATURE),
-                   Skeleton("CMU cgspeed, subject 14 naming", triples=CMU_MAP_ALT, signature=CMU_SIGNATURE),
+                   Skeleton("CMU cgspeed (subject 14)", triples=CMU_MAP_ALT, signature=CMU_SIGNATURE),
                    Skeleton("Mixamo", names=MIXAMO_NAMES), Skeleton("CMU ASF", names=CMU_ASF_NAMES))
 
 

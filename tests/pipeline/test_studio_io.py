@@ -204,3 +204,35 @@ def test_a_joint_map_file_is_read_into_the_spec_and_drives_the_retargeting(tmp_p
         make_spec({"motion": "take.bvh", "motion_map": "bad.yaml"}, "seq", lambda p: tmp_path / p)
     with pytest.raises(InputError, match="seq: motion_map maps a BVH clip's joints"):
         make_spec({"motion": "side_jumps", "motion_map": "rig.yaml"}, "seq", lambda p: tmp_path / p)
+
+
+DOOR_CATALOG = """\
+data_roots: [.]
+storage: {root: storage/}
+datasets:
+  studio:
+    kind: studio
+    defaults: {frames: 2, views: 1}
+    sequences:
+      take: {motion: take.bvh, seed: 1}
+stages:
+  frames: {task: ingest}
+"""
+
+
+def test_a_skeleton_no_map_fits_is_refused_at_planning_with_the_fix(tmp_path):
+    (tmp_path / "take.bvh").write_text(mixamo_text().replace("LeftUpLeg", "LeftThigh"))
+    (tmp_path / "catalog.yaml").write_text(DOOR_CATALOG)
+    proc = mocapflow("run", "--dry-run", cwd=tmp_path, check=False)
+    assert proc.returncode == 2, proc.stderr
+    assert f"the skeleton of {tmp_path / 'take.bvh'} cannot be retargeted" in proc.stderr
+    assert "the closest, Mixamo, lacks joints ['LeftUpLeg']" in proc.stderr
+    assert "motion_map: my_map.yaml" in proc.stderr and "Traceback" not in proc.stderr
+    (tmp_path / "my_map.yaml").write_text("".join(f"{k}: mixamorig:{v}\n" for k, v in USER_MAP.items())
+                                          .replace("LeftUpLeg", "LeftThigh"))
+    (tmp_path / "catalog.yaml").write_text(DOOR_CATALOG.replace("seed: 1", "seed: 1, motion_map: my_map.yaml"))
+    assert mocapflow("run", "--dry-run", cwd=tmp_path).stdout.splitlines()[-1] == "1 to run, 0 cached"
+    with pytest.raises(InputError, match=r"take.bvh holds 3 frames at 30 fps from start_s 0 .*asked for 9: lower"):
+        make_spec({"motion": "take.bvh", "motion_map": "my_map.yaml", "frames": 9}, "seq", lambda p: tmp_path / p)
+    with pytest.raises(InputError, match=r"holds 0 frames at 30 fps from start_s 1 \(the clip lasts 0.13 s\)"):
+        make_spec({"motion": "take.bvh", "motion_map": "my_map.yaml", "start_s": 1}, "seq", lambda p: tmp_path / p)
