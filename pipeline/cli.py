@@ -431,8 +431,8 @@ def evaluate(catalog_path, overrides, sequences, workers, threads, as_json):
 
 @main.command()
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="folder for <sequence>.zarr")
-@click.option("--motion", "motions", multiple=True, required=True, metavar="NAME_OR_BVH",
-              help="an exercise name or a .bvh file (repeatable; one sequence each)")
+@click.option("--motion", "motions", multiple=True, required=True, metavar="NAME_OR_FILE",
+              help="an exercise name, a .bvh clip or an .amc take (repeatable; one sequence each)")
 @click.option("--views", default=3, show_default=True, help="sensors on the default ring")
 @click.option("--frames", default=None, type=int, help="frames per sequence [90; a BVH clip's length]")
 @click.option("--fps", default=30.0, show_default=True)
@@ -444,9 +444,13 @@ def evaluate(catalog_path, overrides, sequences, workers, threads, as_json):
 @click.option("--body", type=click.Choice(["capsule", "mesh"]), default="capsule", show_default=True,
               help="the subject: the template's capsules or the Anny mesh body")
 @click.option("--motion-map", "motion_map", default=None, type=click.Path(dir_okay=False, exists=True),
-              help="joint map YAML {template joint: BVH joint} for the BVH clips' skeleton")
+              help="joint map YAML {template joint: BVH joint} for the clips' skeleton")
+@click.option("--skeleton", default=None, type=click.Path(dir_okay=False, exists=True),
+              help="the ASF skeleton of the .amc takes")
+@click.option("--amc-fps", "amc_fps", default=None, type=float, help="the .amc takes' frame rate [120]")
 @click.option("--force", is_flag=True, help="overwrite existing sequences in --out")
-def synth(out_dir, motions, views, frames, fps, seed, subject_height, noise, layout_file, body, motion_map, force):
+def synth(out_dir, motions, views, frames, fps, seed, subject_height, noise, layout_file, body, motion_map, skeleton,
+          amc_fps, force):
     """Render studio sequences (raw-sequence zarr stores with ground truth)."""
     from mocapflow.pipeline.studio_io import build_rig, make_spec, read_layout, write_sequence
     from mocapflow.tasks.studio.motion import EXERCISES
@@ -458,6 +462,8 @@ def synth(out_dir, motions, views, frames, fps, seed, subject_height, noise, lay
         raw = {"motion": motion, "views": views, "fps": fps, "seed": seed, "noise": noise, "body": body,
                "subject_height": subject_height, **({"frames": frames} if frames is not None else {}),
                **({"motion_map": motion_map} if motion_map and motion not in EXERCISES else {})}
+        if motion.lower().endswith(".amc"):
+            raw.update({k: v for k, v in (("skeleton", skeleton), ("amc_fps", amc_fps)) if v is not None})
         spec, text, _ = make_spec(raw, f"--motion {motion}", lambda p: Path(p).resolve(), layout)
         name = Path(motion).stem if text is not None else motion
         target = out / f"{name}.zarr"

@@ -11,8 +11,10 @@ A studio dataset in catalog.yaml::
           jj_s1: {motion: jumping_jack, seed: 1, subject_height: 1.72}
           walk:  {motion: ../shared/data/motions/cmu_12_01_walk.bvh, seed: 7}
 
-``motion`` is an exercise name or a .bvh path (inside ``data_roots``); ``motion_map: my_map.yaml`` gives a
-BVH skeleton no known naming fits a joint map (YAML ``{template joint: BVH joint}``). Files are read here;
+``motion`` is an exercise name, a .bvh path or an .amc take with ``skeleton: subject.asf`` beside it
+(``amc_fps``: its frame rate, 120 by default as in the CMU database), paths inside ``data_roots``;
+``motion_map: my_map.yaml`` gives a skeleton no known naming fits a joint map (YAML ``{template joint:
+BVH joint}``). Files are read here (an AMC take is carried as the BVH text of tasks/studio/asf_amc.py);
 the studio itself (tasks/studio) only sees parsed values.
 """
 
@@ -21,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import typing
+from dataclasses import dataclass
 from importlib.metadata import version
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -32,6 +35,7 @@ from mocapflow.pipeline.errors import CatalogError, InputError
 from mocapflow.pipeline.hashing import digest
 from mocapflow.pipeline.registry import coerce, did_you_mean
 from mocapflow.tasks.shared.cache import BoundedCache
+from mocapflow.tasks.studio import asf_amc
 from mocapflow.tasks.studio import bvh as bvh_mod
 from mocapflow.tasks.studio.cameras import layout as camera_layout
 from mocapflow.tasks.studio import motion as motion_mod
@@ -44,30 +48,46 @@ SPEC_FIELDS = {f.name: f for f in dataclasses.fields(SequenceSpec)}
 _RIGS: BoundedCache[str, Rig] = BoundedCache(4)  # fingerprint -> rig, this process
 
 
+# Keys of a sequence that say where its motion file's skeleton and rate are, not what the studio films.
+MOTION_FILE_KEYS = ("skeleton", "amc_fps")
+
+
+@dataclass(frozen=True)
+class MotionSource:
+    """A sequence's motion file: a BVH clip, or an AMC take with its ASF skeleton and frame rate."""
+
+    path: str
+    skeleton: str | None = None
+    amc_fps: float | None = None
+
+    def __str__(self) -> str:
+        return self.path if self.skeleton is None else f"{self.path} (skeleton {self.skeleton})"
+
+
 def make_spec(raw: Mapping[str, Any], where: str, resolve: Callable[[str], Path],
-              layout: Mapping | None = None) -> tuple[SequenceSpec, str | None, str | None]:
-    """A validated SequenceSpec, the BVH text (or None) and the BVH path, from a mapping of spec fields."""
+              layout: Mapping | None = None) -> tuple[SequenceSpec, str | None, MotionSource | None]:
+    """A validated SequenceSpec, the clip's BVH text (or None) and where the clip comes from, from a mapping of
+    spec fields (and MOTION_FILE_KEYS)."""
     raw = dict(raw)
+    files = {k: raw.pop(k) for k in MOTION_FILE_KEYS if k in raw}
     for key in raw:
         if key not in SPEC_FIELDS:
-            raise CatalogError(f"{where}: unknown studio field {key!r}{did_you_mean(key, SPEC_FIELDS)}; "
-                               f"fields: {sorted(SPEC_FIELDS)}")
+            known = sorted(set(SPEC_FIELDS) | set(MOTION_FILE_KEYS))
+            raise CatalogError(f"{where}: unknown studio field {key!r}{did_you_mean(key, known)}; fields: {known}")
     if "motion" not in raw:
-        raise CatalogError(f"{where}: no 'motion'; give an exercise name ({', '.join(sorted(EXERCISES))}) or a .bvh path")
+        raise CatalogError(f"{where}: no 'motion'; give an exercise name ({', '.join(sorted(EXERCISES))}), a .bvh "
+                           "clip or an .amc take (with skeleton: its .asf)")
     motion = str(raw["motion"])
-    bvh_text = bvh_path = None
-    if motion.lower().endswith(".bvh"):
-        path = resolve(motion)
-        try:
-            bvh_text = path.read_text()
-        except OSError as exc:
-            raise InputError(f"{where}: cannot read BVH {path}: {exc.strerror}") from exc
-        bvh_path, raw["motion"] = str(path), "bvh"
-        raw.setdefault("label", path.stem)
+    source = motion_source(motion, files, where, resolve)
+    text = None
+    if source is not None:
+        text = read_motion(source, where)
+        raw["motion"] = "bvh"
+        raw.setdefault("label", Path(source.path).stem)
         raw.setdefault("frames", None)
     elif motion not in EXERCISES:
         raise CatalogError(f"{where}: unknown exercise {motion!r}{did_you_mean(motion, EXERCISES)}; "
-                           f"use one of {sorted(EXERCISES)} or a .bvh file")
+                           f"use one of {sorted(EXERCISES)}, a .bvh clip or an .amc take")
     if layout is not None:
         raw.setdefault("layout", layout)
     if raw.get("motion_map") is not None:
@@ -81,30 +101,67 @@ def make_spec(raw: Mapping[str, Any], where: str, resolve: Callable[[str], Path]
             camera_layout(spec.layout, views=spec.views)
     except (ValueError, TypeError) as exc:
         raise InputError(f"{where}: {exc}") from exc
-    if bvh_text is not None:
-        check_clip(spec, bvh_text, bvh_path, where)
-    return spec, bvh_text, bvh_path
+    if text is not None:
+        check_clip(spec, text, source, where)
+    return spec, text, source
 
 
-def check_clip(spec: SequenceSpec, bvh_text: str, bvh_path: str, where: str) -> None:
+def motion_source(motion: str, files: Mapping[str, Any], where: str,
+                  resolve: Callable[[str], Path]) -> MotionSource | None:
+    """Where a ``motion`` that names a file comes from (None for an exercise), its MOTION_FILE_KEYS checked."""
+    suffix = Path(motion).suffix.lower()
+    if suffix == ".asf":
+        raise CatalogError(f"{where}: {motion} is a skeleton; give the take as the motion and the skeleton beside "
+                           f"it: motion: take.amc, skeleton: {motion}")
+    if suffix != ".amc":
+        if files:
+            raise CatalogError(f"{where}: {sorted(files)} belong to an AMC take (motion: take.amc); "
+                               f"{motion!r} needs none, so leave them out")
+        return MotionSource(str(resolve(motion))) if suffix == ".bvh" else None
+    if "skeleton" not in files:
+        raise CatalogError(f"{where}: the AMC take {motion} needs its ASF skeleton: add skeleton: subject.asf")
+    fps = coerce(files.get("amc_fps", asf_amc.CMU_FPS), float, f"{where}.amc_fps")
+    if not fps > 0:
+        raise CatalogError(f"{where}: amc_fps must be positive (the take's frame rate; CMU's is 120), got {fps}")
+    return MotionSource(str(resolve(motion)), str(resolve(str(files["skeleton"]))), fps)
+
+
+def read_motion(source: MotionSource, where: str) -> str:
+    """The clip's BVH text: the BVH file's, or an AMC take with its skeleton written as BVH."""
+    def read(path: str, what: str) -> str:
+        try:
+            return Path(path).read_text()
+        except OSError as exc:
+            raise InputError(f"{where}: cannot read {what} {path}: {exc.strerror}") from exc
+
+    if source.skeleton is None:
+        return read(source.path, "BVH")
+    asf_text, amc_text = read(source.skeleton, "ASF skeleton"), read(source.path, "AMC take")
+    try:
+        return bvh_mod.format_bvh(asf_amc.read_asf_amc(asf_text, amc_text, source.amc_fps))
+    except asf_amc.ASFError as exc:
+        raise InputError(f"{where}: {source} cannot be read: {exc}") from exc
+
+
+def check_clip(spec: SequenceSpec, bvh_text: str, source: MotionSource, where: str) -> None:
     """Everything a worker would find wrong with a BVH clip, found now: its syntax, its skeleton (a joint map that
     fits it) and its length at the sequence's fps, start and frames."""
     try:
         clip = bvh_mod.parse_bvh(bvh_text)
     except bvh_mod.BVHError as exc:
-        raise InputError(f"{where}: {bvh_path} is not a valid BVH file: {exc}") from exc
+        raise InputError(f"{where}: {source} is not a valid BVH file: {exc}") from exc
     try:
         bvh_mod.joint_map(clip, spec.motion_map)
     except bvh_mod.BVHError as exc:
         fix = ("fix the map" if spec.motion_map is not None else
                "write that map as YAML and name it in the sequence (or its dataset's defaults): motion_map: my_map.yaml")
-        raise InputError(f"{where}: the skeleton of {bvh_path} cannot be retargeted onto the template: {exc}; "
+        raise InputError(f"{where}: the skeleton of {source} cannot be retargeted onto the template: {exc}; "
                          f"{fix} (see the README's 'Motion files')") from exc
     available = bvh_mod.available_frames(clip, spec.fps, spec.start_s)
     needed = 2 if spec.frames is None else spec.frames + 1  # one more frame gives the last one's scene flow
     if spec.start_s < 0 or available < needed:
         duration = (clip.data.shape[0] - 1) * clip.frame_time
-        raise InputError(f"{where}: {bvh_path} holds {max(available - 1, 0)} frames at {spec.fps:g} fps from "
+        raise InputError(f"{where}: {source} holds {max(available - 1, 0)} frames at {spec.fps:g} fps from "
                          f"start_s {spec.start_s:g} (the clip lasts {duration:.2f} s); asked for "
                          f"{spec.frames or 'at least 1'}: lower frames or start_s")
 
@@ -182,19 +239,19 @@ def discover(catalog, dataset) -> list:
     out = []
     for seq_id, body in sequences.items():
         where = f"{dataset.where}.sequences.{seq_id}"
-        spec, text, path = make_spec({**(opts.get("defaults") or {}), **(body or {})}, where,
-                                     lambda p, w=where: catalog.resolve_data_path(p, w), layout)
+        spec, text, source = make_spec({**(opts.get("defaults") or {}), **(body or {})}, where,
+                                       lambda p, w=where: catalog.resolve_data_path(p, w), layout)
         fp = fingerprint(spec, text)
         out.append(SequenceInfo(str(seq_id), view_names(spec), frame_count(spec, text), fp,
-                                {"spec": spec, "bvh_path": path}))
+                                {"spec": spec, "source": source}))
     return out
 
 
 def rig_for(info) -> Rig:
     """The sequence's rig, built once per worker process (cameras' rays and the room are reused)."""
     def build() -> Rig:
-        path = info.spec["bvh_path"]
-        return build_rig(info.spec["spec"], Path(path).read_text() if path else None)
+        source = info.spec["source"]
+        return build_rig(info.spec["spec"], read_motion(source, f"sequence {info.id}") if source else None)
 
     return _RIGS.get_or_make(info.fingerprint, build)
 
@@ -262,10 +319,10 @@ def discover_markers(catalog, dataset) -> list:
         if fields.setdefault("body", "mesh") != "mesh":
             raise CatalogError(f"{where}: unlabelled marker takes are filmed on the mesh body; drop 'body' or set it "
                                "to mesh")
-        spec, text, path = make_spec(fields, where, lambda p, w=where: catalog.resolve_data_path(p, w))
+        spec, text, source = make_spec(fields, where, lambda p, w=where: catalog.resolve_data_path(p, w))
         fp = digest({"take": fingerprint(spec, text), "markers": [markers[0], markers[1], dataclasses.asdict(markers[2])]})
         out.append(SequenceInfo(str(seq_id), (), frame_count(spec, text), fp,
-                                {"spec": spec, "bvh_path": path, "markers": markers}))
+                                {"spec": spec, "source": source, "markers": markers}))
     return out
 
 

@@ -137,3 +137,68 @@ USER_MAP = {"Hips": "Hips", "SpineBase": "Spine", "Neck": "Neck", "Head": "Head"
                for joint, bvh_joint in (("Shoulder", "Arm"), ("Elbow", "ForeArm"), ("Wrist", "Hand"),
                                         ("Hand", "HandMiddle1"), ("Hip", "UpLeg"), ("Knee", "Leg"),
                                         ("Ankle", "Foot"), ("Foot", "ToeBase"))}}
+
+
+# A CMU-named ASF skeleton (the database's bone names; a T-pose, Y up, facing +Z, its left at +X), and a take of it.
+# (bone, parent, direction, length, axis angles, dof); the right side mirrors the left (x negated, l -> r).
+CMU_BONES = [
+    ("lhipjoint", "root", (0.6, -0.8, 0), 10, (0, 0, 0), ()),
+    ("lfemur", "lhipjoint", (0, -1, 0), 45, (0, 0, 20), ("rx", "ry", "rz")),
+    ("ltibia", "lfemur", (0, -1, 0), 43, (0, 0, 0), ("rx",)),
+    ("lfoot", "ltibia", (0, -3, 11.5), 11.885, (-90, 0, 20), ("rx", "rz")),
+    ("ltoes", "lfoot", (0, 0, 1), 5, (-90, 0, 20), ("rx",)),
+    ("lowerback", "root", (0, 1, 0), 10, (0, 0, 0), ("rx", "ry", "rz")),
+    ("upperback", "lowerback", (0, 13.5, -0.5), 13.509, (0, 0, 0), ("rx", "ry", "rz")),
+    ("thorax", "upperback", (0, 13.5, -0.5), 13.509, (0, 0, 0), ("rx", "ry", "rz")),
+    ("lowerneck", "thorax", (0, 1, 0), 5, (0, 0, 0), ("rx", "ry", "rz")),
+    ("upperneck", "lowerneck", (0, 1, 0), 4, (0, 0, 0), ("rx", "ry", "rz")),
+    ("head", "upperneck", (0, 1, 0), 18, (0, 0, 0), ("rx", "ry", "rz")),
+    ("lclavicle", "thorax", (1, 0.2, 0), 15, (0, 0, -20), ("ry", "rz")),
+    ("lhumerus", "lclavicle", (1, 0, 0), 28, (0, 0, 0), ("rx", "ry", "rz")),
+    ("lradius", "lhumerus", (1, 0, 0), 25, (0, 0, 90), ("rx",)),
+    ("lwrist", "lradius", (1, 0, 0), 3, (0, 0, 90), ("ry",)),
+    ("lhand", "lwrist", (1, 0, 0), 7, (0, 0, 90), ("rx", "rz")),
+    ("lfingers", "lhand", (1, 0, 0), 5, (0, 0, 90), ("rx",)),
+    ("lthumb", "lwrist", (1, 0, 1), 4, (-90, 0, 45), ("rx", "rz")),
+]
+
+
+def _cmu_bones():
+    out = []
+    for name, parent, (x, y, z), length, axis, dof in CMU_BONES:
+        out.append((name, parent, (x, y, z), length, axis, dof))
+        if name[0] == "l":
+            mirror = "r" + parent[1:] if parent[0] == "l" else parent
+            out.append(("r" + name[1:], mirror, (-x, y, z), length, (axis[0], -axis[1], -axis[2]), dof))
+    return out
+
+
+def cmu_asf_text() -> str:
+    lines = [":version 1.10", ":name VICON", ":units", "  mass 1.0", "  length 0.45", "  angle deg", ":documentation",
+             "  written by hand for the tests", ":root", "   order TX TY TZ RX RY RZ", "   axis XYZ",
+             "   position 0 0 0", "   orientation 0 0 0", ":bonedata"]
+    for i, (name, _, direction, length, axis, dof) in enumerate(_cmu_bones(), 1):
+        lines += ["  begin", f"     id {i}", f"     name {name}", "     direction " + " ".join(map(str, direction)),
+                  f"     length {length}", "     axis " + " ".join(map(str, axis)) + " XYZ"]
+        if dof:
+            lines += ["    dof " + " ".join(dof), "    limits " + "\n           ".join("(-180.0 180.0)" for _ in dof)]
+        lines.append("  end")
+    children: dict[str, list[str]] = {}
+    for name, parent, *_ in _cmu_bones():
+        children.setdefault(parent, []).append(name)
+    lines += [":hierarchy", "  begin"] + [f"    {p} {' '.join(c)}" for p, c in children.items()] + ["  end"]
+    return "\n".join(lines) + "\n"
+
+
+def cmu_amc_text() -> str:
+    """Frames: the rest pose twice (the first is dropped as a clip's leading T-pose), the left knee bent 90 degrees,
+    the right arm raised sideways to the vertical, and every bone turned some way with the root moved and turned."""
+    bones = _cmu_bones()
+    frames = [{}, {}, {"ltibia": (90,)}, {"rhumerus": (0, 0, -90)},
+              {"root": (5, 90, -3, 10, 30, -5), **{name: tuple(float(7 * ((i + k) % 5) - 14) for k in range(len(dof)))
+                                                      for i, (name, _, _, _, _, dof) in enumerate(bones)}}]
+    lines = ["#!OML:ASF subject.asf", ":FULLY-SPECIFIED", ":DEGREES"]
+    for k, frame in enumerate(frames, 1):
+        lines += [str(k), "root " + " ".join(map(str, frame.get("root", (0, 90, 0, 0, 0, 0))))]
+        lines += [f"{name} " + " ".join(map(str, frame.get(name, (0,) * len(dof)))) for name, *_, dof in bones if dof]
+    return "\n".join(lines) + "\n"

@@ -17,6 +17,7 @@ database's ASF bones (``CMU_ASF_NAMES``, for tasks/studio/asf_amc.py) or a map t
 
 from __future__ import annotations
 
+import io
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -194,6 +195,33 @@ def parse_bvh(text: str) -> BVH:
         raise BVHError(f"MOTION holds {values.size} numbers, expected Frames {n_frames} x {width} channels")
     return BVH(tuple(names), np.array(parents), np.array(offsets, float), tuple(channels), frame_time,
                values.reshape(n_frames, width))
+
+
+def format_bvh(clip: BVH) -> str:
+    """BVH text of ``clip``, its numbers written exactly (``parse_bvh`` gives the same values back, its joints in
+    depth-first order); a joint without channels and children named ``<parent>_End`` is written as an End Site."""
+    lines, order = ["HIERARCHY"], []
+
+    def write(j: int, depth: int) -> None:
+        pad, children = "  " * depth, np.flatnonzero(clip.parents == j)
+        end_site = not clip.channels[j] and not len(children) and clip.parents[j] >= 0 \
+            and clip.names[j] == f"{clip.names[clip.parents[j]]}_End"
+        head = "End Site" if end_site else ("ROOT " if clip.parents[j] < 0 else "JOINT ") + clip.names[j]
+        lines.extend([pad + head, pad + "{", f"{pad}  OFFSET " + " ".join(f"{float(v)!r}" for v in clip.offsets[j])])
+        if not end_site:
+            lines.append(f"{pad}  CHANNELS {len(clip.channels[j])} " + " ".join(clip.channels[j]))
+        order.append(j)
+        for child in children:
+            write(int(child), depth + 1)
+        lines.append(pad + "}")
+
+    write(int(np.flatnonzero(clip.parents < 0)[0]), 0)
+    starts = np.cumsum([0] + [len(c) for c in clip.channels])
+    columns = [c for j in order for c in range(starts[j], starts[j + 1])]  # the file's channel order
+    lines += ["MOTION", f"Frames: {clip.data.shape[0]}", f"Frame Time: {float(clip.frame_time)!r}"]
+    rows = io.StringIO()
+    np.savetxt(rows, clip.data[:, columns], fmt="%.17g")
+    return "\n".join(lines) + "\n" + rows.getvalue()
 
 
 def world_positions(bvh: BVH, user_map: Mapping[str, str] | None = None) -> np.ndarray:

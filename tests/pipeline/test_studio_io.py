@@ -13,7 +13,7 @@ from conftest import SHARED, last_json, mocapflow, read_artifacts
 from mocapflow.pipeline.errors import InputError
 from mocapflow.pipeline.hashing import digest
 from mocapflow.pipeline.studio_io import fingerprint, make_spec
-from mocapflow.tasks.shared.body import Subject
+from mocapflow.tasks.shared.body import JOINT_INDEX, Subject
 from mocapflow.tasks.studio import bvh
 from motion_files import USER_MAP, mixamo_text
 from mocapflow.tasks.studio.synth import STUDIO_VERSION, SequenceSpec, build_rig, synthesize
@@ -236,3 +236,34 @@ def test_a_skeleton_no_map_fits_is_refused_at_planning_with_the_fix(tmp_path):
         make_spec({"motion": "take.bvh", "motion_map": "my_map.yaml", "frames": 9}, "seq", lambda p: tmp_path / p)
     with pytest.raises(InputError, match=r"holds 0 frames at 30 fps from start_s 1 \(the clip lasts 0.13 s\)"):
         make_spec({"motion": "take.bvh", "motion_map": "my_map.yaml", "start_s": 1}, "seq", lambda p: tmp_path / p)
+
+
+def test_an_amc_take_with_its_asf_skeleton_is_a_studio_motion(tmp_path):
+    from mocapflow.pipeline.errors import CatalogError
+    from mocapflow.pipeline.studio_io import read_motion
+    from motion_files import cmu_amc_text, cmu_asf_text
+
+    (tmp_path / "subject.asf").write_text(cmu_asf_text())
+    (tmp_path / "take.amc").write_text(cmu_amc_text())
+    resolve = lambda p: tmp_path / p  # noqa: E731
+    spec, text, source = make_spec({"motion": "take.amc", "skeleton": "subject.asf", "amc_fps": 30, "views": 1},
+                                   "seq", resolve)
+    assert spec.motion == "bvh" and spec.label == "take" and source.amc_fps == 30.0
+    assert read_motion(source, "seq") == text  # what a worker reads is what the fingerprint hashed
+    clip = bvh.parse_bvh(text)
+    assert clip.fps == pytest.approx(30.0) and clip.data.shape[0] == 5
+    assert bvh.joint_map(clip)["LeftKnee"] == ("ltibia", "ltibia", "lfoot")
+    rig = build_rig(dataclasses.replace(spec, frames=2), text)
+    knee, ankle = JOINT_INDEX["LeftKnee"], JOINT_INDEX["LeftAnkle"]
+    shin = rig.joint_pos[1, ankle] - rig.joint_pos[1, knee]  # the left knee bent in the take's 3rd frame: backward
+    np.testing.assert_allclose(shin / np.linalg.norm(shin), [0, -1, 0], atol=1e-9)
+    for raw, error, message in [
+        ({"motion": "subject.asf"}, CatalogError, "subject.asf is a skeleton; .* motion: take.amc, skeleton: subject"),
+        ({"motion": "take.amc"}, CatalogError, "the AMC take take.amc needs its ASF skeleton: add skeleton"),
+        ({"motion": "side_jumps", "skeleton": "subject.asf"}, CatalogError, r"\['skeleton'\] belong to an AMC take"),
+        ({"motion": "take.amc", "skeleton": "subject.asf", "amc_fps": 0}, CatalogError, "amc_fps must be positive"),
+        ({"motion": "take.amc", "skeleton": "take.amc"}, InputError,
+         r"take.amc \(skeleton .*take.amc\) cannot be read: the ASF has no ':root' section"),
+    ]:
+        with pytest.raises(error, match=message):
+            make_spec(raw, "seq", resolve)
