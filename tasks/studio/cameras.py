@@ -6,6 +6,9 @@ Intrinsics follow OpenCV's pinhole model with radial/tangential distortion (k1 k
 Extrinsics are 4x4 camera-to-world transforms (OpenCV camera axes: x right, y down, z forward)
 in the studio's world frame (Z up, metres). The default layout is DeepMoCap's DMC setup (§4):
 three sensors about 120 degrees apart, 2-3 m from the subject, 0.5-1 m high, aimed at the centre.
+A layout's sensor is aimed at a target with its x axis level, then turned about its viewing axis by
+``roll_deg`` (a real rig's sensors sit 1-3 degrees off level); or its whole orientation is given, as a
+3x3 camera-to-world ``rotation`` or a ``quaternion`` [w, x, y, z], where a calibration knows it.
 """
 
 from __future__ import annotations
@@ -14,12 +17,19 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from scipy.spatial.transform import Rotation
+
 from mocapflow.tasks.shared.cameras import Camera
 
 WIDTH, HEIGHT = 512, 424
 FOV_DEG = (70.6, 60.0)
 KINECT_DIST = (0.09, -0.27, 0.0, 0.0, 0.09)
 CAPTURE_CENTRE = (0.0, 0.0, 0.9)
+ROTATION_TOLERANCE = 1e-4  # a layout's rotation or quaternion may be off by this much (numbers typed at 4-6 places)
+
+
+class LayoutError(ValueError):
+    """A camera layout that cannot be built (a sensor without a position, an orientation that is not one)."""
 
 
 def kinect_v2(name: str, cam_to_world: np.ndarray, rng: np.random.Generator | None = None) -> Camera:
@@ -40,11 +50,11 @@ def look_at(position, target=CAPTURE_CENTRE) -> np.ndarray:
     position, target = np.asarray(position, float), np.asarray(target, float)
     z = target - position
     if np.linalg.norm(z) < 1e-6:
-        raise ValueError(f"camera at {position.tolist()} coincides with its target")
+        raise LayoutError(f"camera at {position.tolist()} coincides with its target")
     z /= np.linalg.norm(z)
     x = np.cross(z, [0.0, 0.0, 1.0])
     if np.linalg.norm(x) < 1e-6:
-        raise ValueError(f"camera at {position.tolist()} looks straight up or down; tilt it")
+        raise LayoutError(f"camera at {position.tolist()} looks straight up or down; tilt it, or give its rotation")
     x /= np.linalg.norm(x)
     pose = np.eye(4)
     pose[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
@@ -64,7 +74,9 @@ def layout(spec: Mapping[str, Any] | None = None, *, views: int = 3, rng: np.ran
 
     Layout mapping: ``target: [x, y, z]`` (optional) and either
     ``ring: {count, radius, height, start_deg, spacing_deg}`` or
-    ``sensors: [{name, position: [x, y, z], target?, fx?, fy?, cx?, cy?, dist?}, ...]``.
+    ``sensors: [{name, position: [x, y, z], target?, roll_deg?, fx?, fy?, cx?, cy?, dist?}, ...]``, a sensor's
+    orientation given instead by ``rotation`` (3x3 camera-to-world) or ``quaternion`` ([w, x, y, z]) where a
+    real rig's is known whole (see sensor_pose).
     """
     spec = dict(spec or {"ring": {"count": views}})
     target = np.asarray(spec.get("target", CAPTURE_CENTRE), float)
@@ -75,7 +87,7 @@ def layout(spec: Mapping[str, Any] | None = None, *, views: int = 3, rng: np.ran
         ring.setdefault("count", views)
         cams = [kinect_v2(f"kinect{i}", look_at(p, target), rng) for i, p in enumerate(ring_positions(**ring))]
     if not cams:
-        raise ValueError("the camera layout has no sensors")
+        raise LayoutError("the camera layout has no sensors")
     for cam in cams:
         check_sees(cam, target)
     return cams
@@ -89,18 +101,79 @@ def random_ring(rng: np.random.Generator, views: int = 3) -> dict:
 
 
 def _sensor(i: int, s: Mapping[str, Any], target: np.ndarray) -> Camera:
-    if "position" not in s:
-        raise ValueError(f"sensor {i} of the layout has no 'position: [x, y, z]'")
     name = str(s.get("name", f"kinect{i}"))
-    base = kinect_v2(name, look_at(s["position"], s.get("target", target)))
+    if "position" not in s:
+        raise LayoutError(f"sensor {i} ({name!r}) of the layout has no 'position: [x, y, z]'")
+    base = kinect_v2(name, sensor_pose(name, s, target))
     return Camera(name, float(s.get("fx", base.fx)), float(s.get("fy", base.fy)), float(s.get("cx", base.cx)),
                   float(s.get("cy", base.cy)), tuple(float(d) for d in s.get("dist", base.dist)), base.cam_to_world,
                   base.width, base.height)
 
 
+def sensor_pose(name: str, s: Mapping[str, Any], target: np.ndarray) -> np.ndarray:
+    """Camera-to-world transform of a layout sensor: aimed at its ``target`` (the layout's by default) and turned
+    by ``roll_deg`` about its viewing axis, or given whole by ``rotation`` or ``quaternion``."""
+    given = [k for k in ("rotation", "quaternion") if k in s]
+    if given and (len(given) > 1 or {"target", "roll_deg"} & set(s)):
+        keys = sorted(set(given) | ({"target", "roll_deg"} & set(s)))
+        raise LayoutError(f"sensor {name!r}: its orientation is given more than one way ({', '.join(keys)}); give "
+                          "either target (and roll_deg), or rotation, or quaternion")
+    position = np.asarray(s["position"], float)
+    if given:
+        pose = np.eye(4)
+        pose[:3, :3] = _rotation(name, s["rotation"]) if "rotation" in s else _quaternion(name, s["quaternion"])
+        pose[:3, 3] = position
+        return pose
+    pose = look_at(position, s.get("target", target))
+    pose[:3, :3] = pose[:3, :3] @ roll(float(s.get("roll_deg", 0.0)))
+    return pose
+
+
+def roll(degrees: float) -> np.ndarray:
+    """A camera's turn about its viewing axis (+z), applied to its camera-to-world rotation on the right: positive
+    turns its x axis (image right) toward its y axis (image down), clockwise seen from behind the camera, so the
+    scene turns counter-clockwise in its image."""
+    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _rotation(name: str, value) -> np.ndarray:
+    """A 3x3 camera-to-world rotation, checked: orthonormal within ROTATION_TOLERANCE, determinant +1."""
+    try:
+        rot = np.asarray(value, float)
+    except (TypeError, ValueError) as exc:
+        raise LayoutError(f"sensor {name!r}: rotation must be 3 rows of 3 numbers, got {value!r}") from exc
+    if rot.shape != (3, 3) or not np.isfinite(rot).all():
+        raise LayoutError(f"sensor {name!r}: rotation must be 3 rows of 3 finite numbers (camera-to-world: its "
+                          f"columns the camera's x right, y down, z forward in world axes), got {value!r}")
+    off = np.abs(rot.T @ rot - np.eye(3)).max()
+    if off > ROTATION_TOLERANCE:
+        raise LayoutError(f"sensor {name!r}: rotation is not orthonormal (R^T R differs from the identity by "
+                          f"{off:.2g}); its columns must be unit and perpendicular: the camera's x, y, z in world axes")
+    if np.linalg.det(rot) < 0:
+        raise LayoutError(f"sensor {name!r}: rotation has determinant {np.linalg.det(rot):.3f}, a reflection; one "
+                          "axis is flipped (the camera's axes are x right, y down, z forward, right-handed)")
+    u, _, vt = np.linalg.svd(rot)
+    return u @ vt  # the nearest rotation: what the tolerance let through made exact
+
+
+def _quaternion(name: str, value) -> np.ndarray:
+    """A camera-to-world rotation from a unit quaternion [w, x, y, z] (scalar first), its norm checked."""
+    try:
+        q = np.asarray(value, float)
+    except (TypeError, ValueError) as exc:
+        raise LayoutError(f"sensor {name!r}: quaternion must be 4 numbers [w, x, y, z], got {value!r}") from exc
+    if q.shape != (4,) or not np.isfinite(q).all():
+        raise LayoutError(f"sensor {name!r}: quaternion must be 4 finite numbers [w, x, y, z], got {value!r}")
+    if abs(np.linalg.norm(q) - 1.0) > ROTATION_TOLERANCE:
+        raise LayoutError(f"sensor {name!r}: quaternion {q.tolist()} has norm {np.linalg.norm(q):.6g}; a rotation's "
+                          "is 1 ([w, x, y, z], scalar first)")
+    return Rotation.from_quat(q[[1, 2, 3, 0]]).as_matrix()  # scipy's order is [x, y, z, w]
+
+
 def check_sees(cam: Camera, point) -> None:
-    """Raise ValueError when ``point`` (world) is behind ``cam`` or outside its image."""
+    """Raise LayoutError when ``point`` (world) is behind ``cam`` or outside its image."""
     uv, z = cam.project(np.asarray(point, float)[None])
     if not z[0] > 0.3 or not (0 <= uv[0, 0] < cam.width and 0 <= uv[0, 1] < cam.height):
-        raise ValueError(f"sensor {cam.name!r} does not see the capture centre {np.round(point, 2).tolist()} "
+        raise LayoutError(f"sensor {cam.name!r} does not see the capture centre {np.round(point, 2).tolist()} "
                          f"(it projects to {np.round(uv[0], 1).tolist()} at depth {z[0]:.2f} m); aim it at the subject")

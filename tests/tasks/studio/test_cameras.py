@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from scipy.spatial.transform import Rotation
+
 from mocapflow.tasks.studio import cameras
 
 
@@ -45,3 +47,48 @@ def test_camera_looking_away_is_rejected():
         cameras.layout({"sensors": [{"name": "away", "position": [0, 2.5, 0.8], "target": [0, 6, 0.8]}]})
     with pytest.raises(ValueError, match="has no 'position"):
         cameras.layout({"sensors": [{"name": "nowhere"}]})
+
+
+# A sensor 2.5 m in front of the capture centre (at -Y, looking +Y), a pinhole without distortion.
+FRONT = {"name": "front", "position": [0.0, -2.5, 0.9], "fx": 300.0, "fy": 300.0, "cx": 255.5, "cy": 211.5,
+         "dist": [0.0] * 5}
+
+
+def test_a_rolled_sensor_sees_a_known_point_turned_in_its_image():
+    above = np.array([[0.0, 0.0, 1.4]])  # 0.5 m above the centre, 2.5 m ahead: 60 px above it unrolled
+    level = cameras.layout({"sensors": [FRONT]})[0]
+    np.testing.assert_allclose(level.project(above)[0][0], [255.5, 211.5 - 60.0], atol=1e-9)
+    rolled = cameras.layout({"sensors": [{**FRONT, "roll_deg": 30.0}]})[0]
+    # Rolled 30 degrees (x toward y): the point turns counter-clockwise about the image centre, by 30 degrees.
+    np.testing.assert_allclose(rolled.project(above)[0][0], [255.5 - 60 * np.sin(np.radians(30)),
+                                                             211.5 - 60 * np.cos(np.radians(30))], atol=1e-9)
+    np.testing.assert_allclose(rolled.project(np.array([cameras.CAPTURE_CENTRE]))[0][0], [255.5, 211.5], atol=1e-9)
+    np.testing.assert_allclose(rolled.cam_to_world[:3, 3], FRONT["position"])
+
+
+def test_a_sensor_given_its_whole_rotation_or_quaternion_is_the_rolled_one():
+    c, s = np.cos(np.radians(30)), np.sin(np.radians(30))
+    # Looking +Y with image right +X and image down -Z, rolled 30 degrees: columns x, y, z of the camera.
+    rotation = [[c, -s, 0.0], [0.0, 0.0, 1.0], [-s, -c, 0.0]]
+    rolled = cameras.layout({"sensors": [{**FRONT, "roll_deg": 30.0}]})[0]
+    by_matrix = cameras.layout({"sensors": [{**FRONT, "rotation": rotation}]})[0]
+    np.testing.assert_allclose(by_matrix.cam_to_world, rolled.cam_to_world, atol=1e-12)
+    x, y, z, w = Rotation.from_matrix(rotation).as_quat()
+    typed = np.round([w, x, y, z], 6).tolist()  # a quaternion typed to six places still passes, made exact
+    by_quaternion = cameras.layout({"sensors": [{**FRONT, "quaternion": typed}]})[0]
+    np.testing.assert_allclose(by_quaternion.cam_to_world, rolled.cam_to_world, atol=1e-6)
+
+
+@pytest.mark.parametrize("change,message", [
+    ({"rotation": [[1.1, 0, 0], [0, 0, 1], [0, -1, 0]]}, "rotation is not orthonormal .* by 0.21"),
+    ({"rotation": [[-1, 0, 0], [0, 0, 1], [0, -1, 0]]}, "rotation has determinant -1.000, a reflection"),
+    ({"rotation": [[1, 0, 0], [0, 0, 1]]}, "rotation must be 3 rows of 3 finite numbers"),
+    ({"quaternion": [1, 0, 0, 0.2]}, r"quaternion \[1.0, 0.0, 0.0, 0.2\] has norm 1.0198"),
+    ({"quaternion": [1, 0, 0]}, r"quaternion must be 4 finite numbers \[w, x, y, z\]"),
+    ({"rotation": [[1, 0, 0], [0, 0, 1], [0, -1, 0]], "roll_deg": 2},
+     r"its orientation is given more than one way \(roll_deg, rotation\)"),
+    ({"quaternion": [1, 0, 0, 0], "target": [0, 0, 1]}, r"its orientation is given more than one way \(quaternion, target\)"),
+])
+def test_a_sensor_orientation_that_is_not_a_rotation_is_a_clear_error(change, message):
+    with pytest.raises(cameras.LayoutError, match=f"sensor 'front': {message}"):
+        cameras.layout({"sensors": [{**FRONT, **change}]})
