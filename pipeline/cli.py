@@ -78,7 +78,7 @@ def _stage_lines():
 def run(catalog_path, overrides, sequences, only, until, dry_run, workers, threads, address, keep_going, as_json,
         no_progress):
     """Run the catalog's stages, reusing every cached partition."""
-    from mocapflow.pipeline.scheduler import run_items
+    from mocapflow.pipeline.scheduler import failure_report, run_items
 
     started = time.perf_counter()
     catalog = load_catalog(catalog_path, overrides)
@@ -104,11 +104,12 @@ def run(catalog_path, overrides, sequences, only, until, dry_run, workers, threa
                f"{len(by_status['failed'])} failed, {len(by_status['skipped'])} skipped in {elapsed:.2f} s")
     logging.getLogger(__name__).info("%s", summary)
     click.echo(f"{summary}; log {log_path}")
-    for r in by_status["failed"]:
-        logging.getLogger(__name__).info("FAILED %s: %s", r.partition, r.error)
-        click.echo(f"FAILED {r.partition}: {r.error}", err=True)
+    for r in by_status["failed"] + by_status["skipped"]:  # the log holds every one, root failures first
+        logging.getLogger(__name__).info("%s %s: %s", r.status.upper(), r.partition, r.error)
         if r.detail:
             logging.getLogger(__name__).info("%s", r.detail)
+    for line in failure_report(results):
+        click.echo(line, err=True)
     if as_json:
         click.echo(json.dumps({
             "executed": [r.partition for r in by_status["executed"]],

@@ -365,9 +365,30 @@ def compute_missing(items, store, *, workers: int, what: str, processes: bool = 
     """Run the ``items`` not yet complete in ``store`` and return them; raise PlanError naming the first
     failures (``what``: the purpose, e.g. "cannot export"). ``report``: see run_items."""
     todo = [i for i in items if not store.is_complete(i.partition.stage, i.key)]
-    failed = [r for r in run_items(todo, workers=workers, processes=processes, progress=sys.stderr.isatty(),
-                                   report=report)
-              if not r.ok]
-    if failed:
-        raise PlanError(f"{what}: " + "; ".join(f"{r.partition}: {r.error}" for r in failed[:5]))
+    results = run_items(todo, workers=workers, processes=processes, progress=sys.stderr.isatty(), report=report)
+    if any(not r.ok for r in results):
+        raise PlanError(f"{what}:\n" + "\n".join(failure_report(results)))
     return todo
+
+
+ROOT_FAILURES_SHOWN = 20  # partitions that failed on their own, listed with their error before a count of the rest
+SKIPPED_SHOWN = 3  # partitions skipped because of them, listed before a count of the rest
+
+
+def failure_report(results: list[Result]) -> list[str]:
+    """What went wrong, root cause first: every partition that failed on its own with its error (up to
+    ROOT_FAILURES_SHOWN, then how many more), then the partitions skipped because an upstream one failed or the
+    run stopped (a few with their reason, then how many more)."""
+    failed = [r for r in results if r.status == "failed"]
+    skipped = [r for r in results if r.status == "skipped"]
+    def more(n: int, what: str) -> str:
+        return f"... and {n} more {what} partition{'s' if n > 1 else ''}"
+
+    lines = [f"FAILED {r.partition}: {r.error}" for r in failed[:ROOT_FAILURES_SHOWN]]
+    if len(failed) > ROOT_FAILURES_SHOWN:
+        lines.append(more(len(failed) - ROOT_FAILURES_SHOWN, "failed") + " (each in the log)")
+    lines += [f"SKIPPED {r.partition}: {r.error}" for r in skipped[:SKIPPED_SHOWN]]
+    if len(skipped) > SKIPPED_SHOWN:
+        lines.append(more(len(skipped) - SKIPPED_SHOWN, "skipped") + f", {len(skipped)} in all, none of them failed "
+                     "on its own")
+    return lines

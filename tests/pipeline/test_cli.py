@@ -110,3 +110,23 @@ def test_the_run_summary_counts_partitions_a_worker_found_complete(toy_project, 
     result = CliRunner().invoke(cli.main, ["run", "--threads", "--no-progress"])
     assert result.exit_code == 0, result.output
     assert result.output.splitlines()[-1].startswith("0 executed, 12 cached, 0 failed, 0 skipped in ")
+
+
+def test_run_and_evaluate_print_the_root_failure_before_the_partitions_it_skipped(toy_project):
+    project = toy_project()
+    (project / "catalog.yaml").write_text((project / "catalog.yaml").read_text().replace(
+        "task: scale,", "task: boom,").replace("params: {factor: 3, sleep: 0.0}", "params: {bad_view: cam1}"))
+    going = mocapflow("run", "--keep-going", "--threads", cwd=project, check=False)
+    assert going.returncode == 1
+    lines = [line for line in going.stderr.splitlines() if line.startswith(("FAILED", "SKIPPED", "..."))]
+    assert sorted(lines[:2]) == ["FAILED scaled/seqA/cam1: RuntimeError: boom on cam1",
+                                 "FAILED scaled/seqB/cam1: RuntimeError: boom on cam1"]  # both root failures first
+    assert all(line.startswith("SKIPPED") and ": upstream failed: scaled/seq" in line for line in lines[2:5])
+    assert lines[5:] == ["... and 1 more skipped partition, 4 in all, none of them failed on its own"]
+    proc = mocapflow("evaluate", "--threads", cwd=project, check=False)  # stops at the first failure
+    assert proc.returncode == 2, proc.stderr
+    report = proc.stderr.splitlines()
+    assert report[0] == "error: cannot evaluate:" and report[1].startswith("FAILED scaled/seq")
+    assert report[1].endswith("/cam1: RuntimeError: boom on cam1") and "SKIPPED" in proc.stderr
+    assert not any(line.startswith("FAILED") for line in report[report.index(next(
+        line for line in report if line.startswith("SKIPPED"))):])

@@ -222,3 +222,16 @@ def test_a_local_cluster_without_dashboard_leaves_port_8787_alone():
         assert not [w for w in caught if "already in use" in str(w.message)]
     finally:
         holder.close()
+
+
+def test_the_failure_report_lists_every_root_failure_before_the_skipped_partitions():
+    from mocapflow.pipeline.execute import Result
+
+    skipped = [Result(f"frames/seq{i}", "skipped", error="run stopped after a failure") for i in range(6)]
+    failed = [Result(f"scaled/seq{i}/cam1", "failed", error=f"RuntimeError: boom {i}") for i in range(25)]
+    ok = [Result("scaled/seq0/cam0", "executed")]
+    lines = scheduler.failure_report(skipped + ok + failed)  # the skipped first in plan order, as they can be
+    assert lines[:20] == [f"FAILED scaled/seq{i}/cam1: RuntimeError: boom {i}" for i in range(20)]
+    assert lines[20] == "... and 5 more failed partitions (each in the log)"
+    assert lines[21:24] == [f"SKIPPED frames/seq{i}: run stopped after a failure" for i in range(3)]
+    assert lines[24:] == ["... and 3 more skipped partitions, 6 in all, none of them failed on its own"]
