@@ -154,7 +154,8 @@ def check_clip(spec: SequenceSpec, bvh_text: str, source: MotionSource, where: s
         bvh_mod.joint_map(clip, spec.motion_map)
     except bvh_mod.BVHError as exc:
         fix = ("fix the map" if spec.motion_map is not None else
-               "write that map as YAML and name it in the sequence (or its dataset's defaults): motion_map: my_map.yaml")
+               "write that map as YAML and name it in the sequence or its dataset's defaults, motion_map: my_map.yaml "
+               "(mocapflow synth: --motion-map my_map.yaml)")
         raise InputError(f"{where}: the skeleton of {source} cannot be retargeted onto the template: {exc}; "
                          f"{fix} (see the README's 'Motion files')") from exc
     available = bvh_mod.available_frames(clip, spec.fps, spec.start_s)

@@ -167,8 +167,8 @@ def _cmu_bones():
     out = []
     for name, parent, (x, y, z), length, axis, dof in CMU_BONES:
         out.append((name, parent, (x, y, z), length, axis, dof))
-        if name[0] == "l":
-            mirror = "r" + parent[1:] if parent[0] == "l" else parent
+        if name[0] == "l" and not name.startswith("lower"):  # a left bone (not the lower back or neck)
+            mirror = "r" + parent[1:] if parent[0] == "l" and not parent.startswith("lower") else parent
             out.append(("r" + name[1:], mirror, (-x, y, z), length, (axis[0], -axis[1], -axis[2]), dof))
     return out
 

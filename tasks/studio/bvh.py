@@ -89,6 +89,7 @@ CMU_ASF_NAMES = _sided({"Hips": ("root",), "SpineBase": ("upperback",), "Neck": 
                         "{side}Hand": ("{s}fingers",), "{side}Hip": ("{s}femur",), "{side}Knee": ("{s}tibia",),
                         "{side}Ankle": ("{s}foot",), "{side}Foot": ("{s}toes",)})
 
+
 class BVHError(ValueError):
     """A BVH text that cannot be parsed or retargeted."""
 
