@@ -6,6 +6,9 @@ from mocapflow.pipeline.registry import Lazy, NoParams, TaskSpec, register
 from mocapflow.tasks.deepmocap import flow, markers3d, masks, poses, refine2d, reflectors2d, skeleton, smoothing, training
 from mocapflow.tasks.deepmocap.heatmaps import HeatmapConfig
 from mocapflow.tasks.shared.cameras import CALIBRATION_VARIABLES as CALIBRATION
+from mocapflow.tasks.suit.holdout import HoldoutConfig
+from mocapflow.tasks.suit.oracle import OracleConfig
+from mocapflow.tasks.suit.reconstruct import ReconstructConfig
 from mocapflow.tasks.uuo import prior, segmentation, solve
 
 
@@ -51,6 +54,26 @@ register(
         description="film or import a dataset's checkerboard-suit takes: grey images, calibration, the suit's pattern",
     )
 )
+
+register(TaskSpec(
+    name="oracle_labels", fn=Lazy("mocapflow.tasks.suit.oracle", "oracle_labels"), version="1",
+    params=OracleConfig, output="suit_labels", partition="view",
+    inputs={"images": "suit_images"}, reads={"images": ("gt_corners2d", "gt_readable")},
+    description="suit labels from the studio's truth plus noise: the 3D stages on perfect 2D (not the 2D chain)",
+))
+register(TaskSpec(
+    name="triangulate_corners", fn=Lazy("mocapflow.tasks.suit.reconstruct", "triangulate_corners"), version="1",
+    params=ReconstructConfig, output="suit_points",
+    partition="sequence", inputs={"labels": "suit_labels", "images": "suit_images"},
+    reads={"labels": ("x", "y"), "images": CALIBRATION},
+    description="labelled corners triangulated from every claiming view, outlier views dropped (Chen et al. §3.3)",
+))
+register(TaskSpec(
+    name="hide_corners", fn=Lazy("mocapflow.tasks.suit.holdout", "hide_corners"), version="1",
+    params=HoldoutConfig, output="suit_points", partition="sequence",
+    whole_sequence=True, inputs={"points": "suit_points"},
+    description="hide a seeded share of observed corners for runs of frames, to score the hole filling",
+))
 
 register(TaskSpec(
     name="reflector_mask", fn=masks.masks, version="1", params=masks.MaskConfig, output="reflector_masks",

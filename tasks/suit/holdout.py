@@ -39,7 +39,7 @@ def hidden_runs(observed: np.ndarray, config: HoldoutConfig) -> np.ndarray:
     hide = np.zeros_like(observed)
     chosen = rng.choice(n_corners, size=int(round(config.share * n_corners)), replace=False)
     lengths = rng.integers(config.run_frames[0], config.run_frames[1] + 1, size=len(chosen))
-    starts = rng.integers(0, max(n_frames - lengths + 1, 1))
+    starts = rng.integers(0, np.maximum(n_frames - lengths + 1, 1))
     for c, start, length in zip(chosen, starts, lengths):
         hide[start:start + length, c] = True
     return hide & observed
