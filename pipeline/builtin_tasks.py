@@ -6,6 +6,7 @@ from mocapflow.pipeline.registry import Lazy, NoParams, TaskSpec, register
 from mocapflow.tasks.deepmocap import flow, markers3d, masks, poses, refine2d, reflectors2d, skeleton, smoothing, training
 from mocapflow.tasks.deepmocap.heatmaps import HeatmapConfig
 from mocapflow.tasks.shared.cameras import CALIBRATION_VARIABLES as CALIBRATION
+from mocapflow.tasks.suit.fill import FillSuitConfig
 from mocapflow.tasks.suit.holdout import HoldoutConfig
 from mocapflow.tasks.suit.oracle import OracleConfig
 from mocapflow.tasks.suit.reconstruct import ReconstructConfig
@@ -67,6 +68,13 @@ register(TaskSpec(
     partition="sequence", inputs={"labels": "suit_labels", "images": "suit_images"},
     reads={"labels": ("x", "y"), "images": CALIBRATION},
     description="labelled corners triangulated from every claiming view, outlier views dropped (Chen et al. §3.3)",
+))
+register(TaskSpec(
+    name="fill_suit", fn=Lazy("mocapflow.tasks.suit.fill", "fill_suit"), version="1", params=FillSuitConfig,
+    output="suit_filled", partition="sequence", whole_sequence=True,
+    inputs={"points": "suit_points", "images": "suit_images"},
+    reads={"points": ("position",), "images": ("corner_face", "corner_bary", "cells")},
+    description="the body fitted to the observed corners, their displacements filled by Eq. 8 and reposed (§5)",
 ))
 register(TaskSpec(
     name="hide_corners", fn=Lazy("mocapflow.tasks.suit.holdout", "hide_corners"), version="1",

@@ -41,7 +41,7 @@ def suit_stages(catalog) -> dict[str, str]:
 def plan_input(plan, stage: str, role: str = "points") -> str:
     """The upstream stage feeding ``role`` of ``stage``."""
     item = next(i for i in plan.items.values() if i.partition.stage == stage)
-    return item.stage.upstream[role].stage
+    return item.upstream[role].stage
 
 
 def evaluate_suit(plan, store, stages: dict[str, str], per_sequence: dict) -> dict:

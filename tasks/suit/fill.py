@@ -32,8 +32,16 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+import xarray as xr
 from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import splu
+
+from mocapflow.tasks.shared.cache import BoundedCache
+from mocapflow.tasks.shared.mesh_body import PHENOTYPE_NAMES, Phenotype, mesh_body
+from mocapflow.tasks.suit.body_fit import BodyFitConfig, fit_body
+from mocapflow.tasks.uuo.body_model import SolverBody
+
+_BODIES: BoundedCache[str, SolverBody] = BoundedCache(1)  # the reference rig, once per process
 
 METHODS = ("reduced", "kkt")
 COT_MAX = 1.0 / np.tan(np.radians(1.0))  # an angle's cotangent is clamped to +-cot(1 degree) (degenerate triangles)
@@ -355,3 +363,37 @@ def repose(rest_points: np.ndarray, transforms: np.ndarray) -> np.ndarray:
     rest_points = np.asarray(rest_points, np.float64)
     _check_points(rest_points, transforms, "repose")
     return (transforms[..., :3, :3] @ rest_points[..., None])[..., 0] + transforms[..., :3, 3]
+
+
+# --- the task ---------------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class FillSuitConfig:
+    fill: FillConfig = FillConfig()
+    body: BodyFitConfig = BodyFitConfig()
+
+
+def fill_suit(points: xr.Dataset, images: xr.Dataset, config: FillSuitConfig) -> xr.Dataset:
+    """Task: a take's triangulated corners (suit_points) -> every corner in every frame (suit_filled): the body
+    fitted to the observed corners, their non-articulated displacements unposed, filled by Eq. (8) and reposed.
+    A corner that no window could fill keeps the body model's position (zero displacement)."""
+    observed_xyz = points["position"].transpose("frame", "corner", "xyz").values.astype(np.float64)
+    body = fit_body(_solver_body(), observed_xyz, images["corner_face"].values, images["corner_bary"].values,
+                    config.body)
+    transforms = skinning_transforms(body.weights, body.bone_transforms)  # (frame, corner, 4, 4)
+    rest = np.broadcast_to(body.rest, observed_xyz.shape)
+    displacement = unpose(observed_xyz, transforms) - rest  # Δṽ of the observed corners, NaN elsewhere
+    laplacian = cotangent_laplacian(body.rest, images["cells"].values)
+    filled, observed = fill_sequence(displacement, laplacian, config.fill)
+    position = repose(rest + np.nan_to_num(filled, nan=0.0), transforms)
+    position[observed] = observed_xyz[observed]  # the observations themselves, to the bit
+    return xr.Dataset({"position": (("frame", "corner", "xyz"), position.astype(np.float32)),
+                       "observed": (("frame", "corner"), observed)},
+                      coords={"frame": points["frame"].values, "corner": points["corner"].values,
+                              "xyz": np.array(["x", "y", "z"], dtype=object)},
+                      attrs={"length_unit": "m", "up_axis": "Z", "fps": float(points.attrs["fps"]),
+                             "phenotype": dict(zip(PHENOTYPE_NAMES, map(float, body.fit.phenotype)))})
+
+
+def _solver_body() -> SolverBody:
+    return _BODIES.get_or_make("reference", lambda: SolverBody(mesh_body(Phenotype())))

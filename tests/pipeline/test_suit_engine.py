@@ -24,13 +24,14 @@ stages:
   labels: {task: oracle_labels, inputs: [images], params: {noise_px: 0.2, wrong: 0.02}}
   points: {task: triangulate_corners, inputs: {labels: labels, images: images}}
   hidden: {task: hide_corners, inputs: [points], params: {share: 0.2, run_frames: [1, 2]}}
+  filled: {task: fill_suit, inputs: {points: hidden, images: images}}
 """
 
 
 def test_suit_takes_are_labelled_triangulated_and_scored_through_the_engine(tmp_path):
     (tmp_path / "catalog.yaml").write_text(CATALOG)
     first = last_json(mocapflow("run", "--json", cwd=tmp_path))
-    assert sorted(first["executed"]) == sorted(["images/sq", "points/sq", "hidden/sq"]
+    assert sorted(first["executed"]) == sorted(["images/sq", "points/sq", "hidden/sq", "filled/sq"]
                                                + [f"labels/sq/cam{v:02d}" for v in range(4)])
     stored = {pid: arrays for (pid, _), arrays in read_artifacts(tmp_path / "storage").items()}
     images, points = stored["images/sq"], stored["points/sq"]
@@ -45,7 +46,13 @@ def test_suit_takes_are_labelled_triangulated_and_scored_through_the_engine(tmp_
     assert ok.sum() > 500 and np.median(error) < 0.004  # 0.2 px noise at ~0.25 px per mm
     hidden = stored["hidden/sq"]["hidden"]
     assert hidden.any() and not np.isfinite(stored["hidden/sq"]["position"][hidden]).any()
+    filled = stored["filled/sq"]
+    seen = np.isfinite(stored["hidden/sq"]["position"]).all(axis=-1)
+    np.testing.assert_array_equal(filled["observed"], seen)
+    np.testing.assert_array_equal(filled["position"][seen], stored["hidden/sq"]["position"][seen])
+    assert np.isfinite(filled["position"]).all()  # every corner of every frame
     scores = last_json(mocapflow("evaluate", "--json", cwd=tmp_path))  # cached: scores only
+    assert scores["suit_fill_err_median_mm"] < 5.0
     assert scores["suit_wrong_labels"] > 0 and 0.9 < scores["suit_detect_rate"] < 1.0  # 2 % planted misreads
     assert abs(scores["suit_err3d_median_mm"] - np.median(1000 * error)) < 1e-3
     again = last_json(mocapflow("run", "--json", cwd=tmp_path))
