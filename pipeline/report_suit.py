@@ -45,7 +45,7 @@ def view_3d(points: np.ndarray, observed: np.ndarray, cells: np.ndarray, size: i
     panels = []
     for axis in (0, 1):  # front: x across, z up; side: y across, z up
         ok = np.isfinite(points).all(axis=1)
-        centre = np.nanmedian(points[ok], axis=0)
+        centre = (points[ok].min(axis=0) + points[ok].max(axis=0)) / 2
         span = max(np.ptp(points[ok][:, 2]), 1e-3) * 1.1
         u = (points[:, axis] - centre[axis]) / span * size + size / 2
         v = size / 2 - (points[:, 2] - centre[2]) / span * size
