@@ -13,7 +13,7 @@ demo: install
 	$(BIN)/mocapflow demo
 
 test: install
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto
 
 install: $(VENV)/.installed
 

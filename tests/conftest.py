@@ -15,6 +15,16 @@ from mocapflow.schemas.raw import make_raw_sequence
 from shared_data import SHARED, pytest_configure, pytest_runtest_setup  # noqa: F401  (the needs_shared marker)
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def pytest_sessionstart(session):
+    """Under pytest-xdist, build the body model's caches (Anny's model data, warp's skinning kernel) once in the
+    controller before the workers start, so that they never write them at the same time on a fresh machine."""
+    if getattr(session.config.option, "numprocesses", None) and not hasattr(session.config, "workerinput"):
+        from mocapflow.tasks.shared.mesh_body import Phenotype, mesh_body, pose_mesh
+
+        body = mesh_body(Phenotype())
+        pose_mesh(body, np.tile(np.eye(3), (1, len(body.bone_names), 1, 1)), np.zeros((1, 3)))
 PLUGINS = ROOT / "tests" / "plugins"
 
 
