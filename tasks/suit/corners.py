@@ -1,0 +1,569 @@
+"""The corner detector (Chen et al. 2021, §3.1 "Corner detector", §4.1 "Corner Detector", §6 "CornerdetNet"): every
+checkerboard-like corner of a grey image, with sub-pixel accuracy.
+
+The image is a grid of 8 x 8 cells, each holding at most one corner. ``CornerdetNet`` sees a cell with 6-pixel
+margins (a 20 x 20 crop) and gives a presence logit and the corner's position, normalised to [0, 1]^2 in the cell.
+The network is fully convolutional with a receptive field of exactly 20 x 20 pixels at a stride of 8, so one pass
+over an image padded by 6 pixels gives every cell's output at once, identical to running it on each cell's crop.
+
+``detect_corners`` runs it on the cells whose crop has any contrast (the dark background and flat skin are skipped
+by a cheap morphological prefilter; the network sees tiles of cells around the rest), keeps the cells over the
+threshold, merges detections closer than 3 px (the higher logit stays) and refines each by averaging the positions
+found on crops randomly shifted around it (Fig. 6b; each re-crop also turned or flipped exactly, which decorrelates
+the network's errors), all in global pixel coordinates: pixel (x, y) integer is that pixel's centre, so a cell
+(row i, column j) spans x in [8j - 0.5, 8j + 7.5). Merging runs again after refinement, which can pull a stray
+detection onto a corner already found.
+
+``corner_samples`` cuts training crops from an image with known corners: positives with their sub-pixel targets,
+negatives near corners, on edges (seams, glyphs, the silhouette) and on flat areas (background, skin);
+``train_cornerdet`` trains with Adam on the loss of §3.1 (cross entropy + 200 x squared position error on
+positives), augmenting each batch with exact quarter turns and flips (the corners are rotation invariant),
+contrast, brightness, gamma, noise and blur (§4.2).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+from torch import nn
+from torch.nn import functional as F
+
+CELL = 8  # §3.1, Chen et al. 2021: cells of 8 x 8 pixels
+MARGIN = 6  # each side of a cell, so a crop is 20 x 20
+CROP = CELL + 2 * MARGIN
+CELL_LO = MARGIN - 0.5  # the cell's extent in crop coordinates (pixel centres), [5.5, 13.5)
+
+
+class CornerError(ValueError):
+    """An image, truth or setting the corner detector cannot work with."""
+
+
+# ---------------------------------------------------------------------------------------------------- the network
+
+@dataclass(frozen=True)
+class CornerNetConfig:
+    """CornerdetNet's widths: four convolutions (4x4/2, 3x3/2, 2x2/2, 2x2/1: receptive field 20, stride 8), then
+    a 1x1 hidden layer and the 1x1 output (logit, u, v); batch normalisation after each hidden convolution."""
+
+    widths: tuple[int, int, int, int] = (24, 48, 96, 96)
+    hidden: int = 96
+    batch_norm: bool = True
+
+    def __post_init__(self):
+        if len(self.widths) != 4 or min(self.widths) < 1 or self.hidden < 1:
+            raise CornerError(f"CornerdetNet needs four positive widths and a positive hidden width, got "
+                              f"widths={self.widths}, hidden={self.hidden}")
+
+
+class CornerdetNet(nn.Module):
+    """Fig. 5c, Chen et al. 2021, fully convolutional: (n, 1, 8h + 12, 8w + 12) grey in [0, 1] -> (n, 3, h, w) with
+    output (i, j) a function of input rows [8i, 8i + 20) and columns [8j, 8j + 20) only: channel 0 the presence
+    logit, 1-2 the corner's (x, y) in the cell normalised to [0, 1]. (Batch normalisation, once trained, is a
+    per-channel affine map and keeps this.)"""
+
+    def __init__(self, config: CornerNetConfig = CornerNetConfig()):
+        super().__init__()
+        w1, w2, w3, w4 = config.widths
+        self.config = config
+        shapes = ((1, w1, 4, 2), (w1, w2, 3, 2), (w2, w3, 2, 2), (w3, w4, 2, 1), (w4, config.hidden, 1, 1))
+        # receptive fields 4, 8, 12, 20, 20 at strides 2, 4, 8, 8, 8: one output per 8 x 8 cell with 6-px margins
+        layers: list[nn.Module] = []
+        for c_in, c_out, k, s in shapes:
+            layers.append(nn.Conv2d(c_in, c_out, k, stride=s, bias=not config.batch_norm))
+            layers += [nn.BatchNorm2d(c_out), nn.ReLU()] if config.batch_norm else [nn.ReLU()]
+        self.layers = nn.Sequential(*layers, nn.Conv2d(config.hidden, 3, 1))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.layers(x - 0.5)
+
+
+def check_net(net: nn.Module) -> None:
+    """A network in evaluation mode, else a CornerError: in training mode batch normalisation would use each batch's
+    statistics and a cell's output would depend on the other cells run with it."""
+    if not isinstance(net, nn.Module):
+        raise CornerError(f"net must be a torch module (CornerdetNet), got {type(net).__name__}")
+    if net.training:
+        raise CornerError("net is in training mode; call net.eval() before detecting corners")
+
+
+def crop_outputs(net: nn.Module, crops: np.ndarray, batch: int = 1024) -> np.ndarray:
+    """The network on single crops, in batches.  crops (n, 20, 20) uint8 -> (n, 3) float32 (logit, u, v)"""
+    check_net(net)
+    out = np.zeros((len(crops), 3), np.float32)
+    with torch.inference_mode():
+        for s in range(0, len(crops), batch):
+            x = torch.from_numpy(crops[s:s + batch]).float().div_(255.0)[:, None]  # (b, 1, 20, 20)
+            out[s:s + batch] = net(x)[:, :, 0, 0].numpy()
+    return out
+
+
+# ------------------------------------------------------------------------------------------------------ inference
+
+@dataclass(frozen=True)
+class DetectConfig:
+    threshold: float = 0.0  # presence logit a cell must exceed
+    cluster_px: float = 3.0  # §3.1 "Corner Clustering": of two detections closer than this, the lower logit goes
+    recrops: int = 4  # §3.1 "Refinement", Fig. 6b: re-crops per detection whose positions are averaged (0: none)
+    recrop_margin_px: float = 1.0  # a re-crop keeps the detection at least this far inside its central cell
+    min_contrast: int = 40  # grey levels (max - min) a cell's 20 x 20 crop needs to be looked at; 0 looks everywhere
+    tile_cells: int = 8  # the network runs on tiles of this many cells square around the cells with contrast
+    batch_tiles: int = 8  # tiles per network call (small batches keep the activations in cache)
+    seed: int = 0  # the re-crops' random shifts and turns
+
+    def __post_init__(self):
+        if self.cluster_px < 0 or self.recrops < 0 or not 0 <= self.recrop_margin_px < CELL / 2:
+            raise CornerError(f"cluster_px ({self.cluster_px}) and recrops ({self.recrops}) must be >= 0 and "
+                              f"recrop_margin_px ({self.recrop_margin_px}) in [0, {CELL / 2})")
+        if self.tile_cells < 1 or self.batch_tiles < 1 or not 0 <= self.min_contrast <= 255:
+            raise CornerError(f"tile_cells ({self.tile_cells}) and batch_tiles ({self.batch_tiles}) must be >= 1 and "
+                              f"min_contrast ({self.min_contrast}) in [0, 255] grey levels")
+
+
+@dataclass(frozen=True)
+class Corners:
+    """Detected corners of one image."""
+
+    xy: np.ndarray  # (corner, 2) float (x, y), pixel centres at integers
+    logit: np.ndarray  # (corner,) presence logit of the cell that found it
+
+
+@dataclass(frozen=True)
+class CellOutputs:
+    """The network's output on every cell of an image; cells the prefilter skipped have logit -inf."""
+
+    logit: np.ndarray  # (row, col) float32
+    xy: np.ndarray  # (row, col, 2) float32 the cell's corner (x, y) in image pixels
+
+
+def check_image(image: np.ndarray, name: str = "image") -> None:
+    """A grey uint8 image at least one crop (20 x 20) large, else a CornerError naming the fix."""
+    if not isinstance(image, np.ndarray):
+        raise CornerError(f"{name} must be a numpy array (y, x) of uint8 grey levels, got {type(image).__name__}")
+    if image.ndim == 3 and image.shape[2] in (3, 4):
+        raise CornerError(f"{name} has shape {image.shape}: a colour image; convert it to grey first "
+                          "(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY))")
+    if image.ndim != 2:
+        raise CornerError(f"{name} must be 2-D (y, x) grey, got shape {image.shape}")
+    if image.dtype != np.uint8:
+        raise CornerError(f"{name} has dtype {image.dtype}; the detector reads 8-bit grey levels: convert it, e.g. "
+                          "np.clip(image * 255, 0, 255).astype(np.uint8) for [0, 1] floats")
+    if min(image.shape) < CROP:
+        raise CornerError(f"{name} is {image.shape[1]} x {image.shape[0]} px; the detector needs at least "
+                          f"{CROP} x {CROP} (one cell with its margins): use a larger image or pad it")
+
+
+def cell_outputs(image: np.ndarray, net: nn.Module, config: DetectConfig = DetectConfig()) -> CellOutputs:
+    """The network on every cell whose crop has contrast, as one fully convolutional pass per tile of cells.
+    image (y, x) uint8 -> CellOutputs with (ceil(y / 8), ceil(x / 8)) cells."""
+    check_image(image)
+    check_net(net)
+    t = config.tile_cells
+    h, w = -(-image.shape[0] // CELL), -(-image.shape[1] // CELL)
+    ty, tx = -(-h // t), -(-w // t)
+    padded = _pad(image, ty * t * CELL + 2 * MARGIN, tx * t * CELL + 2 * MARGIN)
+    look = np.zeros((ty * t, tx * t), bool)
+    look[:h, :w] = _contrast_cells(padded, h, w) >= config.min_contrast  # (row, col)
+    tiles = np.argwhere(look.reshape(ty, t, tx, t).any(axis=(1, 3)))  # (tile, 2) tile row, col
+    side = t * CELL + 2 * MARGIN
+    windows = np.lib.stride_tricks.sliding_window_view(padded, (side, side))[::t * CELL, ::t * CELL]
+    out = np.zeros((ty, tx, 3, t, t), np.float32)
+    with torch.inference_mode():
+        for s in range(0, len(tiles), config.batch_tiles):
+            chunk = tiles[s:s + config.batch_tiles]
+            x = torch.from_numpy(windows[chunk[:, 0], chunk[:, 1]]).float().div_(255.0)[:, None]  # (b, 1, side, side)
+            out[chunk[:, 0], chunk[:, 1]] = net(x).numpy()  # (b, 3, t, t)
+    grid = out.transpose(0, 3, 1, 4, 2).reshape(ty * t, tx * t, 3)[:h, :w]  # (row, col, 3)
+    logit = np.where(look[:h, :w], grid[..., 0], -np.inf).astype(np.float32)
+    rows, cols = np.mgrid[0:h, 0:w]
+    xy = np.stack([CELL * cols - 0.5 + CELL * grid[..., 1], CELL * rows - 0.5 + CELL * grid[..., 2]], axis=-1)
+    return CellOutputs(logit, xy.astype(np.float32))
+
+
+def detect_corners(image: np.ndarray, net: nn.Module, config: DetectConfig = DetectConfig()) -> Corners:
+    """Every corner of a grey image: cells over the threshold, clustered, refined (§3.1, Chen et al. 2021) and
+    clustered again (refinement may pull a stray detection onto a corner already found).
+    image (y, x) uint8 -> Corners, highest logit first"""
+    cells = cell_outputs(image, net, config)
+    hit = cells.logit > config.threshold
+    xy, logit = cells.xy[hit].astype(np.float64), cells.logit[hit]  # (n, 2), (n,)
+    keep = cluster_corners(xy, logit, config.cluster_px)
+    xy, logit = xy[keep], logit[keep]
+    if config.recrops and len(xy):
+        xy = refine_corners(image, xy, net, config)
+        keep = np.sort(cluster_corners(xy, logit, config.cluster_px))  # refining can pull two onto one corner
+        xy, logit = xy[keep], logit[keep]
+    return Corners(xy, logit)
+
+
+def cluster_corners(xy: np.ndarray, logit: np.ndarray, radius: float) -> np.ndarray:
+    """§3.1 "Corner Clustering", Chen et al. 2021: of any two detections closer than ``radius`` the lower logit is
+    discarded, greedily from the highest logit down.  xy (n, 2), logit (n,) -> kept indices (m,), highest first."""
+    order = np.argsort(-np.asarray(logit), kind="stable")
+    if len(order) < 2 or radius <= 0:
+        return order
+    pairs = cKDTree(xy).query_pairs(radius, output_type="ndarray")  # (pair, 2) closer than radius (<=)
+    d = np.linalg.norm(xy[pairs[:, 0]] - xy[pairs[:, 1]], axis=1)
+    pairs = pairs[d < radius]
+    neighbours = [[] for _ in range(len(xy))]
+    for a, b in pairs:
+        neighbours[a].append(b)
+        neighbours[b].append(a)
+    gone = np.zeros(len(xy), bool)
+    kept = []
+    for i in order:
+        if not gone[i]:
+            kept.append(i)
+            gone[neighbours[i]] = True
+    return np.array(kept, dtype=np.int64)
+
+
+def refine_corners(image: np.ndarray, xy: np.ndarray, net: nn.Module, config: DetectConfig) -> np.ndarray:
+    """§3.1 "Refinement", Fig. 6b, Chen et al. 2021: each corner re-found on ``config.recrops`` crops shifted at
+    random so that it lies anywhere in their central cell (``recrop_margin_px`` inside), each crop also given a
+    random exact quarter turn or flip (undone on the answer), the positions averaged in global pixel coordinates.
+    xy (n, 2) -> (n, 2)"""
+    check_image(image)
+    rng = np.random.default_rng([config.seed, 61])
+    n, k = len(xy), config.recrops
+    lo, hi = CELL_LO + config.recrop_margin_px, CELL_LO + CELL - config.recrop_margin_px
+    place = rng.uniform(lo, hi, (n, k, 2))  # (n, k, 2) where the corner should sit in the re-crop
+    origin = np.rint(xy[:, None, :] - place).astype(np.int64)  # (n, k, 2) re-crop's pixel (0, 0) in the image, x y
+    padded = _pad(image, image.shape[0] + 2 * CROP, image.shape[1] + 2 * CROP, CROP)
+    origin[..., 0] = np.clip(origin[..., 0], -CROP, image.shape[1])
+    origin[..., 1] = np.clip(origin[..., 1], -CROP, image.shape[0])
+    windows = np.lib.stride_tricks.sliding_window_view(padded, (CROP, CROP))
+    crops = windows[origin[..., 1].ravel() + CROP, origin[..., 0].ravel() + CROP]  # (n k, 20, 20)
+    turn = rng.integers(0, 8, n * k)  # (n k,) bit 0: transpose, 1: flip x, 2: flip y
+    found = _undo_turns(crop_outputs(net, _turn_crops(crops, turn))[:, 1:], turn).reshape(n, k, 2)
+    return (origin + CELL_LO + CELL * found).mean(axis=1)
+
+
+def _turn_crops(crops: np.ndarray, turn: np.ndarray) -> np.ndarray:
+    """Exact quarter turns / flips of square crops: transpose, then flip x, then flip y, as ``turn``'s bits say.
+    (n, s, s), (n,) -> (n, s, s)"""
+    out = np.where((turn & 1).astype(bool)[:, None, None], crops.transpose(0, 2, 1), crops)
+    out = np.where((turn & 2).astype(bool)[:, None, None], out[:, :, ::-1], out)
+    return np.ascontiguousarray(np.where((turn & 4).astype(bool)[:, None, None], out[:, ::-1, :], out))
+
+
+def _undo_turns(uv: np.ndarray, turn: np.ndarray) -> np.ndarray:
+    """Cell coordinates found on turned crops, back in the crops' own frame (the cell is central, so a flip is
+    u -> 1 - u and a transpose swaps u and v).  (n, 2), (n,) -> (n, 2)"""
+    u, v = uv[:, 0].copy(), uv[:, 1].copy()
+    v = np.where(turn & 4, 1 - v, v)
+    u = np.where(turn & 2, 1 - u, u)
+    return np.where((turn & 1).astype(bool)[:, None], np.column_stack([v, u]), np.column_stack([u, v]))
+
+
+def _pad(image: np.ndarray, height: int, width: int, margin: int = MARGIN) -> np.ndarray:
+    """The image with ``margin`` replicated pixels before it and enough after it to be height x width."""
+    return cv2.copyMakeBorder(image, margin, height - image.shape[0] - margin, margin,
+                              width - image.shape[1] - margin, cv2.BORDER_REPLICATE)
+
+
+def _contrast_cells(padded: np.ndarray, h: int, w: int) -> np.ndarray:
+    """max - min grey level of every cell's 20 x 20 crop of the padded image.  -> (h, w) int"""
+    kernel = np.ones((CROP, CROP), np.uint8)
+    hi = cv2.dilate(padded, kernel, anchor=(0, 0))[:CELL * h:CELL, :CELL * w:CELL]  # max over [8i, 8i + 20)
+    lo = cv2.erode(padded, kernel, anchor=(0, 0))[:CELL * h:CELL, :CELL * w:CELL]
+    return hi.astype(np.int16) - lo.astype(np.int16)
+
+
+# ------------------------------------------------------------------------------------------------------- samples
+
+@dataclass(frozen=True)
+class SampleConfig:
+    """Training crops of one image (§4.1, Chen et al. 2021: 20 x 20 crops, positive iff a corner lies in the
+    central 8 x 8)."""
+
+    per_corner: int = 4  # positive crops per usable corner, the corner anywhere in the central cell
+    negatives: float = 2.0  # negative crops per positive crop
+    near_share: float = 0.4  # of the negatives: centred 6-16 px from a corner (the suit around its corners)
+    edge_share: float = 0.4  # with contrast anywhere else (glyphs, seams, the silhouette, skin and hair edges)
+    # the rest: anywhere (the background, flat skin and suit)
+    min_spacing_px: float = 12.0  # a usable corner has no other visible corner closer (grazing views squeeze them)
+    ignore_px: float = 1.0  # a crop with a corner this close outside its cell is neither positive nor negative
+    rotate: float = 0.5  # share of crops turned by a random angle (bilinear); the rest are cut exactly
+    min_contrast: int = 40  # as DetectConfig.min_contrast: what the edge negatives need
+
+    def __post_init__(self):
+        if self.per_corner < 1 or self.negatives < 0 or not 0 <= self.rotate <= 1:
+            raise CornerError(f"per_corner ({self.per_corner}) must be >= 1, negatives ({self.negatives}) >= 0 and "
+                              f"rotate ({self.rotate}) in [0, 1]")
+        if self.near_share < 0 or self.edge_share < 0 or self.near_share + self.edge_share > 1:
+            raise CornerError(f"near_share ({self.near_share}) and edge_share ({self.edge_share}) are shares of the "
+                              "negatives: each >= 0, together <= 1")
+
+
+SAMPLE_KINDS = ("positive", "near", "edge", "any")  # how a crop was drawn: a positive or one of three negatives
+
+
+@dataclass(frozen=True)
+class CornerSamples:
+    """Training crops: the image inside each crop, whether a corner lies in its central cell, and where."""
+
+    crops: np.ndarray  # (n, 20, 20) uint8
+    present: np.ndarray  # (n,) bool
+    position: np.ndarray  # (n, 2) float32 the corner's (x, y) normalised in the central cell (0 where absent)
+    kind: np.ndarray  # (n,) int8 index into SAMPLE_KINDS
+
+    def __len__(self) -> int:
+        return len(self.crops)
+
+
+def concat_samples(parts: list[CornerSamples]) -> CornerSamples:
+    """The samples of several images as one set."""
+    if not parts:
+        raise CornerError("no samples to join: pass at least one CornerSamples")
+    return CornerSamples(*(np.concatenate([getattr(p, f) for p in parts]) for f in
+                           ("crops", "present", "position", "kind")))
+
+
+def usable_corners(corners2d: np.ndarray, visible: np.ndarray, min_spacing_px: float) -> np.ndarray:
+    """Visible corners with no other visible corner closer than ``min_spacing_px``: at most one per cell, and not
+    squeezed by a grazing view.  corners2d (corner, 2), visible (corner,) -> (corner,) bool"""
+    out = np.zeros(len(corners2d), bool)
+    idx = np.flatnonzero(visible)
+    if len(idx) == 1:
+        out[idx] = True
+    elif len(idx) > 1:
+        d, _ = cKDTree(corners2d[idx]).query(corners2d[idx], k=2)
+        out[idx] = d[:, 1] >= min_spacing_px
+    return out
+
+
+def corner_samples(image: np.ndarray, corners2d: np.ndarray, visible: np.ndarray, config: SampleConfig,
+                   rng: np.random.Generator, positive: np.ndarray | None = None) -> CornerSamples:
+    """Training crops of one grey image with known corners (§4.1, Chen et al. 2021).
+
+    image (y, x) uint8; corners2d (corner, 2) true (x, y); visible (corner,) bool: every corner the image shows
+    (negatives keep clear of all of them); positive (corner,) bool or None: the corners allowed as positives
+    (default all visible ones). Positives are the allowed corners :func:`usable_corners` keeps, each cut
+    ``per_corner`` times anywhere in the central cell; a crop holding any other visible corner in its cell or
+    within ``ignore_px`` of it is not drawn as a negative.
+    """
+    check_image(image)
+    corners2d = np.asarray(corners2d, np.float64)
+    visible = np.asarray(visible, bool)
+    if corners2d.ndim != 2 or corners2d.shape[1] != 2 or visible.shape != corners2d.shape[:1]:
+        raise CornerError(f"corners2d must be (corner, 2) and visible (corner,), got {corners2d.shape} and "
+                          f"{visible.shape}")
+    shown = visible & np.isfinite(corners2d).all(axis=1)
+    allowed = shown if positive is None else shown & np.asarray(positive, bool)
+    good = np.flatnonzero(allowed & usable_corners(corners2d, shown, config.min_spacing_px))
+    pos = _positive_crops(image, corners2d[good], config, rng)
+    neg = _negative_crops(image, corners2d[shown], int(round(config.negatives * len(pos))), config, rng)
+    return concat_samples([pos, neg])
+
+
+def _affine(centre_img: np.ndarray, centre_crop: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Crop -> image affines turning by ``angle`` about a point: image = c_img + R (crop - c_crop).
+    (n, 2), (n, 2), (n,) -> (n, 2, 3)"""
+    c, s = np.cos(angle), np.sin(angle)
+    rot = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)  # (n, 2, 2)
+    shift = centre_img - np.einsum("nij,nj->ni", rot, centre_crop)
+    return np.concatenate([rot, shift[..., None]], axis=-1)
+
+
+def _turns(n: int, config: SampleConfig, rng: np.random.Generator) -> np.ndarray:
+    """A random angle for a ``rotate`` share of n crops, 0 (an exact cut) for the rest.  -> (n,)"""
+    turn = rng.random(n) < config.rotate
+    return np.where(turn, rng.uniform(0, 2 * np.pi, n), 0.0)
+
+
+def _cut(image: np.ndarray, affines: np.ndarray) -> np.ndarray:
+    """20 x 20 crops through crop -> image affines (exact copies where the affine is an integer shift).
+    (n, 2, 3) -> (n, 20, 20) uint8"""
+    out = np.empty((len(affines), CROP, CROP), np.uint8)
+    for i, m in enumerate(affines):
+        out[i] = cv2.warpAffine(image, m, (CROP, CROP), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                borderMode=cv2.BORDER_REPLICATE)
+    return out
+
+
+def _positive_crops(image: np.ndarray, corners: np.ndarray, config: SampleConfig, rng: np.random.Generator
+                    ) -> CornerSamples:
+    """``per_corner`` crops of each corner, the corner uniformly anywhere in the central cell: exact cuts (an
+    integer shift, the corner's fraction kept) or turned about the corner.  corners (n, 2)"""
+    anchor = np.repeat(corners, config.per_corner, axis=0)  # (n k, 2)
+    angle = _turns(len(anchor), config, rng)
+    frac = anchor - CELL_LO - np.floor(anchor - CELL_LO)  # the corner's place within its pixel, [0, 1)
+    exact = CELL_LO + frac + rng.integers(0, CELL, anchor.shape)  # integer origins, uniform over the cell
+    place = np.where((angle == 0)[:, None], exact, rng.uniform(CELL_LO, CELL_LO + CELL, anchor.shape))
+    place = np.clip(place, CELL_LO, np.nextafter(CELL_LO + CELL, 0))  # (n k, 2) in the cell
+    return CornerSamples(_cut(image, _affine(anchor, place, angle)), np.ones(len(anchor), bool),
+                         ((place - CELL_LO) / CELL).astype(np.float32), np.zeros(len(anchor), np.int8))
+
+
+def _negative_crops(image: np.ndarray, corners: np.ndarray, count: int, config: SampleConfig,
+                    rng: np.random.Generator) -> CornerSamples:
+    """``count`` crops with no corner in (or within ``ignore_px`` of) the central cell, drawn near corners, on
+    edges and anywhere in the shares of ``config``.  corners (m, 2) every visible corner."""
+    n_near = int(round(count * config.near_share)) if len(corners) else 0
+    n_edge = int(round(count * config.edge_share))
+    wanted = {1: n_near, 2: n_edge, 3: count - n_near - n_edge}
+    tree = cKDTree(corners) if len(corners) else None
+    parts = []
+    for kind, n in wanted.items():
+        if n <= 0:
+            continue
+        centres = np.rint(_negative_centres(image, corners, kind, 4 * n, config, rng))  # (4n, 2) candidates
+        # crop pixel (10, 10) on an integer centre: integer shifts where not turned
+        affines = _affine(centres, np.full(centres.shape, CROP // 2), _turns(len(centres), config, rng))
+        affines = affines[_clear(affines, tree, config.ignore_px)][:n]
+        parts.append(CornerSamples(_cut(image, affines), np.zeros(len(affines), bool),
+                                   np.zeros((len(affines), 2), np.float32), np.full(len(affines), kind, np.int8)))
+    if not parts:
+        return CornerSamples(np.zeros((0, CROP, CROP), np.uint8), np.zeros(0, bool), np.zeros((0, 2), np.float32),
+                             np.zeros(0, np.int8))
+    return concat_samples(parts)
+
+
+def _negative_centres(image: np.ndarray, corners: np.ndarray, kind: int, n: int, config: SampleConfig,
+                      rng: np.random.Generator) -> np.ndarray:
+    """Candidate crop centres (image x, y): 6-16 px from a corner (kind 1), on pixels whose surrounding 20 x 20
+    has contrast (2), anywhere (3).  -> (n, 2)"""
+    h, w = image.shape
+    if kind == 1:
+        base = corners[rng.integers(len(corners), size=n)]
+        angle, radius = rng.uniform(0, 2 * np.pi, n), rng.uniform(6.0, 16.0, n)
+        return base + radius[:, None] * np.column_stack([np.cos(angle), np.sin(angle)])
+    if kind == 2:
+        kernel = np.ones((CROP, CROP), np.uint8)
+        contrast = cv2.dilate(image, kernel).astype(np.int16) - cv2.erode(image, kernel)
+        where = np.flatnonzero(contrast >= config.min_contrast)
+        if len(where):
+            pick = where[rng.integers(len(where), size=n)]
+            return np.column_stack([pick % w, pick // w]).astype(np.float64)
+    return np.column_stack([rng.uniform(0, w - 1, n), rng.uniform(0, h - 1, n)])
+
+
+def _clear(affines: np.ndarray, tree: cKDTree | None, ignore_px: float) -> np.ndarray:
+    """Whether each crop's central cell, grown by ``ignore_px``, holds no corner.  affines (n, 2, 3) -> (n,) bool"""
+    if tree is None:
+        return np.ones(len(affines), bool)
+    centre = affines[:, :, 2] + np.einsum("nij,j->ni", affines[:, :, :2], np.full(2, CROP / 2 - 0.5))
+    reach = (CELL / 2 + ignore_px) * np.sqrt(2) + 1e-6
+    near = tree.query_ball_point(centre, reach)
+    inv = np.linalg.inv(affines[:, :, :2])
+    out = np.ones(len(affines), bool)
+    data = tree.data
+    for i, idx in enumerate(near):
+        if idx:
+            at = (data[idx] - affines[i, :, 2]) @ inv[i].T  # (k, 2) in crop coordinates
+            grown = (at >= CELL_LO - ignore_px) & (at < CELL_LO + CELL + ignore_px)
+            out[i] = not grown.all(axis=1).any()
+    return out
+
+
+# ------------------------------------------------------------------------------------------------------ training
+
+@dataclass(frozen=True)
+class Augment:
+    """§4.2, Chen et al. 2021: intensity perturbations (contrast, brightness, gamma), noise and blur per crop,
+    drawn uniformly in these ranges; plus an exact quarter turn / flip of each crop with its target."""
+
+    contrast: tuple[float, float] = (0.5, 1.3)  # about the crop's mean
+    brightness: float = 0.12  # +- this, in [0, 1] grey
+    gamma: tuple[float, float] = (0.6, 1.6)
+    noise: tuple[float, float] = (0.0, 0.03)  # Gaussian sigma, [0, 1] grey
+    blur: tuple[float, float] = (0.0, 1.2)  # Gaussian sigma, px, for a ``blur_share`` of the crops
+    blur_share: float = 0.5
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    net: CornerNetConfig = CornerNetConfig()
+    augment: Augment = Augment()
+    iterations: int = 20000
+    batch: int = 128
+    learning_rate: float = 3e-3  # Adam; cosine decay to 1 % over the iterations
+    position_weight: float = 200.0  # λ of §3.1, Chen et al. 2021
+
+    def __post_init__(self):
+        if self.iterations < 1 or self.batch < 2 or self.learning_rate <= 0 or self.position_weight < 0:
+            raise CornerError(f"iterations ({self.iterations}) >= 1, batch ({self.batch}) >= 2, learning_rate "
+                              f"({self.learning_rate}) > 0 and position_weight ({self.position_weight}) >= 0 needed")
+
+
+def cornerdet_loss(out: torch.Tensor, present: torch.Tensor, position: torch.Tensor, weight: float) -> torch.Tensor:
+    """§3.1, Chen et al. 2021: cross entropy on presence + λ c ||p* - p||^2 on the cells with a corner.
+    out (n, 3) (logit, u, v), present (n,) float 0/1, position (n, 2) -> scalar"""
+    ce = F.binary_cross_entropy_with_logits(out[:, 0], present, reduction="none")
+    sq = ((out[:, 1:] - position) ** 2).sum(dim=1)
+    return (ce + weight * present * sq).mean()
+
+
+def train_cornerdet(samples: CornerSamples, config: TrainConfig = TrainConfig(), seed: int = 0) -> CornerdetNet:
+    """CornerdetNet trained with Adam on ``samples``, batches drawn and augmented from ``seed`` (deterministic for a
+    seed and a torch thread count)."""
+    if len(samples) < config.batch or not samples.present.any() or samples.present.all():
+        raise CornerError(f"training needs at least one batch ({config.batch}) of crops with both positives and "
+                          f"negatives; got {len(samples)} crops, {int(samples.present.sum())} positive")
+    torch.manual_seed(seed)
+    gen = torch.Generator().manual_seed(seed)
+    rng = np.random.default_rng([seed, 17])
+    net = CornerdetNet(config.net)
+    opt = torch.optim.Adam(net.parameters(), lr=config.learning_rate)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, config.iterations, eta_min=0.01 * config.learning_rate)
+    crops = torch.from_numpy(samples.crops)
+    present = torch.from_numpy(samples.present.astype(np.float32))
+    position = torch.from_numpy(samples.position.astype(np.float32))
+    net.train()
+    for _ in range(config.iterations):
+        idx = torch.from_numpy(rng.integers(len(samples), size=config.batch))
+        x, p = dihedral(crops[idx].float().div_(255.0)[:, None], position[idx], gen)
+        x = augment_crops(x, config.augment, gen)
+        loss = cornerdet_loss(net(x)[:, :, 0, 0], present[idx], p, config.position_weight)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        sched.step()
+    return net.eval()
+
+
+def dihedral(x: torch.Tensor, position: torch.Tensor, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    """A random one of the 8 exact quarter turns and flips per crop, its target turned with it (the cell is
+    central, so (u, v) -> (v, u) on a transpose and u -> 1 - u on a flip of x).  (n, 1, 20, 20), (n, 2)"""
+    n = len(x)
+    t, fx, fy = (torch.rand(n, generator=gen) < 0.5 for _ in range(3))
+    x = torch.where(t[:, None, None, None], x.transpose(-1, -2), x)
+    p = torch.where(t[:, None], position.flip(-1), position)
+    x = torch.where(fx[:, None, None, None], x.flip(-1), x)
+    p = torch.stack([torch.where(fx, 1 - p[:, 0], p[:, 0]), p[:, 1]], dim=1)
+    x = torch.where(fy[:, None, None, None], x.flip(-2), x)
+    p = torch.stack([p[:, 0], torch.where(fy, 1 - p[:, 1], p[:, 1])], dim=1)
+    return x, p
+
+
+def augment_crops(x: torch.Tensor, aug: Augment, gen: torch.Generator) -> torch.Tensor:
+    """§4.2, Chen et al. 2021: blur, contrast, brightness, gamma and noise per crop, then 8-bit levels.
+    (n, 1, 20, 20) in [0, 1] -> same"""
+    n = len(x)
+
+    def draw(lo: float, hi: float) -> torch.Tensor:
+        return (lo + (hi - lo) * torch.rand(n, generator=gen))[:, None, None, None]
+
+    sigma = draw(*aug.blur) * (torch.rand(n, 1, 1, 1, generator=gen) < aug.blur_share)
+    x = _gaussian_blur(x, sigma.flatten())
+    mean = x.mean(dim=(2, 3), keepdim=True)
+    x = (x - mean) * draw(*aug.contrast) + mean + draw(-aug.brightness, aug.brightness)
+    x = x.clamp(0, 1) ** draw(*aug.gamma)
+    x = x + draw(*aug.noise) * torch.randn(x.shape, generator=gen)
+    return torch.round(x.clamp(0, 1) * 255) / 255
+
+
+def _gaussian_blur(x: torch.Tensor, sigma: torch.Tensor, radius: int = 3) -> torch.Tensor:
+    """Per-crop separable Gaussian blur (sigma 0: unchanged), replicated borders.  (n, 1, y, x), (n,) -> same"""
+    t = torch.arange(-radius, radius + 1, dtype=x.dtype)
+    k = torch.exp(-0.5 * (t[None] / sigma.clamp(min=1e-3)[:, None]) ** 2)  # (n, 2r + 1)
+    k = k / k.sum(dim=1, keepdim=True)
+    n = len(x)
+    y = F.pad(x.transpose(0, 1), (radius, radius, radius, radius), mode="replicate")  # (1, n, y + 2r, x + 2r)
+    y = F.conv2d(y, k[:, None, None, :], groups=n)
+    y = F.conv2d(y, k[:, None, :, None], groups=n)
+    return y.transpose(0, 1)
