@@ -16,6 +16,17 @@ import xarray as xr
 from mocapflow.schemas import ArtifactSchema, VarSpec, register_schema
 
 DIST_COEFS = ("k1", "k2", "p1", "p2", "k3")
+# Each view's calibration, as every multi-camera recording stores it.
+CALIBRATION = {
+    "fx": VarSpec(("view",), "float64", "px"),
+    "fy": VarSpec(("view",), "float64", "px"),
+    "cx": VarSpec(("view",), "float64", "px"),
+    "cy": VarSpec(("view",), "float64", "px"),
+    "dist": VarSpec(("view", "dist_coef"), "float64", "", description="OpenCV k1 k2 p1 p2 k3"),
+    "cam_to_world": VarSpec(("view", "row", "col"), "float64", "m", description="4x4 rigid transform"),
+    "width": VarSpec(("view",), "int64", "px"),
+    "height": VarSpec(("view",), "int64", "px"),
+}
 
 RAW_SEQUENCE = register_schema(
     ArtifactSchema(
@@ -29,14 +40,7 @@ RAW_SEQUENCE = register_schema(
             "depth": VarSpec(("view", "frame", "y", "x"), "uint16", "mm", description="0 where invalid"),
             "ir": VarSpec(("view", "frame", "y", "x"), "uint16", "counts"),
             "timestamp": VarSpec(("frame",), "float64", "s"),
-            "fx": VarSpec(("view",), "float64", "px"),
-            "fy": VarSpec(("view",), "float64", "px"),
-            "cx": VarSpec(("view",), "float64", "px"),
-            "cy": VarSpec(("view",), "float64", "px"),
-            "dist": VarSpec(("view", "dist_coef"), "float64", "", description="OpenCV k1 k2 p1 p2 k3"),
-            "cam_to_world": VarSpec(("view", "row", "col"), "float64", "m", description="4x4 rigid transform"),
-            "width": VarSpec(("view",), "int64", "px"),
-            "height": VarSpec(("view",), "int64", "px"),
+            **CALIBRATION,
             # Optional ground truth (the synthetic studio writes these).
             "gt_joints": VarSpec(("frame", "joint", "xyz"), "float32", "m", required=False),
             "gt_reflectors": VarSpec(("frame", "reflector", "xyz"), "float32", "m", required=False),

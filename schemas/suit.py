@@ -10,6 +10,7 @@ capacity: NaN coordinates, -1 indices.
 from __future__ import annotations
 
 from mocapflow.schemas import ArtifactSchema, VarSpec, register_schema
+from mocapflow.schemas.raw import CALIBRATION
 
 _FRAME = {"frame": VarSpec(("frame",), "int64", description="frame index from 0")}
 _VIEW = {"view": VarSpec(("view",), "str", description="camera name")}
@@ -22,14 +23,7 @@ SUIT_IMAGES = register_schema(ArtifactSchema(
     variables={
         "image": VarSpec(("view", "frame", "y", "x"), "uint8", "counts", description="grey camera image"),
         "timestamp": VarSpec(("frame",), "float64", "s"),
-        "fx": VarSpec(("view",), "float64", "px"),
-        "fy": VarSpec(("view",), "float64", "px"),
-        "cx": VarSpec(("view",), "float64", "px"),
-        "cy": VarSpec(("view",), "float64", "px"),
-        "dist": VarSpec(("view", "dist_coef"), "float64", "", description="OpenCV k1 k2 p1 p2 k3"),
-        "cam_to_world": VarSpec(("view", "row", "col"), "float64", "m", description="4x4 rigid transform"),
-        "width": VarSpec(("view",), "int64", "px"),
-        "height": VarSpec(("view",), "int64", "px"),
+        **CALIBRATION,
         # The suit's pattern: codes, their corners, the corner mesh and where each corner sits on the body model.
         "code": VarSpec(("square",), "str", description="two-letter code of each coded white square"),
         "square_corners": VarSpec(("square", "k"), "int64",
