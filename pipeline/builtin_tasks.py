@@ -87,7 +87,7 @@ register(TaskSpec(
     name="label_corners", fn=Lazy("mocapflow.tasks.suit.labels", "label_corners"), version="1",
     params=LabelConfig, output="suit_labels", partition="view",
     inputs={"images": "suit_images", "corners": "suit_corners", "quads": "suit_quads", "codes": "suit_codes"},
-    reads={"images": ("code", "square_corners"), "corners": ("x", "y")},
+    reads={"images": ("code", "square_corners", "corner_face"), "corners": ("x", "y")},
     description="corner identities from the accepted quads, kept where every quad naming a corner agrees (§3.2)",
 ))
 # Training the chain from studio takes (§4): per-image samples, then one training per dataset.

@@ -5,9 +5,9 @@ Each candidate quad is warped to a 104 x 104 crop (tasks/suit/quads.py), its ver
 ``RejectorNet`` gives one logit: a white square of the suit with a legible code, or not. ``RecogNet`` reads an
 accepted crop: the quarter turn ``rotation`` r (quad vertex i is the upright code's corner (i + r) mod 4; a crop
 of rotation r shows the code turned r quarter turns counter-clockwise) and the code's two characters as read
-upright, each one of the 25 of the alphabet. Both networks see the crop average-pooled to 26 x 26: the glyphs are
-half a square tall, about 10 px there, and a square spans 10-50 px in the studio's images, so little is lost, and
-the networks stay small enough for a CPU core to read a few hundred quads per image.
+upright, each one of the 25 of the alphabet. RejectorNet sees the crop average-pooled to 26 x 26, RecogNet to
+52 x 52 (the glyphs are half a square tall, about 20 px there; a square spans 10-50 px in the studio's images), so
+both stay small enough for a CPU core to read a few hundred quads per image.
 
 Training crops come from two sources. ``synthetic_quads`` prints a 3 x 3 patch of the board with the suit's own
 glyphs (pattern.print_code) around a random code, films it under a random homography at 10-50 px per square
@@ -101,7 +101,7 @@ class RejectorNet(nn.Module):
 class RecogNet(nn.Module):
     """(n, 1, 104, 104) -> rotation logits (n, 4), first and second character logits (n, 25) each (§3.2)."""
 
-    def __init__(self, config: CodeNetConfig = CodeNetConfig(widths=(32, 64, 96), hidden=128)):
+    def __init__(self, config: CodeNetConfig = CodeNetConfig(widths=(24, 48, 64, 96), hidden=192, pool=2)):
         super().__init__()
         self.config = config
         self.trunk = _Trunk(config)
@@ -289,11 +289,11 @@ def label_quads(xy: np.ndarray, quads: np.ndarray, truth: np.ndarray, visible: n
 @dataclass(frozen=True)
 class CodeTrainConfig:
     rejector: CodeNetConfig = CodeNetConfig()
-    recog: CodeNetConfig = CodeNetConfig(widths=(32, 64, 96), hidden=128)
+    recog: CodeNetConfig = CodeNetConfig(widths=(24, 48, 64, 96), hidden=192, pool=2)
     augment: Augment = Augment(contrast=(0.4, 1.4), brightness=0.2, gamma=(0.5, 2.0), noise=(0.0, 0.04),
                                blur=(0.0, 1.5), blur_share=0.5)  # §4.2: aggressive for the codes
     jitter: float = 0.04  # random affine per crop: rotation (rad), scale and shift (of the crop) up to this
-    iterations: int = 6000
+    iterations: int = 8000
     batch: int = 128
     learning_rate: float = 2e-3
     synthetic: int = 20000  # synthetic crops drawn besides the studio's

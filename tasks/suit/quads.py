@@ -169,8 +169,10 @@ def warp_quads(image: np.ndarray, points: np.ndarray, size: int = CROP, inset: f
     points (q, 4, 2) clockwise image corners -> (q, size, size) uint8"""
     if image.ndim != 2:
         raise QuadError(f"warp_quads needs a grey (y, x) image, got shape {image.shape}")
-    h = quad_homographies(points, size, inset)
     out = np.empty((len(points), size, size), np.uint8)
+    if not len(points):
+        return out
+    h = quad_homographies(points, size, inset)
     for i, m in enumerate(h):
         out[i] = cv2.warpPerspective(image, m, (size, size), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                      borderMode=cv2.BORDER_CONSTANT, borderValue=128)

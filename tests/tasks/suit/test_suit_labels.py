@@ -1,6 +1,7 @@
 """Corner labels from read quads: two coded squares meeting at a corner label all seven corners and name the shared
-one twice; a quad read in the wrong rotation, a code read twice, or a code the suit does not print label nothing
-wrong. Studio quads are labelled from the truth with the right rotation."""
+one twice; of two quads that disagree the more confident one stays, and only if confident enough alone; a code read
+twice or a code the suit does not print labels nothing wrong. Studio quads are labelled from the truth with the
+right rotation."""
 
 from __future__ import annotations
 
@@ -16,8 +17,9 @@ CODES = {code_index("AB"): 0, code_index("7Y"): 1}
 A, B = code_index("AB"), code_index("7Y")
 
 
-def label(quads, rotation, code, config=LabelConfig()):
-    return corner_labels(np.array(quads), np.array(rotation), np.array(code), CODES, SQUARES, 7, config)
+def label(quads, rotation, code, confidence=(0.8, 0.7), config=LabelConfig(solo_confidence=0.9)):
+    return corner_labels(np.array(quads), np.array(rotation), np.array(code), np.array(confidence), CODES, SQUARES, 7,
+                         config)
 
 
 def test_two_squares_read_right_label_every_corner():
@@ -27,18 +29,22 @@ def test_two_squares_read_right_label_every_corner():
     assert named.tolist() == [1, 1, 2, 1, 1, 1, 1]
 
 
-def test_a_misread_rotation_drops_both_quads_that_disagree():
-    det, _ = label([[0, 1, 2, 3], [4, 5, 6, 2]], [0, 3], [A, B])  # B read a quarter turn off
-    assert (det == -1).all()
+def test_of_two_quads_that_disagree_the_more_confident_stays_if_confident_alone():
+    det, _ = label([[0, 1, 2, 3], [4, 5, 6, 2]], [0, 3], [A, B])  # B read a quarter turn off: it disagrees on 2
+    assert (det == -1).all()  # A alone at 0.8 is not confident enough
+    det, named = label([[0, 1, 2, 3], [4, 5, 6, 2]], [0, 3], [A, B], confidence=(0.95, 0.99))
+    assert det.tolist() == [-1, -1, 5, -1, 6, 2, 4]  # the misread B is more confident: its (wrong) labels stay
+    det, named = label([[0, 1, 2, 3], [4, 5, 6, 2]], [0, 3], [A, B], confidence=(0.99, 0.95))
+    assert det.tolist() == [0, 1, 2, 3, -1, -1, -1] and named.tolist() == [1, 1, 1, 1, 0, 0, 0]
 
 
 def test_repeated_and_unknown_codes_label_nothing():
     det, _ = label([[0, 1, 2, 3], [4, 5, 6, 2]], [0, 1], [A, A])  # one code on two quads
     assert (det == -1).all()
-    det, _ = label([[0, 1, 2, 3], [4, 5, 6, 2]], [0, 1], [A, code_index("QQ")])  # QQ is not printed
+    det, _ = label([[0, 1, 2, 3], [4, 5, 6, 2]], [0, 1], [A, code_index("QQ")], (0.95, 0.95))  # QQ not printed
     assert det.tolist() == [0, 1, 2, 3, -1, -1, -1]
-    det, _ = label([[0, 1, 2, 3], [4, 5, 6, 2]], [0, 1], [A, A], LabelConfig(drop_repeated_codes=False))
-    assert (det == -1).all()  # then the redundancy check catches it: corner 0..3 named at two detections
+    det, _ = label([[0, 1, 2, 3], [4, 5, 6, 2]], [0, 1], [A, A], config=LabelConfig(drop_repeated_codes=False, solo_confidence=0.9))
+    assert det.tolist() == [-1] * 7  # the second names corners 0..3 at other detections: only the first, alone
 
 
 def test_studio_quads_are_labelled_with_their_rotation():
@@ -53,3 +59,8 @@ def test_studio_quads_are_labelled_with_their_rotation():
     hidden = visible.copy()
     hidden[5] = False  # a corner the view does not see: its square is no valid quad
     assert label_quads(xy, quads, truth, hidden, SQUARES, ["AB", "7Y"])[0].tolist() == [True, False, False, False]
+
+
+def test_by_default_a_quad_alone_labels_nothing():
+    det, _ = label([[0, 1, 2, 3]], [0], [A], (0.999,), LabelConfig())
+    assert (det == -1).all()
