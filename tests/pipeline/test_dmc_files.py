@@ -1,0 +1,180 @@
+"""The DeepMoCap dataset's own files (`kind: dmc`): a studio take written in the DeepMoCap layout, mirrored and
+with the Kinect's x-left, y-up camera axes, reads back as the take itself; bad recordings are refused at the door."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from conftest import last_json, mocapflow, read_artifacts
+from mocapflow.pipeline import dmc_files
+from mocapflow.pipeline.catalog import load_catalog
+from mocapflow.pipeline.datasets import DATASET_KINDS, discover
+from mocapflow.pipeline.errors import CatalogError, InputError
+from mocapflow.tasks.deepmocap.masks import MaskConfig
+from mocapflow.tasks.shared.cameras import calibrated_camera
+from mocapflow.tasks.shared.kinematics import Y_UP_TO_Z_UP
+from mocapflow.tasks.studio.synth import SequenceSpec, build_rig, synthesize
+
+FIRST = 5433  # the dataset's numbers do not start at 0
+PREFIX = "03-18-11-27-03_3V_completed_{view}_"
+
+
+@pytest.fixture(scope="module")
+def take():
+    """Three frames of a studio jumping jack from two sensors, with its ground truth."""
+    return synthesize(build_rig(SequenceSpec(motion="jumping_jack", frames=3, views=2, seed=1)), 0, 3)
+
+
+def write_dmc(folder, ds, *, flow=True, extrinsics_inside=False):
+    """``ds`` as the DeepMoCap dataset stores it: images mirrored, 16-bit PGM depth, JET depth with the reflectors
+    black, the extrinsics in the Kinect's camera axes (x left, y up) and millimetres. Returns the catalog's
+    intrinsics (in the mirrored images' pixels)."""
+    intrinsics = {}
+    for view in ds["view"].values:
+        v = ds.sel(view=view)
+        width = int(v["width"])
+        pose = v["cam_to_world"].values
+        rot = pose[:3, :3] @ np.diag([-1.0, -1.0, 1.0])  # OpenCV axes -> x left, y up
+        ext = folder / view / f"{view}.extrinsics" if extrinsics_inside else folder / f"{view}.extrinsics"
+        (folder / view).mkdir(parents=True)
+        ext.write_text("".join(" ".join(f"{x:.9f}" for x in row) + " \n" for row in rot)
+                       + " ".join(f"{x:.6f}" for x in pose[:3, 3] * 1000.0) + " \n")
+        dist = v["dist"].values.tolist()
+        intrinsics[str(view)] = {"fx": float(v["fx"]), "fy": float(v["fy"]), "cx": width - 1 - float(v["cx"]),
+                                 "cy": float(v["cy"]), "dist": dist[:3] + [-dist[3]] + dist[4:]}
+        for f in range(ds.sizes["frame"]):
+            stem = folder / view / f"{PREFIX.format(view=view)}{FIRST + f:05d}"
+            depth = v["depth"].values[f]
+            jet = cv2.applyColorMap(np.clip(depth / 4000.0 * 255, 0, 255).astype(np.uint8), cv2.COLORMAP_JET)
+            jet[v["gt_reflector_id"].values[f] >= 0] = 0
+            assert cv2.imwrite(f"{stem}depth.pgm", np.ascontiguousarray(depth[:, ::-1]))
+            assert cv2.imwrite(f"{stem}mc_blob.png", np.ascontiguousarray(jet[:, ::-1]))
+            if flow:
+                assert cv2.imwrite(f"{stem}flow.png", np.full(jet.shape, 128, np.uint8))
+    return intrinsics
+
+
+def catalog_for(tmp_path, intrinsics, **options):
+    body = {"data_roots": ["."], "storage": {"root": "storage/"},
+            "datasets": {"dmc": {"kind": "dmc", "path": "recs", "intrinsics": intrinsics, **options}},
+            "stages": {"frames": {"task": "ingest", "dataset": "dmc"}}}
+    (tmp_path / "catalog.yaml").write_text(yaml.safe_dump(body, sort_keys=False))
+    return tmp_path / "catalog.yaml"
+
+
+def discover_dmc(tmp_path):
+    catalog = load_catalog(tmp_path / "catalog.yaml")
+    return discover(catalog, catalog.datasets["dmc"]), catalog.datasets["dmc"]
+
+
+def test_a_deepmocap_recording_reads_back_as_the_take_it_was_written_from(tmp_path, take):
+    intrinsics = write_dmc(tmp_path / "recs" / "take1", take)
+    catalog = catalog_for(tmp_path, intrinsics)
+    summary = last_json(mocapflow("run", "--json", "--only", "frames", "--catalog", catalog, cwd=tmp_path))
+    assert summary["executed"] == ["frames/take1"]
+    [arrays] = [a for (pid, _), a in read_artifacts(tmp_path / "storage").items() if pid == "frames/take1"]
+    np.testing.assert_array_equal(arrays["depth"], take["depth"].values)  # unmirrored, exactly
+    reflectors = take["gt_reflector_id"].values >= 0
+    assert reflectors.sum() > 1000
+    np.testing.assert_array_equal(arrays["ir"] >= MaskConfig().ir_threshold, reflectors)
+    for key in ("fx", "fy", "cx", "cy", "dist", "width", "height"):
+        np.testing.assert_allclose(arrays[key], take[key].values, atol=1e-12, err_msg=key)
+    np.testing.assert_allclose(arrays["cam_to_world"], take["cam_to_world"].values, atol=1e-8)
+    np.testing.assert_allclose(arrays["timestamp"], np.arange(3) / 30.0)
+    # every visible reflector's known 3D centre lands at its known pixel through the ingested calibration
+    for v, view in enumerate(take["view"].values):
+        cam = calibrated_camera(str(view), **{k: arrays[k][v] for k in ("fx", "fy", "cx", "cy", "dist",
+                                                                         "cam_to_world", "width", "height")})
+        seen = take["gt_visible"].values[v]
+        uv, _ = cam.project(take["gt_reflectors"].values.reshape(-1, 3).astype(np.float64))
+        np.testing.assert_allclose(uv.reshape(3, -1, 2)[seen], take["gt_reflectors2d"].values[v][seen], atol=2e-3)
+
+
+def test_extrinsics_in_the_view_folder_a_y_up_world_and_ir_frames(tmp_path, take):
+    one = take.isel(frame=[0])
+    intrinsics = write_dmc(tmp_path / "recs" / "take1", one, flow=False, extrinsics_inside=True)
+    for view in one["view"].values:  # IR given: it is read as it is, not made up from the black pixels
+        ir = one.sel(view=view)["ir"].values[0]
+        assert cv2.imwrite(str(tmp_path / "recs" / "take1" / view / f"{PREFIX.format(view=view)}{FIRST}ir.pgm"),
+                           np.ascontiguousarray(ir[:, ::-1]))
+    for view in one["view"].values:  # the extrinsics rewritten in a Y-up world: (x, y, z) -> (x, z, -y)
+        ext = tmp_path / "recs" / "take1" / view / f"{view}.extrinsics"
+        values = np.array([r.split() for r in ext.read_text().splitlines()], float)
+        values = np.vstack([Y_UP_TO_Z_UP.T @ values[:3], values[3] @ Y_UP_TO_Z_UP])  # Z-up world -> Y-up world
+        ext.write_text("".join(" ".join(f"{x:.9f}" for x in r) + "\n" for r in values))
+    catalog_for(tmp_path, intrinsics, up="y")
+    [seq], dataset = discover_dmc(tmp_path)
+    frames = DATASET_KINDS["dmc"].read(dataset, seq, 0, 1)
+    np.testing.assert_array_equal(frames["ir"].values, one["ir"].values)
+    np.testing.assert_array_equal(frames["depth"].values, one["depth"].values)
+    np.testing.assert_allclose(frames["cam_to_world"].values, one["cam_to_world"].values, atol=1e-8)
+
+
+def _break(tmp_path, take, change):
+    seq = tmp_path / "recs" / "take1"
+    intrinsics = write_dmc(seq, take.isel(frame=[0, 1]), flow=True)
+    options = change(seq, intrinsics) or {}
+    catalog_for(tmp_path, options.pop("intrinsics", intrinsics), **options)
+    return seq
+
+
+def _rm(path):
+    path.unlink()
+
+
+def _pgm8(seq, _):
+    [path] = (seq / "kinect1").glob("*05434depth.pgm")
+    assert cv2.imwrite(str(path), np.zeros((424, 512), np.uint8))
+
+
+def _opencv_axes(seq, _):
+    rows = (seq / "kinect0.extrinsics").read_text().splitlines()
+    rot = np.array([r.split() for r in rows[:3]], float) @ np.diag([-1.0, -1.0, 1.0])
+    (seq / "kinect0.extrinsics").write_text("".join(" ".join(f"{x:.9f}" for x in r) + "\n" for r in rot) + rows[3])
+
+
+BAD = [
+    (lambda seq, _: __import__("shutil").rmtree(seq / "kinect1"),
+     InputError, "kinect1.extrinsics: view 'kinect1' has no image folder"),
+    (lambda seq, _: _rm(next((seq / "kinect0").glob("*05434mc_blob.png"))),
+     InputError, "2 depth frames (5433-5434) but 1 *mc_blob.png frames (5433-5433; missing [5434], extra [])"),
+    (lambda seq, _: _rm(next((seq / "kinect0").glob("*05434flow.png"))),  # all flow, or all but the first
+     InputError, "2 depth frames (5433-5434) but 1 *flow.png frames (5433-5433; missing [5434]"),
+    (lambda seq, _: [_rm(p) for p in (seq / "kinect1").glob("*05434*")] and None,
+     InputError, "views have different numbers of frames {'kinect0': 2, 'kinect1': 1}"),
+    (_pgm8, InputError, "05434depth.pgm is an 8-bit PGM (maxval 255); depth frames must be 16-bit PGMs"),
+    (lambda seq, _: _rm(seq / "kinect0.extrinsics"), InputError, "view 'kinect0' has no extrinsics; expected"),
+    (lambda seq, _: (seq / "kinect0.extrinsics").write_text("1 0 0\n0 1 0\n0 0 1\n") and None, InputError,
+     "kinect0.extrinsics: expected 4 lines of 3 finite numbers"),
+    (_opencv_axes, InputError, "the camera's y axis points down in the world (z component -0.999)"),
+    (lambda seq, intr: {"intrinsics": {"kinect0": intr["kinect0"]}}, CatalogError,
+     "intrinsics: no entry for view 'kinect1'"),
+    (lambda seq, intr: {"intrinsics": {"fx": 365.0, "fy": 365.0, "cx": 255.5}}, CatalogError, "missing ['cy']"),
+    (lambda seq, intr: {"mirrored": "yes"}, CatalogError, "mirrored: 'yes' is not one of [True, False]"),
+]
+
+
+@pytest.mark.parametrize("change, error, message", BAD, ids=[
+    "missing-folder", "colour-count", "flow-count", "view-counts", "pgm-8-bit", "no-extrinsics", "short-extrinsics",
+    "opencv-axes", "intrinsics-view", "intrinsics-key", "mirrored-value"])
+def test_bad_deepmocap_recordings_are_refused_at_discovery(tmp_path, take, change, error, message):
+    _break(tmp_path, take, change)
+    with pytest.raises(error) as err:
+        discover_dmc(tmp_path)
+    assert message in str(err.value)
+
+
+def test_the_opencv_axes_option_and_a_black_background_at_the_door(tmp_path, take):
+    _break(tmp_path, take, _opencv_axes)
+    text = (tmp_path / "catalog.yaml").read_text()
+    (tmp_path / "catalog.yaml").write_text(text.replace("kind: dmc", "kind: dmc\n    camera_axes: opencv"))
+    [seq], _ = discover_dmc(tmp_path)
+    np.testing.assert_allclose(seq.spec["views"]["kinect0"]["cam_to_world"], take["cam_to_world"].values[0], atol=1e-8)
+    [path] = (tmp_path / "recs" / "take1" / "kinect1").glob("*05433mc_blob.png")
+    assert cv2.imwrite(str(path), np.zeros((424, 512, 3), np.uint8))
+    proc = mocapflow("run", "--dry-run", "--catalog", tmp_path / "catalog.yaml", cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert f"{path}: 100% of the pixels are black" in proc.stderr and "give the IR frames" in proc.stderr
