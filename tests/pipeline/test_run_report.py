@@ -1,0 +1,104 @@
+"""`mocapflow report` on a user's own take (no ground truth): per-marker tracked frames and gaps, trajectories and the
+interactive 3D view, the view checked in a real headless browser."""
+
+from __future__ import annotations
+
+import html
+import os
+import re
+import shutil
+import subprocess
+
+import cv2
+import numpy as np
+import pytest
+
+from conftest import mocapflow
+from mocapflow.pipeline.report import gaps
+
+FPS, FRAMES = 60, 60
+MISSING = {"RASI": [range(10, 20), range(50, 55)], "LASI": [], "STRN": [range(0, 3)]}  # frames without a sample
+
+
+def write_take(path):
+    """A TRC take of three markers circling at known radii, with the gaps of MISSING."""
+    names = list(MISSING)
+    lines = ["PathFileType\t4\t(X/Y/Z)\ttake.trc",
+             "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames",
+             f"{FPS}\t{FPS}\t{FRAMES}\t{len(names)}\tmm\t{FPS}\t1\t{FRAMES}",
+             "Frame#\tTime\t" + "\t\t\t".join(names) + "\t\t",
+             "\t\t" + "\t".join(f"X{i + 1}\tY{i + 1}\tZ{i + 1}" for i in range(len(names)))]
+    for f in range(FRAMES):
+        cells = []
+        for m, name in enumerate(names):
+            gone = any(f in r for r in MISSING[name])
+            a = 2 * np.pi * f / FRAMES
+            cells += ["", "", ""] if gone else [f"{(300 + 100 * m) * np.cos(a):.3f}", f"{(300 + 100 * m) * np.sin(a):.3f}",
+                                                f"{900 + 100 * m:.3f}"]
+        lines.append(f"{f + 1}\t{f / FPS:.5f}\t" + "\t".join(cells))
+    path.write_text("\n".join(lines) + "\n")
+
+
+def browser():
+    """Debian's chromium, or a skip naming it (a failure where MOCAPFLOW_REQUIRE_BROWSER=1)."""
+    found = shutil.which("chromium") or shutil.which("chromium-browser")
+    if found is None:
+        if os.environ.get("MOCAPFLOW_REQUIRE_BROWSER") == "1":
+            pytest.fail("chromium is missing but MOCAPFLOW_REQUIRE_BROWSER=1; install it (apt-get install chromium)")
+        pytest.skip("chromium is not installed (apt-get install chromium): the report's 3D view is not checked in a "
+                    "browser")
+    return found
+
+
+def run_browser(page, tmp_path, *args):
+    """The page loaded in headless chromium, its script run; returns the process."""
+    return subprocess.run([browser(), "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                           "--disable-component-update", "--disable-sync", "--no-first-run",
+                           f"--user-data-dir={tmp_path / 'chromium-profile'}", "--virtual-time-budget=3000", *args,
+                           page.as_uri()], capture_output=True, text=True, timeout=120, check=False)
+
+
+def test_gaps_are_the_runs_of_missing_frames():
+    present = np.ones(12, bool)
+    present[[0, 1, 5, 9, 10, 11]] = False
+    assert gaps(present) == [(0, 2), (5, 1), (9, 3)]
+    assert gaps(np.ones(4, bool)) == [] and gaps(np.zeros(3, bool)) == [(0, 3)]
+
+
+def test_report_of_an_own_take_without_ground_truth(tmp_path):
+    (tmp_path / "takes").mkdir()
+    write_take(tmp_path / "takes" / "walk01.trc")
+    (tmp_path / "catalog.yaml").write_text(
+        "data_roots: [.]\nstorage: {root: storage/}\n"
+        "datasets:\n  lab: {kind: markers, path: takes, pattern: '*.trc', up: z, labels: use}\n"
+        "stages:\n  markers: {task: ingest_markers, dataset: lab}\n")
+    proc = mocapflow("report", "--catalog", "catalog.yaml", "--out", "rep", cwd=tmp_path)
+    assert "wrote rep/report.html" in proc.stdout
+    page = (tmp_path / "rep" / "report.html").read_text()
+    assert "No ground truth in these recordings" in page and "<h3 id='seq-walk01'>walk01</h3>" in page
+    rows = {cells[0]: cells[1:] for cells in (re.findall(r"<td>([^<]*)</td>", row)
+                                              for row in re.findall(r"<tr>(<td>.*?)</tr>", page)) if len(cells) == 5}
+    # marker: tracked %, gaps, longest gap (frames), longest gap (s)
+    assert rows["RASI"] == ["75.0", "2", "10", "0.167"]
+    assert rows["LASI"] == ["100.0", "0", "0", "0"]
+    assert rows["STRN"] == ["95.0", "1", "3", "0.05"]
+    png = cv2.imread(str(tmp_path / "rep" / "trajectories_walk01.png"))
+    assert png is not None and (png < 250).any(axis=-1).mean() > 0.02  # axes, lines and legend drawn
+
+    dom = run_browser(tmp_path / "rep" / "report.html", tmp_path, "--dump-dom")
+    assert dom.returncode == 0, dom.stderr[-2000:]
+    body = re.search(r"<body[^>]*>", dom.stdout).group(0)
+    assert 'data-frames="60"' in body and 'data-sequence="walk01"' in body, body
+    painted = int(re.search(r'data-painted="(\d+)"', body).group(1))
+    assert painted > 2000, body  # the floor grid and the markers drawn over the background
+    assert "frame 0 / 59, 0.00 s, 2 of 3 markers" in html.unescape(dom.stdout)  # STRN is missing at frame 0
+
+    shot = run_browser(tmp_path / "rep" / "report.html", tmp_path, f"--screenshot={tmp_path / 'shot.png'}",
+                       "--window-size=1200,2400")
+    assert shot.returncode == 0, shot.stderr[-2000:]
+    img = cv2.imread(str(tmp_path / "shot.png"))
+    dark = (np.abs(img.astype(int) - 30).max(axis=-1) <= 1)  # the canvas's background
+    assert dark.sum() > 200_000  # the 720 x 540 canvas is on the page ...
+    ys, xs = np.nonzero(dark)
+    canvas = img[ys.min():ys.max(), xs.min():xs.max()]
+    assert (np.abs(canvas.astype(int) - 30).max(axis=-1) > 40).sum() > 500  # ... with markers and grid on it
