@@ -434,9 +434,10 @@ def _accuracy_figures(folder: Path, catalog, plan, store, result: dict) -> list[
     from mocapflow.pipeline.evaluate import stage_writing
 
     stage_2d, poses = stage_writing(catalog, "reflectors2d"), stage_writing(catalog, "poses")
-    if stage_2d is None or poses is None or "poses" not in result:
+    source = stage_writing(catalog, "raw_sequence")
+    if stage_2d is None or poses is None or source is None or "poses" not in result:
         return []
     seq = plan.sequences[0]
-    raw = plan.open(store, "frames", seq.id)
+    raw = plan.open(store, source, seq.id)
     reflectors = xr.concat([plan.open(store, stage_2d, seq.id, v).sel(view=v).load() for v in seq.views], dim="view")
     return figures(folder, raw, reflectors, plan.open(store, poses, seq.id).load(), result)

@@ -178,3 +178,19 @@ def test_the_opencv_axes_option_and_a_black_background_at_the_door(tmp_path, tak
     proc = mocapflow("run", "--dry-run", "--catalog", tmp_path / "catalog.yaml", cwd=tmp_path, check=False)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert f"{path}: 100% of the pixels are black" in proc.stderr and "give the IR frames" in proc.stderr
+
+
+def test_mirroring_flips_the_principal_point_and_the_sign_of_p2():
+    """A camera with tangential distortion seeing a point, and the same camera's mirror image (x -> -x, column
+    u -> width - 1 - u): the mirrored image's intrinsics turned back are the camera's own."""
+    width = 512
+    K = np.array([[365.0, 0, 250.0], [0, 366.0, 210.0], [0, 0, 1]])
+    dist = np.array([0.09, -0.27, 0.004, 0.006, 0.09])
+    points = np.array([[0.3, -0.2, 2.0], [-0.5, 0.4, 2.5], [0.1, 0.6, 1.5]])
+    uv = cv2.projectPoints(points, np.zeros(3), np.zeros(3), K, dist)[0][:, 0]
+    files = {"fx": 365.0, "fy": 366.0, "cx": width - 1 - 250.0, "cy": 210.0, "dist": [0.09, -0.27, 0.004, -0.006, 0.09]}
+    Km = np.array([[365.0, 0, files["cx"]], [0, 366.0, 210.0], [0, 0, 1]])
+    uv_m = cv2.projectPoints(points * [-1, 1, 1], np.zeros(3), np.zeros(3), Km, np.array(files["dist"]))[0][:, 0]
+    np.testing.assert_allclose(uv_m, np.stack([width - 1 - uv[:, 0], uv[:, 1]], 1), atol=1e-9)  # the mirror image
+    back = dmc_files.mirrored_intrinsics(files, width)
+    assert back["cx"] == 250.0 and back["dist"] == dist.tolist()
