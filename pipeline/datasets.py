@@ -484,6 +484,9 @@ class DeepMoCapReader:
         folder = _folder(catalog, dataset)
         pattern = _pattern(dataset, "*")
         dmc_files.settings(dataset)  # the options, before any file is read
+        if any(folder.glob("*.extrinsics")):
+            raise CatalogError(f"{dataset.where}.path: {folder} holds extrinsics files, so it is one take, not a "
+                               f"folder of takes; point 'path' at the folder that holds it ({folder.parent})")
         out = []
         for seq_dir in sorted(p for p in folder.glob(pattern) if dmc_files.is_sequence(p)):
             check_names(dataset.where, seq_dir.name, [], f" ({seq_dir})", has_views=False)

@@ -167,6 +167,15 @@ def test_bad_deepmocap_recordings_are_refused_at_discovery(tmp_path, take, chang
     assert message in str(err.value)
 
 
+def test_a_path_pointing_at_one_take_is_refused_naming_its_parent(tmp_path, take):
+    intrinsics = write_dmc(tmp_path / "recs", take.isel(frame=[0]))
+    catalog_for(tmp_path, intrinsics)
+    with pytest.raises(CatalogError) as err:
+        discover_dmc(tmp_path)
+    assert f"holds extrinsics files, so it is one take, not a folder of takes; point 'path' at the folder that holds " \
+           f"it ({tmp_path})" in str(err.value)
+
+
 def test_the_opencv_axes_option_and_a_black_background_at_the_door(tmp_path, take):
     _break(tmp_path, take, _opencv_axes)
     text = (tmp_path / "catalog.yaml").read_text()
