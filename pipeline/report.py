@@ -23,6 +23,7 @@ from mocapflow.tasks.shared.body import JOINT_NAMES, PARENTS
 
 WHITE, GREY, BLACK = (255, 255, 255), (150, 150, 150), (0, 0, 0)
 SOLVED = (80, 200, 255)  # BGR orange
+TRUTH = (255, 210, 140)  # BGR light blue
 BAR = (180, 119, 31)  # BGR blue: one colour for every bar, the length carries the value
 # A categorical palette (Tableau 20, BGR): neighbouring entries differ, unlike a rainbow's
 PALETTE = [(180, 119, 31), (14, 127, 255), (44, 160, 44), (40, 39, 214), (189, 103, 148), (75, 86, 140),
@@ -67,13 +68,13 @@ def skeleton_panel(est: np.ndarray, gt: np.ndarray, title: str, size: int = 260)
         def to_px(p, centre=centre, scale=scale):
             return int(size / 2 + (p[0] - centre[0]) * scale), int(size / 2 - (p[1] - centre[1]) * scale)
 
-        for joints, colour, width in ((est, SOLVED, 4), (gt, WHITE, 1)):  # the truth on top, thin: never hidden
+        for joints, colour, width in ((est, SOLVED, 4), (gt, TRUTH, 1)):  # the truth on top, thin: never hidden
             for j, parent in enumerate(PARENTS):
                 if parent >= 0 and np.isfinite(joints[[j, parent]]).all():
                     cv2.line(img, to_px(joints[j, axes]), to_px(joints[parent, axes]), colour, width, cv2.LINE_AA)
         cv2.putText(img, f"{title} {label}", (6, 16), FONT, 0.42, WHITE, 1, cv2.LINE_AA)
         cv2.putText(img, "solved", (6, size - 24), FONT, 0.4, SOLVED, 1, cv2.LINE_AA)
-        cv2.putText(img, "ground truth", (6, size - 8), FONT, 0.4, WHITE, 1, cv2.LINE_AA)
+        cv2.putText(img, "ground truth", (6, size - 8), FONT, 0.4, TRUTH, 1, cv2.LINE_AA)
         panels.append(img)
     return np.hstack(panels)
 
@@ -102,9 +103,9 @@ def line_plot(x: np.ndarray, ys: dict[str, np.ndarray], *, title: str, xlabel: s
         cv2.polylines(img, [pts], False, colour, 2, cv2.LINE_AA)
         cv2.line(img, (right + 12, top + 10 + 18 * k), (right + 32, top + 10 + 18 * k), colour, 2, cv2.LINE_AA)
         cv2.putText(img, label[:20], (right + 38, top + 14 + 18 * k), FONT, 0.42, BLACK, 1, cv2.LINE_AA)
-    cv2.putText(img, title, (left, 25), FONT, 0.55, BLACK, 1, cv2.LINE_AA)
+    cv2.putText(img, title, (left, 16), FONT, 0.55, BLACK, 1, cv2.LINE_AA)
     cv2.putText(img, xlabel, ((left + right) // 2 - 40, h - 12), FONT, 0.45, BLACK, 1, cv2.LINE_AA)
-    cv2.putText(img, ylabel, (4, top - 10), FONT, 0.45, BLACK, 1, cv2.LINE_AA)
+    cv2.putText(img, ylabel, (4, top - 8), FONT, 0.45, BLACK, 1, cv2.LINE_AA)
     return img
 
 
@@ -197,7 +198,8 @@ class Take:
     names: list[str]
     position: np.ndarray  # (frame, marker, 3) m, NaN where missing
     views: np.ndarray | None = None  # (frame, marker) views fused
-    residual: np.ndarray | None = None  # (frame, marker) m, mean distance of the views' estimates from the fused point
+    residual: np.ndarray | None = None  # (frame, marker) m, mean distance of the views' estimates from the fused
+    # point, NaN where fewer than two views saw the marker
     joints: np.ndarray | None = None  # (frame, joint, 3) m
     joint_names: list[str] = field(default_factory=list)
     parents: list[int] = field(default_factory=list)
@@ -212,21 +214,22 @@ def gaps(present: np.ndarray) -> list[tuple[int, int]]:
 
 
 def marker_rows(take: Take) -> list[dict]:
-    """Per marker: frames tracked (%), gaps (count, longest in frames and seconds), the fused views' median
-    residual (mm) and the mean number of views where tracked."""
+    """Per marker: frames tracked (%), gaps (count, longest in frames and seconds), the median residual (mm: the
+    mean distance of the views' estimates from the fused point, in frames seen by two views or more) and the mean
+    number of views where tracked."""
     rows = []
     present = np.isfinite(take.position).all(axis=-1)  # (frame, marker)
     for m, name in enumerate(take.names):
         runs = gaps(present[:, m])
         longest = max((n for _, n in runs), default=0)
-        row = {"marker": name, "tracked %": 100.0 * present[:, m].mean(), "gaps": len(runs),
-               "longest gap (frames)": longest, "longest gap (s)": longest / take.fps}
+        row = {"marker": name, "tracked %": round(100.0 * present[:, m].mean(), 1), "gaps": len(runs),
+               "longest gap (frames)": longest, "longest gap (s)": round(longest / take.fps, 3)}
         if take.residual is not None:
             r = take.residual[:, m][np.isfinite(take.residual[:, m])]
-            row["median residual (mm)"] = 1000.0 * float(np.median(r)) if r.size else float("nan")
+            row["median residual (mm)"] = round(1000.0 * float(np.median(r)), 1) if r.size else float("nan")
         if take.views is not None:
             seen = take.views[:, m][take.views[:, m] > 0]
-            row["views (mean)"] = float(seen.mean()) if seen.size else 0.0
+            row["views (mean)"] = round(float(seen.mean()), 2) if seen.size else 0.0
         rows.append(row)
     return rows
 
@@ -298,7 +301,7 @@ def html_table(rows: list[dict]) -> str:
 
 def _cell(v) -> str:
     if isinstance(v, float):
-        return "-" if not np.isfinite(v) else f"{v:.1f}" if abs(v) >= 10 else f"{v:.3g}"
+        return f"{v:g}" if np.isfinite(v) else "-"
     return str(v)
 
 
@@ -355,6 +358,7 @@ def write_report(folder: Path, takes: list[Take], *, title: str, summary: dict, 
     page.write_text(
         f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title><style>"
         "body{font-family:sans-serif;margin:2em}img{max-width:100%}td,th{padding:2px 10px;text-align:right}"
+        "td:first-child,th:first-child{text-align:left}"
         "table.grid{border-collapse:collapse}table.grid td,table.grid th{border-bottom:1px solid #ddd}"
         f"pre{{background:#f4f4f4;padding:1em;overflow:auto}}{style}</style></head><body>"
         f"<h1>{html.escape(title)}</h1><table>{rows}</table><h2>Accuracy</h2>{accuracy_html}{imgs}"
@@ -386,8 +390,10 @@ def gather(catalog, plan, store) -> list[Take]:
         if fused is not None:
             f = plan.open(store, fused, seq.id)
             take.views = f["views"].values
-            take.residual = np.nanmean(np.where(np.isfinite(f["residual"].values), f["residual"].values, np.nan), -1) \
-                if np.isfinite(f["residual"].values).any() else None
+            residual = f["residual"].values  # (frame, marker, view), NaN where a view has no estimate
+            counted = np.isfinite(residual).sum(-1)
+            with np.errstate(invalid="ignore"):  # a view alone is its own fused point: no residual there
+                take.residual = np.where(counted >= 2, np.nansum(residual, -1) / np.maximum(counted, 1), np.nan)
         if poses is not None:
             p = plan.open(store, poses, seq.id).load()
             take.joints, take.joint_names = p["position"].values, [str(j) for j in p["joint"].values]
@@ -416,7 +422,7 @@ def build_report(catalog, plan, store, folder: Path, *, title: str, summary: dic
     images, accuracy, figures_ = [], None, {}
     if result is None and has_ground_truth(catalog, plan, store):
         try:
-            result = evaluate(catalog, plan, store)
+            result = evaluate(catalog, plan, store, flow=False)  # the scene flow's figures take most of the time
         except PlanError as exc:  # ground truth, but no stage the evaluation scores: say so on the page
             accuracy = f"not measured: {exc}"
     if result is not None:

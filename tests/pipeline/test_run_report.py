@@ -58,9 +58,9 @@ def test_report_of_an_own_take_without_ground_truth(tmp_path):
     rows = {cells[0]: cells[1:] for cells in (re.findall(r"<td>([^<]*)</td>", row)
                                               for row in re.findall(r"<tr>(<td>.*?)</tr>", page)) if len(cells) == 5}
     # marker: tracked %, gaps, longest gap (frames), longest gap (s)
-    assert rows["RASI"] == ["75.0", "2", "10", "0.167"]
-    assert rows["LASI"] == ["100.0", "0", "0", "0"]
-    assert rows["STRN"] == ["95.0", "1", "3", "0.05"]
+    assert rows["RASI"] == ["75", "2", "10", "0.167"]
+    assert rows["LASI"] == ["100", "0", "0", "0"]
+    assert rows["STRN"] == ["95", "1", "3", "0.05"]
     png = cv2.imread(str(tmp_path / "rep" / "trajectories_walk01.png"))
     assert png is not None and (png < 250).any(axis=-1).mean() > 0.02  # axes, lines and legend drawn
 
