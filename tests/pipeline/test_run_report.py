@@ -44,7 +44,10 @@ def test_gaps_are_the_runs_of_missing_frames():
     assert gaps(np.ones(4, bool)) == [] and gaps(np.zeros(3, bool)) == [(0, 3)]
 
 
-def test_report_of_an_own_take_without_ground_truth(tmp_path):
+@pytest.fixture(scope="module")
+def own_report(tmp_path_factory):
+    """`mocapflow report` of a catalog reading one TRC take (no ground truth): the report's folder."""
+    tmp_path = tmp_path_factory.mktemp("own")
     (tmp_path / "takes").mkdir()
     write_take(tmp_path / "takes" / "walk01.trc")
     (tmp_path / "catalog.yaml").write_text(
@@ -53,7 +56,11 @@ def test_report_of_an_own_take_without_ground_truth(tmp_path):
         "stages:\n  markers: {task: ingest_markers, dataset: lab}\n")
     proc = mocapflow("report", "--catalog", "catalog.yaml", "--out", "rep", cwd=tmp_path)
     assert "wrote rep/report.html" in proc.stdout
-    page = (tmp_path / "rep" / "report.html").read_text()
+    return tmp_path / "rep"
+
+
+def test_report_of_an_own_take_without_ground_truth(own_report):
+    page = (own_report / "report.html").read_text()
     assert "No ground truth in these recordings" in page and "<h3 id='seq-walk01'>walk01</h3>" in page
     rows = {cells[0]: cells[1:] for cells in (re.findall(r"<td>([^<]*)</td>", row)
                                               for row in re.findall(r"<tr>(<td>.*?)</tr>", page)) if len(cells) == 5}
@@ -61,10 +68,12 @@ def test_report_of_an_own_take_without_ground_truth(tmp_path):
     assert rows["RASI"] == ["75", "2", "10", "0.167"]
     assert rows["LASI"] == ["100", "0", "0", "0"]
     assert rows["STRN"] == ["95", "1", "3", "0.05"]
-    png = cv2.imread(str(tmp_path / "rep" / "trajectories_walk01.png"))
+    png = cv2.imread(str(own_report / "trajectories_walk01.png"))
     assert png is not None and (png < 250).any(axis=-1).mean() > 0.02  # axes, lines and legend drawn
 
-    dom = run_browser(tmp_path / "rep" / "report.html", tmp_path, "--dump-dom")
+
+def test_the_3d_view_runs_and_draws_in_a_headless_browser(own_report, tmp_path):
+    dom = run_browser(own_report / "report.html", tmp_path, "--dump-dom")
     assert dom.returncode == 0, dom.stderr[-2000:]
     body = re.search(r"<body[^>]*>", dom.stdout).group(0)
     assert 'data-frames="60"' in body and 'data-sequence="walk01"' in body, body
@@ -72,7 +81,7 @@ def test_report_of_an_own_take_without_ground_truth(tmp_path):
     assert painted > 2000, body  # the floor grid and the markers drawn over the background
     assert "frame 0 / 59, 0.00 s, 2 of 3 markers" in html.unescape(dom.stdout)  # STRN is missing at frame 0
 
-    shot = run_browser(tmp_path / "rep" / "report.html", tmp_path, f"--screenshot={tmp_path / 'shot.png'}",
+    shot = run_browser(own_report / "report.html", tmp_path, f"--screenshot={tmp_path / 'shot.png'}",
                        "--window-size=1200,2400")
     assert shot.returncode == 0, shot.stderr[-2000:]
     img = cv2.imread(str(tmp_path / "shot.png"))
