@@ -13,7 +13,7 @@ from mocapflow.pipeline import dmc_files
 from mocapflow.pipeline.catalog import load_catalog
 from mocapflow.pipeline.datasets import DATASET_KINDS, discover
 from mocapflow.pipeline.errors import CatalogError, InputError
-from mocapflow.tasks.deepmocap.masks import MaskConfig
+from mocapflow.tasks.deepmocap.masks import MaskConfig, masks
 from mocapflow.tasks.shared.cameras import calibrated_camera
 from mocapflow.tasks.shared.kinematics import Y_UP_TO_Z_UP
 from mocapflow.tasks.studio.synth import SequenceSpec, build_rig, synthesize
@@ -60,7 +60,8 @@ def write_dmc(folder, ds, *, flow=True, extrinsics_inside=False):
 def catalog_for(tmp_path, intrinsics, **options):
     body = {"data_roots": ["."], "storage": {"root": "storage/"},
             "datasets": {"dmc": {"kind": "dmc", "path": "recs", "intrinsics": intrinsics, **options}},
-            "stages": {"frames": {"task": "ingest", "dataset": "dmc"}}}
+            "stages": {"frames": {"task": "ingest", "dataset": "dmc"},
+                       "masks": {"task": "reflector_mask", "inputs": ["frames"]}}}
     (tmp_path / "catalog.yaml").write_text(yaml.safe_dump(body, sort_keys=False))
     return tmp_path / "catalog.yaml"
 
@@ -73,13 +74,17 @@ def discover_dmc(tmp_path):
 def test_a_deepmocap_recording_reads_back_as_the_take_it_was_written_from(tmp_path, take):
     intrinsics = write_dmc(tmp_path / "recs" / "take1", take)
     catalog = catalog_for(tmp_path, intrinsics)
-    summary = last_json(mocapflow("run", "--json", "--only", "frames", "--catalog", catalog, cwd=tmp_path))
-    assert summary["executed"] == ["frames/take1"]
-    [arrays] = [a for (pid, _), a in read_artifacts(tmp_path / "storage").items() if pid == "frames/take1"]
+    summary = last_json(mocapflow("run", "--json", "--until", "masks", "--catalog", catalog, cwd=tmp_path))
+    assert sorted(summary["executed"]) == ["frames/take1", "masks/take1/kinect0", "masks/take1/kinect1"]
+    artifacts = {pid: a for (pid, _), a in read_artifacts(tmp_path / "storage").items()}
+    arrays = artifacts["frames/take1"]
     np.testing.assert_array_equal(arrays["depth"], take["depth"].values)  # unmirrored, exactly
     reflectors = take["gt_reflector_id"].values >= 0
     assert reflectors.sum() > 1000
     np.testing.assert_array_equal(arrays["ir"] >= MaskConfig().ir_threshold, reflectors)
+    studio_masks = masks(take, MaskConfig())["mask"].values  # the masks stage on the studio's own IR ...
+    for v, view in enumerate(take["view"].values):  # ... and on the stand-in IR of the black pixels: the same
+        np.testing.assert_array_equal(artifacts[f"masks/take1/{view}"]["mask"][0], studio_masks[v])
     for key in ("fx", "fy", "cx", "cy", "dist", "width", "height"):
         np.testing.assert_allclose(arrays[key], take[key].values, atol=1e-12, err_msg=key)
     np.testing.assert_allclose(arrays["cam_to_world"], take["cam_to_world"].values, atol=1e-8)
