@@ -54,6 +54,9 @@ def overlay(ir: np.ndarray, xy: np.ndarray, gt_uv: np.ndarray, names: list[str],
             cv2.circle(img, p, 3, _colour(r, len(names)), 1 if hollow else -1, cv2.LINE_AA)
             cv2.putText(img, name, (p[0] + 4, p[1] - 4), FONT, 0.3, _colour(r, len(names)), 1, cv2.LINE_AA)
     cv2.putText(img, title, (8, 20), FONT, 0.55, WHITE, 1, cv2.LINE_AA)
+    if img.shape[0] >= 200:  # the legend, where the image has room for it
+        cv2.putText(img, "dot: estimate (hollow: recovered)   ring: ground truth", (8, img.shape[0] - 10), FONT, 0.4,
+                    WHITE, 1, cv2.LINE_AA)
     return img
 
 
