@@ -383,6 +383,30 @@ def export(catalog_path, overrides, sequences, fmt, stage, out_dir, up, workers,
 
 
 @main.command()
+@catalog_option
+@set_option
+@sequences_option
+@click.option("--out", "out_dir", default="report", show_default=True, type=click.Path(file_okay=False),
+              help="folder for report.html and its figures")
+@workers_option
+@threads_option
+def report(catalog_path, overrides, sequences, out_dir, workers, threads):
+    """An HTML report of the catalog's run, own takes too: per marker tracked frames, gaps, residuals and views,
+    trajectories, an interactive 3D view, and with ground truth the accuracy (computes missing partitions first)."""
+    from mocapflow.pipeline.report import build_report
+    from mocapflow.pipeline.scheduler import compute_missing
+
+    catalog = load_catalog(catalog_path, overrides)
+    store = Store(catalog.root)
+    plan = build_plan(catalog, sequences)
+    compute_missing(plan.items.values(), store, workers=workers, processes=not threads, what="cannot report",
+                    report=_stage_lines())
+    page, images, _ = build_report(catalog, plan, store, Path(out_dir), title=f"mocapflow report: {catalog_path}")
+    for path in images + [page]:
+        click.echo(f"wrote {path}")
+
+
+@main.command()
 @click.option("--out", "out_dir", default="mocapflow-demo", show_default=True, type=click.Path(file_okay=False),
               help="folder for the demo's catalog, cache, exports and report")
 @click.option("--motion", "motions", multiple=True, metavar="EXERCISE",
