@@ -364,8 +364,9 @@ def train(catalog_path, overrides, sequences, stage, out, workers, threads, as_j
 @catalog_option
 @set_option
 @sequences_option
-@click.option("--format", "fmt", type=click.Choice(["c3d", "trc", "bvh"]), default="c3d", show_default=True,
-              help="c3d/trc: labelled 3D markers; bvh: the solved poses")
+@click.option("--format", "fmt", type=click.Choice(["c3d", "trc", "bvh", "ply"]), default="c3d", show_default=True,
+              help="c3d/trc: labelled 3D markers; bvh: the solved poses; for the suit: c3d its labelled corners, ply "
+                   "the filled suit mesh per frame")
 @click.option("--stage", default=None,
               help="the stage to export [c3d/trc: the last smoothed stage, else markers3d; bvh: the poses stage]")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="folder for <sequence>.<format>")

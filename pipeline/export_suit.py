@@ -17,9 +17,9 @@ import numpy as np
 import xarray as xr
 
 from mocapflow.pipeline.errors import PlanError, StorageError
-from mocapflow.pipeline.export import UNIT_SCALE, _inside, _write, _write_c3d, c3d_scale
+from mocapflow.pipeline.export import SUIT_SCHEMAS, UNIT_SCALE, _inside, _write, _write_c3d, c3d_scale
 
-SUIT_SCHEMAS = {"c3d": ("suit_filled", "suit_points"), "ply": ("suit_filled",)}
+__all__ = ["SUIT_SCHEMAS", "corner_names", "export_suit", "ply_text", "write_suit_c3d", "write_suit_ply"]
 
 
 def corner_names(codes, square_corners: np.ndarray, n_corners: int) -> list[str]:

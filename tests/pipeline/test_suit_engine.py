@@ -57,6 +57,33 @@ def test_suit_takes_are_labelled_triangulated_and_scored_through_the_engine(tmp_
     assert abs(scores["suit_err3d_median_mm"] - np.median(1000 * error)) < 1e-3
     again = last_json(mocapflow("run", "--json", cwd=tmp_path))
     assert again["executed"] == []
+    _check_exports(tmp_path, filled, images)
+
+
+def _check_exports(tmp_path, filled: dict, images: dict) -> None:
+    """C3D: one point per corner named by its first key, the filled positions in mm; PLY: every corner of each frame
+    with its observed flag, the cells as two triangles each."""
+    import ezc3d
+
+    mocapflow("export", "--format", "c3d", "--stage", "filled", "--out", "exp", cwd=tmp_path)
+    c3d = ezc3d.c3d(str(tmp_path / "exp" / "sq.c3d"))
+    group = c3d["parameters"]["POINT"]  # over 255 points the labels go on in LABELS2, LABELS3, ... (the C3D spec)
+    labels = [name for key in ["LABELS"] + [f"LABELS{i}" for i in range(2, 100)] if key in group
+              for name in group[key]["value"]]
+    assert len(labels) == images["gt_corners"].shape[1] and len(set(labels)) == len(labels)
+    code, corners = str(images["code"][0]), images["square_corners"][0]
+    assert labels[corners[2]] in (f"{code}2", *(f"{c}{k}" for c in images["code"] for k in range(4)))
+    points = c3d["data"]["points"][:3].transpose(2, 1, 0)  # (frame, corner, xyz) mm
+    np.testing.assert_allclose(points, filled["position"] * 1000, atol=1e-2)
+    mocapflow("export", "--format", "ply", "--out", "meshes", cwd=tmp_path)
+    text = (tmp_path / "meshes" / "sq" / "frame_000001.ply").read_text().splitlines()
+    n = filled["position"].shape[1]
+    assert f"element vertex {n}" in text and f"element face {2 * len(images['cells'])}" in text
+    start = text.index("end_header") + 1
+    flags = np.array([int(line.split()[3]) for line in text[start:start + n]])
+    np.testing.assert_array_equal(flags, filled["observed"][1])
+    xyz = np.array([[float(v) for v in line.split()[:3]] for line in text[start:start + n]])
+    np.testing.assert_allclose(xyz, filled["position"][1], atol=2e-6)
 
 
 def _calibration(images: dict):
