@@ -384,7 +384,7 @@ def _check_black(path: Path) -> None:
 def read(seq_views: Mapping[str, Mapping], mirrored: bool, fps: float, start: int, stop: int) -> xr.Dataset:
     """Frames [start, stop) of a described sequence (``describe``'s per-view calibration with its files)."""
     depth, ir = [], []
-    for view, cam in seq_views.items():
+    for cam in seq_views.values():
         size = (int(cam["width"]), int(cam["height"]))
         files = cam["files"]
         d = np.stack([read_pgm(Path(p), size) for p in files["depth"][start:stop]])

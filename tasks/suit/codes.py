@@ -29,7 +29,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from mocapflow.tasks.suit.corners import Augment, augment_crops
+from mocapflow.tasks.suit.corners import Augment, adam_cosine, augment_crops, seeded
 from mocapflow.tasks.suit.metrics import quad_truth
 from mocapflow.tasks.suit.pattern import ALPHABET, BLACK, WHITE, level, print_code
 from mocapflow.tasks.suit.quads import CROP, warp_quads
@@ -324,14 +324,10 @@ def train_code_nets(samples: QuadSamples, config: CodeTrainConfig = CodeTrainCon
     if len(samples) < config.batch or samples.valid.all() or not samples.valid.any():
         raise CodeError(f"training needs at least one batch ({config.batch}) of crops with valid and invalid ones; "
                         f"got {len(samples)}, {int(samples.valid.sum())} valid")
-    torch.manual_seed(seed)
-    gen = torch.Generator().manual_seed(seed)
-    rng = np.random.default_rng([seed, 104])
-    device = "cuda" if torch.cuda.is_available() else "cpu"  # batches are drawn and augmented on the CPU
+    gen, rng, device = seeded(seed, 104)
     rejector, recog = RejectorNet(config.rejector).to(device), RecogNet(config.recog).to(device)
-    params = list(rejector.parameters()) + list(recog.parameters())
-    opt = torch.optim.Adam(params, lr=config.learning_rate)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, config.iterations, eta_min=0.01 * config.learning_rate)
+    opt, sched = adam_cosine(list(rejector.parameters()) + list(recog.parameters()), config.learning_rate,
+                             config.iterations)
     crops = torch.from_numpy(samples.crops)
     valid = torch.from_numpy(samples.valid)
     rotation = torch.from_numpy(samples.rotation.astype(np.int64))

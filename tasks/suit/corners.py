@@ -504,13 +504,9 @@ def train_cornerdet(samples: CornerSamples, config: TrainConfig = TrainConfig(),
     if len(samples) < config.batch or not samples.present.any() or samples.present.all():
         raise CornerError(f"training needs at least one batch ({config.batch}) of crops with both positives and "
                           f"negatives; got {len(samples)} crops, {int(samples.present.sum())} positive")
-    torch.manual_seed(seed)
-    gen = torch.Generator().manual_seed(seed)
-    rng = np.random.default_rng([seed, 17])
-    device = "cuda" if torch.cuda.is_available() else "cpu"  # batches are drawn and augmented on the CPU
+    gen, rng, device = seeded(seed, 17)
     net = CornerdetNet(config.net).to(device)
-    opt = torch.optim.Adam(net.parameters(), lr=config.learning_rate)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, config.iterations, eta_min=0.01 * config.learning_rate)
+    opt, sched = adam_cosine(list(net.parameters()), config.learning_rate, config.iterations)
     crops = torch.from_numpy(samples.crops)
     present = torch.from_numpy(samples.present.astype(np.float32))
     position = torch.from_numpy(samples.position.astype(np.float32))
@@ -526,6 +522,20 @@ def train_cornerdet(samples: CornerSamples, config: TrainConfig = TrainConfig(),
         opt.step()
         sched.step()
     return net.cpu().eval()
+
+
+def seeded(seed: int, stream: int) -> tuple[torch.Generator, np.random.Generator, str]:
+    """A training's randomness from its seed (torch's global one too) and the device it runs on: the GPU when
+    present (batches are still drawn on the CPU)."""
+    torch.manual_seed(seed)
+    return (torch.Generator().manual_seed(seed), np.random.default_rng([seed, stream]),
+            "cuda" if torch.cuda.is_available() else "cpu")
+
+
+def adam_cosine(params: list, learning_rate: float, iterations: int):
+    """Adam with a cosine decay to 1 % of the learning rate over the iterations.  -> optimizer, scheduler"""
+    opt = torch.optim.Adam(params, lr=learning_rate)
+    return opt, torch.optim.lr_scheduler.CosineAnnealingLR(opt, iterations, eta_min=0.01 * learning_rate)
 
 
 def dihedral(x: torch.Tensor, position: torch.Tensor, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:

@@ -16,7 +16,6 @@ import time
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
-import torch
 import xarray as xr
 
 from mocapflow.tasks.shared.weights import pack

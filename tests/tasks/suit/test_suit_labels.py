@@ -17,7 +17,10 @@ CODES = {code_index("AB"): 0, code_index("7Y"): 1}
 A, B = code_index("AB"), code_index("7Y")
 
 
-def label(quads, rotation, code, confidence=(0.8, 0.7), config=LabelConfig(solo_confidence=0.9)):
+ALONE_AT_09 = LabelConfig(solo_confidence=0.9)
+
+
+def label(quads, rotation, code, confidence=(0.8, 0.7), config=ALONE_AT_09):
     return corner_labels(np.array(quads), np.array(rotation), np.array(code), np.array(confidence), CODES, SQUARES, 7,
                          config)
 
@@ -43,7 +46,8 @@ def test_repeated_and_unknown_codes_label_nothing():
     assert (det == -1).all()
     det, _ = label([[0, 1, 2, 3], [4, 5, 6, 2]], [0, 1], [A, code_index("QQ")], (0.95, 0.95))  # QQ not printed
     assert det.tolist() == [0, 1, 2, 3, -1, -1, -1]
-    det, _ = label([[0, 1, 2, 3], [4, 5, 6, 2]], [0, 1], [A, A], config=LabelConfig(drop_repeated_codes=False, solo_confidence=0.9))
+    keep_repeats = LabelConfig(drop_repeated_codes=False, solo_confidence=0.9)
+    det, _ = label([[0, 1, 2, 3], [4, 5, 6, 2]], [0, 1], [A, A], config=keep_repeats)
     assert det.tolist() == [-1] * 7  # the second names corners 0..3 at other detections: only the first, alone
 
 
