@@ -374,9 +374,9 @@ def gather(catalog, plan, store) -> list[Take]:
     """Every sequence of ``plan`` as the report shows it, from the stored artifacts: the markers of the last
     stage writing one of ``MARKER_SCHEMAS``, the views and residuals of a markers3d stage, the solved poses and the
     recording's ground-truth joints where there are."""
-    from mocapflow.pipeline.evaluate import stage_writing
+    from mocapflow.pipeline.evaluate import final_stage, stage_writing
 
-    stage = next((s for s in map(lambda schema: stage_writing(catalog, schema), MARKER_SCHEMAS) if s), None)
+    stage = next((s for s in map(lambda schema: final_stage(catalog, schema), MARKER_SCHEMAS) if s), None)
     if stage is None:
         raise PlanError(f"the catalog has no stage writing markers ({', '.join(MARKER_SCHEMAS)}) to report on; add "
                         "one (see catalog.yaml)")
