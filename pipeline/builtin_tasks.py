@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 from mocapflow.pipeline.registry import Lazy, NoParams, TaskSpec, register
-from mocapflow.tasks.deepmocap import flow, markers3d, masks, poses, refine2d, reflectors2d, skeleton, smoothing, training
+from mocapflow.tasks.deepmocap import (flow, markers3d, masks, plausibility, poses, refine2d, reflectors2d, skeleton,
+                                       smoothing, training)
 from mocapflow.tasks.deepmocap.heatmaps import HeatmapConfig
 from mocapflow.tasks.shared.cameras import CALIBRATION_VARIABLES as CALIBRATION
 from mocapflow.tasks.suit.codes import ReadCodesConfig
@@ -219,6 +220,16 @@ register(TaskSpec(
     reads={"views": ("view_position", "view_confidence")}, whole_sequence=True,
     description="40-DoF least squares per frame against the calibrated reflector offsets, warm-started from an "
                 "anchor frame; wrong labels gated out, lost limbs taken back, outvoted single views used",
+))
+
+# Beyond the paper: no gross error written as data (tasks/deepmocap/plausibility.py).
+register(TaskSpec(
+    name="check_plausibility", fn=plausibility.check_markers, version="1", params=plausibility.PlausibilityConfig,
+    output="smoothed_markers", partition="sequence",
+    inputs={"markers": "smoothed_markers", "poses": "poses", "skeleton": "skeleton", "frames": "raw_sequence"},
+    reads={"poses": ("position", "rotation"), "skeleton": ("parent", "bone", "reflector_offset"), "frames": CALIBRATION},
+    whole_sequence=True,
+    description="markers outside the sensors' common capture volume or off their reflector on the solved pose removed",
 ))
 
 # Beyond the paper: each view's 2D reflectors made consistent with the solved poses (tasks/deepmocap/refine2d.py).

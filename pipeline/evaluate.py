@@ -3,7 +3,8 @@
 Missing partitions are computed first (through the same engine as `mocapflow run`); then each
 sequence's artifacts are read view by view and scored by the pure metrics of tasks/deepmocap/evaluation.py:
 scene flow (the `flow` stage), the labelled 2D reflectors (a stage writing `reflectors2d`), the 3D
-reflectors (`markers3d`, `smoothed_markers`) and the joints of the solved poses (`poses`).
+reflectors (`markers3d`, `smoothed_markers` and the plausibility check that refines them, with the tail of the
+error: p95, p99 and the share of marker-frames more than 10 cm from the truth) and the joints of the solved poses (`poses`).
 """
 
 from __future__ import annotations
@@ -18,6 +19,13 @@ from mocapflow.tasks.deepmocap.evaluation import (TABLE8_JOINTS, Matches2D, flow
                                        summarize_markers)
 
 C_MIN_SWEEP = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
+# 3D marker stages scored: (kind, schema, whether the stage refines an artifact of that schema). "checked" is the
+# plausibility check after the poses (tasks/deepmocap/plausibility.py): what export writes.
+MARKER_KINDS = (("fused", "markers3d", False), ("smoothed", "smoothed_markers", False),
+                ("checked", "smoothed_markers", True))
+# JSON prefixes of each kind's figures (the smoothed stage's kept bare, as before the tail was reported), and of its tail
+MARKER_PREFIX = {"fused": ("marker_fused_", "markers3d_"), "smoothed": ("marker_", "smoothed_"),
+                 "checked": ("marker_checked_", "checked_")}
 
 
 def evaluation_plan(catalog, sequences: str | None) -> Plan:
@@ -34,14 +42,21 @@ def stage_writing(catalog, schema: str, *, refined: bool = False) -> str | None:
     return found[-1] if found else None
 
 
+def final_stage(catalog, schema: str) -> str | None:
+    """The stage whose ``schema`` artifact is the one to hand out (exported, reported): the last stage refining
+    an artifact of that schema (as the plausibility check does the smoothed markers) where there is one, otherwise
+    the last stage writing it."""
+    return stage_writing(catalog, schema, refined=True) or stage_writing(catalog, schema)
+
+
 def evaluate(catalog, plan: Plan, store: Store, *, flow: bool = True) -> dict:
     """Figures per sequence and overall for every stage the catalog has and the studio can score (``flow``
     False: all but the scene flow, the slowest to score and no figure of the capture itself)."""
     if not plan.sequences:
         raise PlanError("the evaluation split selects no sequence; check evaluation.sequences or --sequences")
     stage_2d = stage_writing(catalog, "reflectors2d")
-    stages_3d = {(kind, schema): stage_writing(catalog, schema)
-                 for kind, schema in (("fused", "markers3d"), ("smoothed", "smoothed_markers"))}
+    stages_3d = {(kind, schema): stage_writing(catalog, schema, refined=refined)
+                 for kind, schema, refined in MARKER_KINDS}
     stage_poses = stage_writing(catalog, "poses")
     uuo_stages = [s.name for s in catalog.stages.values() if s.spec.output == "uuo_body"
                   and "uuo_body" in s.spec.inputs.values()]
@@ -197,12 +212,13 @@ def headline(result: dict) -> dict:
         r = result["reflectors2d_refined"]["filtered"]
         out.update({"map2d_refined": r["map"], "map2d_refined_no_end": r["map_no_end"],
                     "precision2d_refined": r["precision"], "recall2d_refined": r["recall"]})
-    for kind, prefix in (("fused", "marker_fused_"), ("smoothed", "marker_")):
+    for kind, (prefix, tail_prefix) in MARKER_PREFIX.items():
         if f"markers_{kind}" in result:
             m = result[f"markers_{kind}"]
             out.update({f"{prefix}err_median_mm": m["median_mm"], f"{prefix}err_mean_mm": m["mean_mm"],
                         f"{prefix}err_p95_mm": m["p95_mm"], f"{prefix}completeness": m["completeness"],
-                        f"{prefix}jitter_ms2": m["jitter_ms2"]})
+                        f"{prefix}jitter_ms2": m["jitter_ms2"], f"{tail_prefix}p95_mm": m["p95_mm"],
+                        f"{tail_prefix}p99_mm": m["p99_mm"], f"{tail_prefix}gross_share": m["gross_share"]})
     if "poses" in result:
         p = result["poses"]
         out.update({"pck3d_20cm": p["pck_20cm"], "pck3d_5cm": p["pck_5cm"], "mae3d_cm": p["mae_cm"],
@@ -231,7 +247,7 @@ def table(result: dict) -> str:
         lines += ([""] if lines else []) + _reflectors_table(result)
     if "reflectors2d_refined" in result:
         lines += ([""] if lines else []) + _refined_table(result)
-    if "markers_fused" in result or "markers_smoothed" in result:
+    if any(f"markers_{k}" in result for k in MARKER_PREFIX):
         lines += ([""] if lines else []) + _markers_table(result)
     if "poses" in result:
         lines += ([""] if lines else []) + poses_table(result["poses"])
@@ -262,15 +278,18 @@ def poses_table(p: dict) -> list[str]:
 
 
 def _markers_table(result: dict) -> list[str]:
-    kinds = [k for k in ("fused", "smoothed") if f"markers_{k}" in result]
-    lines = ["3D reflectors: error against ground truth (mm), completeness, jitter (mean |acceleration|, m/s^2)"]
-    rows = [("sequence", "motion", "markers", "median", "mean", "p95", "complete %", "jitter", "true jitter")]
+    kinds = [k for k in MARKER_PREFIX if f"markers_{k}" in result]
+    lines = ["3D reflectors: error against ground truth (mm), share of marker-frames > 10 cm off, completeness, "
+             "jitter (mean |acceleration|, m/s^2)"]
+    rows = [("sequence", "motion", "markers", "median", "mean", "p95", "p99", "> 10 cm %", "complete %", "jitter",
+             "true jitter")]
     for name, s in list(result["sequences"].items()) + [("all", {"exercise": "", **{f"markers_{k}": result[f"markers_{k}"]
                                                                                     for k in kinds}})]:
         for k in kinds:
             m = s[f"markers_{k}"]
             rows.append((name, s["exercise"], f"{k} ({result[f'markers_{k}']['stage']})", f"{m['median_mm']:.1f}",
-                         f"{m['mean_mm']:.1f}", f"{m['p95_mm']:.1f}", f"{100 * m['completeness']:.2f}",
+                         f"{m['mean_mm']:.1f}", f"{m['p95_mm']:.1f}", f"{m['p99_mm']:.1f}",
+                         _pct(m["gross_share"]), f"{100 * m['completeness']:.2f}",
                          f"{m['jitter_ms2']:.2f}", f"{m['gt_jitter_ms2']:.2f}"))
     lines += _format(rows) + ["", "median error per reflector (mm)"]
     rows = [("reflector",) + tuple(kinds)]

@@ -25,7 +25,7 @@ import xarray as xr
 from scipy.spatial.transform import Rotation
 
 from mocapflow.pipeline.errors import InputError, PlanError, StorageError
-from mocapflow.pipeline.evaluate import stage_writing
+from mocapflow.pipeline.evaluate import final_stage, stage_writing
 from mocapflow.pipeline.plan import build_plan, select
 from mocapflow.pipeline.storage import Store
 from mocapflow.tasks.shared.body import JOINT_NAMES, PARENTS
@@ -261,7 +261,7 @@ def export_files(catalog, sequences: str | None, fmt: str, stage: str | None, ou
         raise InputError(f"--up {up} applies to TRC only ({fmt} has a fixed up axis: C3D Z, BVH Y); drop --up")
     writer = (lambda data, path: write_trc(data, path, up or "y")) if fmt == "trc" else WRITERS[fmt]
 
-    stage = stage or next((s for schema in SCHEMAS[fmt] if (s := stage_writing(catalog, schema))), None)
+    stage = stage or next((s for schema in SCHEMAS[fmt] if (s := final_stage(catalog, schema))), None)
     if stage not in catalog.stages:
         raise PlanError(f"no stage {stage!r} to export as {fmt} (it needs one writing {' or '.join(SCHEMAS[fmt])}); "
                         f"the catalog's stages: {list(catalog.stages)}")

@@ -318,6 +318,12 @@ NAMED_FIGURES = {
     "recall2d": ("2D recall", 100, "%"), "marker_err_median_mm": ("3D marker error, median (smoothed)", 1, "mm"),
     "marker_err_p95_mm": ("3D marker error, 95th percentile (smoothed)", 1, "mm"),
     "marker_completeness": ("3D markers present (smoothed)", 100, "%"),
+    "smoothed_p99_mm": ("3D marker error, 99th percentile (smoothed)", 1, "mm"),
+    "smoothed_gross_share": ("3D markers > 10 cm off (smoothed)", 100, "%"),
+    "checked_p95_mm": ("3D marker error, 95th percentile (checked, exported)", 1, "mm"),
+    "checked_p99_mm": ("3D marker error, 99th percentile (checked, exported)", 1, "mm"),
+    "checked_gross_share": ("3D markers > 10 cm off (checked, exported)", 100, "%"),
+    "marker_checked_completeness": ("3D markers present (checked, exported)", 100, "%"),
     "marker_fused_err_median_mm": ("3D marker error, median (fused)", 1, "mm"),
     "flow_epe_mm": ("scene flow end-point error, mean", 1, "mm"), "flow_coverage": ("scene flow coverage", 100, "%"),
 }
@@ -374,9 +380,9 @@ def gather(catalog, plan, store) -> list[Take]:
     """Every sequence of ``plan`` as the report shows it, from the stored artifacts: the markers of the last
     stage writing one of ``MARKER_SCHEMAS``, the views and residuals of a markers3d stage, the solved poses and the
     recording's ground-truth joints where there are."""
-    from mocapflow.pipeline.evaluate import stage_writing
+    from mocapflow.pipeline.evaluate import final_stage, stage_writing
 
-    stage = next((s for s in map(lambda schema: stage_writing(catalog, schema), MARKER_SCHEMAS) if s), None)
+    stage = next((s for s in map(lambda schema: final_stage(catalog, schema), MARKER_SCHEMAS) if s), None)
     if stage is None:
         raise PlanError(f"the catalog has no stage writing markers ({', '.join(MARKER_SCHEMAS)}) to report on; add "
                         "one (see catalog.yaml)")

@@ -35,6 +35,9 @@ stages:
   poses:             # joint rotations and positions per frame
     task: solve_poses
     inputs: {skeleton: skeleton, markers: smoothed, views: markers3d}
+  checked:           # implausible markers removed: outside the capture volume or off the solved body
+    task: check_plausibility
+    inputs: {markers: smoothed, poses: poses, skeleton: skeleton, frames: frames}
   reflectors2d_refined:  # each view's 2D labels made consistent with the poses
     task: refine_reflectors
     inputs: {reflectors: reflectors2d, poses: poses, skeleton: skeleton, masks: masks, frames: frames}

@@ -36,6 +36,8 @@ SMOOTHED = register_schema(ArtifactSchema(
         "position": VarSpec(("frame", "reflector", "xyz"), "float32", "m", description="filtered position, NaN if missing"),
         "confidence": VarSpec(("frame", "reflector"), "float32", description="0 where predicted or missing"),
         "predicted": VarSpec(("frame", "reflector"), "bool", description="no measurement used: predicted in a gap"),
+        "rejected": VarSpec(("frame", "reflector"), "int8", required=False,
+                            description="why a marker was removed: 0 kept, 1 outside the capture volume, 2 off the body"),
     },
     required_attrs={**_ATTRS, "smoothing": str},
     frame_chunk=64,

@@ -120,17 +120,29 @@ def jitter(xyz: np.ndarray, fps: float) -> float:
     return float(np.nanmean(norms)) if np.isfinite(norms).any() else float("nan")
 
 
+GROSS_MM = 100.0  # a marker this far from the truth is a gross error
+
+
+def tail(values: np.ndarray, gross_mm: float = GROSS_MM) -> dict:
+    """The tail of the marker errors written as data: p95 and p99 (mm, linear interpolation between order
+    statistics) and the share of them farther than ``gross_mm`` from the truth.  (n,) finite mm -> dict"""
+    if not values.size:
+        return {"p95_mm": float("nan"), "p99_mm": float("nan"), "gross_share": float("nan")}
+    return {"p95_mm": float(np.percentile(values, 95)), "p99_mm": float(np.percentile(values, 99)),
+            "gross_share": float(np.mean(values > gross_mm))}
+
+
 def summarize_markers(errors: np.ndarray, names, *, jitter_value: float = float("nan"),
                       gt_jitter: float = float("nan")) -> dict:
-    """Median, mean, p95 error (mm), completeness (fraction of frame x reflector with a value), per reflector."""
+    """Median, mean error (mm), the tail (p95, p99, share > 10 cm of the marker-frames with a value),
+    completeness (fraction of frame x reflector with a value), per reflector."""
     seen = np.isfinite(errors)
     values = errors[seen]
     per = {str(n): float(np.median(errors[:, r][seen[:, r]])) if seen[:, r].any() else float("nan")
            for r, n in enumerate(names)}
     return {"median_mm": float(np.median(values)) if values.size else float("nan"),
             "mean_mm": float(values.mean()) if values.size else float("nan"),
-            "p95_mm": float(np.percentile(values, 95)) if values.size else float("nan"),
-            "completeness": float(seen.mean()), "jitter_ms2": jitter_value, "gt_jitter_ms2": gt_jitter,
+            **tail(values), "completeness": float(seen.mean()), "jitter_ms2": jitter_value, "gt_jitter_ms2": gt_jitter,
             "per_reflector_median_mm": per}
 
 

@@ -1,7 +1,7 @@
 """The 3D stages on studio renders, fed the true 2D reflectors (so the FCN is out of the picture):
-markers3d -> smoothed -> skeleton -> poses through the engine, scored by `mocapflow evaluate`,
-exported (C3D, BVH) and read back; then those poses refine a copy of the true 2D reflectors with a
-side view's mistakes (refine_reflectors)."""
+markers3d -> smoothed -> skeleton -> poses through the engine, two gross errors planted in the smoothed
+markers and removed by the plausibility check, scored by `mocapflow evaluate`, exported (C3D, BVH) and read
+back; then those poses refine a copy of the true 2D reflectors with a side view's mistakes (refine_reflectors)."""
 
 import numpy as np
 
@@ -29,6 +29,8 @@ stages:
   smoothed: {task: kalman, inputs: {markers: markers3d}}
   skeleton: {task: calibrate_skeleton, inputs: {markers: smoothed}}
   poses: {task: solve_poses, inputs: {skeleton: skeleton, markers: smoothed, views: markers3d}}
+  planted: {task: flying_marker, inputs: {markers: smoothed}}
+  checked: {task: check_plausibility, inputs: {markers: planted, poses: poses, skeleton: skeleton, frames: frames}}
   mistaken: {task: exchanged_reflectors, inputs: [frames]}
   refined: {task: refine_reflectors, inputs: {reflectors: mistaken, poses: poses, skeleton: skeleton, masks: masks,
                                               frames: frames}}
@@ -46,16 +48,24 @@ def test_markers_from_true_2d_are_accurate_and_export(tmp_path, monkeypatch):
     # the mistaken views' legs and missing elbow come back from the poses
     assert figures["map2d"] < 0.95 and figures["map2d_refined"] > 0.99, figures
 
-    mocapflow("export", "--format", "c3d", "--out", "out", cwd=tmp_path)
+    # the planted flying F_L_HEAD (10 frames) and L_WRIST on the other arm (10 frames) are removed by the check
+    assert figures["checked_gross_share"] == 0.0 and figures["checked_p99_mm"] < 60.0, figures
+    assert figures["marker_checked_completeness"] > figures["marker_completeness"] - 0.05, figures  # little else
+
+    mocapflow("export", "--format", "c3d", "--out", "out", cwd=tmp_path)  # the checked stage: the last word
     xyz, labels, rate, _ = read_c3d(tmp_path / "out" / "jj.c3d")
     monkeypatch.syspath_prepend(str(PLUGINS))
     catalog = load_catalog(tmp_path / "catalog.yaml", ())
-    item = build_plan(catalog).items["smoothed/jj"]
-    smoothed = Store(catalog.root).open("smoothed", item.key, get_schema("smoothed_markers"))
+    item = build_plan(catalog).items["checked/jj"]
+    checked = Store(catalog.root).open("checked", item.key, get_schema("smoothed_markers"))
     assert labels[:2] == ["F_SPINEMID", "F_R_CHEST"] and rate == 30.0
-    np.testing.assert_allclose(xyz, smoothed["position"].values * 1000.0, atol=1e-2)
-    assert smoothed.attrs["up_axis"] == "Z" and smoothed.attrs["length_unit"] == "m"
+    np.testing.assert_allclose(xyz, checked["position"].values * 1000.0, atol=1e-2)
+    assert checked.attrs["up_axis"] == "Z" and checked.attrs["length_unit"] == "m"
     raw = Store(catalog.root).open("frames", build_plan(catalog).items["frames/jj"].key, get_schema("raw_sequence"))
+    off = np.linalg.norm(xyz - raw["gt_reflectors"].values * 1000.0, axis=-1)  # (frame, marker) mm
+    assert np.nanmax(off) < 100.0  # no marker of the exported take more than 10 cm from the truth
+    head, wrist = labels.index("F_L_HEAD"), labels.index("L_WRIST")
+    assert (checked["rejected"].values[:10, head] == 1).all() and (checked["rejected"].values[10:20, wrist] == 2).all()
     check_refined(Store(catalog.root), build_plan(catalog), raw)
 
     mocapflow("export", "--format", "bvh", "--out", "out", cwd=tmp_path)

@@ -144,3 +144,20 @@ def exchanged_reflectors(frames: xr.Dataset, config: NoParams) -> xr.Dataset:
 
 register(TaskSpec("exchanged_reflectors", exchanged_reflectors, "1", NoParams, "reflectors2d", "view",
                   {"frames": "raw_sequence"}, reads={"frames": ("gt_pixels", "gt_reflectors2d")}))
+
+
+def flying_marker(markers: xr.Dataset, config: NoParams) -> xr.Dataset:
+    """Smoothed markers with two gross errors planted: F_L_HEAD 3.7 m off above and behind the rig (as the demo's
+    export once held) in the first 10 frames, and L_WRIST 40 cm in front of the markers' centroid (inside the rig,
+    off the body) in frames 10-19."""
+    out = markers.copy(deep=True)
+    position = out["position"].values
+    names = [str(n) for n in out["reflector"].values]
+    position[:10, names.index("F_L_HEAD")] = [-0.075, -3.414, 3.051]
+    position[10:20, names.index("L_WRIST")] = np.nanmean(position[10:20], axis=1) + [0.0, 0.4, 0.0]
+    out["position"] = (out["position"].dims, position)
+    return out
+
+
+register(TaskSpec("flying_marker", flying_marker, "1", NoParams, "smoothed_markers", "sequence",
+                  {"markers": "smoothed_markers"}, whole_sequence=True))
