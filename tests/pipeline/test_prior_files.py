@@ -122,3 +122,34 @@ def test_a_takes_prior_file_becomes_a_body_prior_through_the_engine(tmp_path):
     (tmp_path / "priors" / "reach.npz").unlink()
     proc = mocapflow("run", cwd=tmp_path, check=False)
     assert proc.returncode == 2 and "no prior file for take 'reach'; write reach.npz or reach.json" in proc.stderr
+
+
+def test_a_frame_window_crops_the_markers_and_their_prior_alike_and_takes_override_the_up_axis(tmp_path):
+    from mocapflow.pipeline.catalog import load_catalog
+    from mocapflow.pipeline.datasets import discover, read_frames
+    from mocapflow.pipeline.errors import CatalogError
+
+    (tmp_path / "takes").mkdir()
+    (tmp_path / "priors").mkdir()
+    positions = np.arange(10 * 2 * 3, dtype=float).reshape(10, 2, 3) / 100.0
+    for take in ("a", "b"):
+        _trc(tmp_path / "takes" / f"{take}.trc", positions, 50.0)
+        np.savez(tmp_path / "priors" / f"{take}.npz", joints=_joints(frames=10), fps=50.0)
+    (tmp_path / "catalog.yaml").write_text(
+        "data_roots: [.]\ndatasets:\n  lab:\n    kind: markers\n    path: takes\n    pattern: '*.trc'\n"
+        "    prior: priors\n    frames: [2, 7]\n    takes: {b: {up: y, frames: [4, 6]}}\n"
+        "stages:\n  markers: {task: ingest_markers, dataset: lab}\n")
+    catalog = load_catalog(tmp_path / "catalog.yaml")
+    seqs = {s.id: s for s in discover(catalog, catalog.datasets["lab"])}
+    assert seqs["a"].n_frames == 5 and seqs["b"].n_frames == 2
+    a = read_frames(catalog.datasets["lab"], seqs["a"], 0, 5)
+    b = read_frames(catalog.datasets["lab"], seqs["b"], 0, 2)
+    np.testing.assert_allclose(a.position.values, positions[2:7], atol=1e-6)
+    np.testing.assert_allclose(a.prior_joints.values, _joints(frames=10)[2:7], atol=1e-6)
+    np.testing.assert_allclose(b.position.values, positions[4:6] @ np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]]).T,
+                               atol=1e-6)  # Y up -> Z up
+    assert list(a.frame.values) == list(range(5))
+    (tmp_path / "catalog.yaml").write_text((tmp_path / "catalog.yaml").read_text().replace("{b: {", "{c: {"))
+    catalog = load_catalog(tmp_path / "catalog.yaml")
+    with pytest.raises(CatalogError, match=r"takes: \['c'\] name no file"):
+        discover(catalog, catalog.datasets["lab"])
