@@ -25,7 +25,7 @@ def main() -> None:
     catalog = load_catalog(str(ROOT / "benchmarks" / "suit.yaml"), ())
     plan, store = build_plan(catalog, "jacks"), Store(catalog.root)
     images = plan.open(store, "images", "jacks")
-    frame, view = 6, "cam00"
+    frame, view = 3, "cam00"
     image = images["image"].sel(view=view).isel(frame=frame).values
     labels = plan.open(store, "labels", "jacks", view).sel(view=view).isel(frame=frame)
     xy = np.stack([labels["x"].values, labels["y"].values], axis=1).astype(np.float64)

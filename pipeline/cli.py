@@ -364,9 +364,11 @@ def train(catalog_path, overrides, sequences, stage, out, workers, threads, as_j
 @catalog_option
 @set_option
 @sequences_option
-@click.option("--format", "fmt", type=click.Choice(["c3d", "trc", "bvh", "report"]), default="c3d", show_default=True,
-              help="c3d/trc: labelled 3D markers; bvh: the solved poses; for a UUO solve: c3d its markers labelled "
-                   "by body part and vertex, bvh the solved rig, report a page of figures")
+@click.option("--format", "fmt", type=click.Choice(["c3d", "trc", "bvh", "ply", "report"]), default="c3d",
+              show_default=True,
+              help="c3d/trc: labelled 3D markers; bvh: the solved poses; for the suit: c3d its labelled corners, ply "
+                   "the filled suit mesh per frame; for a UUO solve: c3d its markers labelled by body part and vertex, "
+                   "bvh the solved rig, report a page of figures")
 @click.option("--stage", default=None,
               help="the stage to export [c3d/trc: the last smoothed stage, else markers3d, else the UUO solve; bvh: "
                    "the poses stage, else the UUO solve; report: the UUO solve]")
@@ -382,6 +384,30 @@ def export(catalog_path, overrides, sequences, fmt, stage, out_dir, up, workers,
 
     for path in export_files(load_catalog(catalog_path, overrides), sequences, fmt, stage, Path(out_dir), workers,
                              processes=not threads, up=up):
+        click.echo(f"wrote {path}")
+
+
+@main.command()
+@catalog_option
+@set_option
+@sequences_option
+@click.option("--out", "out_dir", default="report", show_default=True, type=click.Path(file_okay=False),
+              help="folder for report.html and its figures")
+@workers_option
+@threads_option
+def report(catalog_path, overrides, sequences, out_dir, workers, threads):
+    """An HTML report of the catalog's run, own takes too: per marker tracked frames, gaps, residuals and views,
+    trajectories, an interactive 3D view, and with ground truth the accuracy (computes missing partitions first)."""
+    from mocapflow.pipeline.report import build_report
+    from mocapflow.pipeline.scheduler import compute_missing
+
+    catalog = load_catalog(catalog_path, overrides)
+    store = Store(catalog.root)
+    plan = build_plan(catalog, sequences)
+    compute_missing(plan.items.values(), store, workers=workers, processes=not threads, what="cannot report",
+                    report=_stage_lines())
+    page, images, _ = build_report(catalog, plan, store, Path(out_dir), title=f"mocapflow report: {catalog_path}")
+    for path in images + [page]:
         click.echo(f"wrote {path}")
 
 

@@ -8,6 +8,9 @@ Kinds:
   markers a folder of optical marker recordings, C3D or TRC (``<id>.c3d``), read as raw_markers
   studio_markers  unlabelled marker takes filmed on the studio's mesh body, as raw_markers with ground truth
   studio_suit  checkerboard-suit takes filmed on the mesh body by grey cameras, as suit_images with ground truth
+  dmc     the DeepMoCap dataset's own files: per view numbered depth PGMs, colorized depth PNGs (reflectors
+          black), optional IR and flow, and the sensor's ``.extrinsics`` (pipeline/dmc_files.py: the mirrored
+          images and the Kinect's x-left, y-up camera axes)
 
 Each reader discovers sequences (id, views, frame count, fingerprint of the raw input) on the
 driver, and reads a frame region on a worker. Discovery checks the raw input before any stage runs:
@@ -522,5 +525,44 @@ class StudioSuitReader:
         return suit_io.read(dataset, seq, start, stop)
 
 
+class DeepMoCapReader:
+    """The DeepMoCap dataset's recordings, one sequence per folder (pipeline/dmc_files.py): ``path`` and
+    ``pattern`` as an image dataset's, ``intrinsics`` (the files hold none), ``fps`` (30), ``mirrored`` (true:
+    flip the Kinect's mirrored images), ``up`` (z), ``unit`` of the extrinsics' positions (mm) and
+    ``camera_axes`` (kinect: x left, y up; or opencv)."""
+
+    options = ("path", "pattern", "intrinsics", "fps", "mirrored", "up", "unit", "camera_axes")
+
+    @staticmethod
+    def discover(catalog, dataset) -> list[SequenceInfo]:
+        from mocapflow.pipeline import dmc_files
+
+        folder = _folder(catalog, dataset)
+        pattern = _pattern(dataset, "*")
+        dmc_files.settings(dataset)  # the options, before any file is read
+        if any(folder.glob("*.extrinsics")):
+            raise CatalogError(f"{dataset.where}.path: {folder} holds extrinsics files, so it is one take, not a "
+                               f"folder of takes; point 'path' at the folder that holds it ({folder.parent})")
+        out = []
+        for seq_dir in sorted(p for p in folder.glob(pattern) if dmc_files.is_sequence(p)):
+            check_names(dataset.where, seq_dir.name, [], f" ({seq_dir})", has_views=False)
+            views, n_frames, fingerprint = dmc_files.describe(dataset, seq_dir)
+            check_names(dataset.where, seq_dir.name, list(views), f" ({seq_dir})")
+            out.append(SequenceInfo(seq_dir.name, tuple(views), n_frames, fingerprint,
+                                    {"path": str(seq_dir), "views": views}))
+        if not out:
+            raise InputError(f"{dataset.where}: no DeepMoCap recordings in {folder} (folders matching {pattern!r} "
+                             "with <view>.extrinsics files and <view>/ folders of numbered depth.pgm and mc_blob.png "
+                             "files)")
+        return out
+
+    @staticmethod
+    def read(dataset, seq: SequenceInfo, start: int, stop: int) -> xr.Dataset:
+        from mocapflow.pipeline import dmc_files
+
+        s = dmc_files.settings(dataset)
+        return dmc_files.read(seq.spec["views"], s.mirrored, s.fps, start, stop)
+
+
 DATASET_KINDS = {"studio": StudioReader, "zarr": ZarrReader, "images": ImageFolderReader, "markers": MarkerFileReader,
-                 "studio_markers": StudioMarkersReader, "studio_suit": StudioSuitReader}
+                 "studio_markers": StudioMarkersReader, "studio_suit": StudioSuitReader, "dmc": DeepMoCapReader}

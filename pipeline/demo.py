@@ -13,14 +13,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-import xarray as xr
-
 from mocapflow.pipeline.catalog import load_catalog
 from mocapflow.pipeline.errors import InputError
 from mocapflow.pipeline.evaluate import evaluate, headline, table
 from mocapflow.pipeline.export import export_files
 from mocapflow.pipeline.plan import build_plan
-from mocapflow.pipeline.report import figures, write_html
+from mocapflow.pipeline.report import build_report
 from mocapflow.pipeline.scaffold import DEFAULT_STAGES
 from mocapflow.pipeline.scheduler import compute_missing
 from mocapflow.pipeline.storage import Store
@@ -83,14 +81,9 @@ def run_demo(out: Path, options: DemoOptions, *, workers: int, processes: bool =
     text = table(result)
     files = [path for fmt in ("bvh", "c3d")
              for path in export_files(catalog, None, fmt, None, out / "export", workers, processes=processes)]
-    seq = plan.sequences[0]
-    raw = plan.open(store, "frames", seq.id)
-    poses = plan.open(store, "poses", seq.id).load()
-    reflectors = xr.concat([plan.open(store, "reflectors2d", seq.id, v).sel(view=v).load() for v in seq.views],
-                           dim="view")
-    images = figures(out / "report", raw, reflectors, poses, result)
+    page, images, _ = build_report(catalog, plan, store, out / "report", title="mocapflow demo",
+                                   summary={"partitions computed": len(computed)}, files=files,
+                                   result=result)
     summary = {**headline(result), "partitions computed": len(computed),
                "seconds": round(time.perf_counter() - started, 1), **({"log": log_path} if log_path else {})}
-    page = out / "report" / "report.html"
-    write_html(page, title="mocapflow demo", summary=summary, table=text, images=images, files=files)
     return text, summary, files + images + [page]

@@ -34,8 +34,9 @@ def stage_writing(catalog, schema: str, *, refined: bool = False) -> str | None:
     return found[-1] if found else None
 
 
-def evaluate(catalog, plan: Plan, store: Store) -> dict:
-    """Figures per sequence and overall for every stage the catalog has and the studio can score."""
+def evaluate(catalog, plan: Plan, store: Store, *, flow: bool = True) -> dict:
+    """Figures per sequence and overall for every stage the catalog has and the studio can score (``flow``
+    False: all but the scene flow, the slowest to score and no figure of the capture itself)."""
     if not plan.sequences:
         raise PlanError("the evaluation split selects no sequence; check evaluation.sequences or --sequences")
     stage_2d = stage_writing(catalog, "reflectors2d")
@@ -67,7 +68,7 @@ def evaluate(catalog, plan: Plan, store: Store) -> dict:
             raise PlanError(f"sequence {seq.id!r} has no ground truth (gt_body); evaluate on studio sequences")
         raws[seq.id] = raw
         result["sequences"][seq.id] = {"exercise": raw.attrs.get("exercise", "")}
-    if "flow" in catalog.stages:
+    if "flow" in catalog.stages and flow:
         result["flow"] = _evaluate_flow(plan, store, raws, result["sequences"])
         result["task"] = catalog.stages["flow"].task
     if stage_2d is not None:
@@ -164,13 +165,15 @@ def _evaluate_2d(plan: Plan, store: Store, raws: dict, stage: str, per_sequence:
             est, gt = est.sel(view=view).load(), raw.sel(view=view)
             names = list(est["reflector"].values)
             body, uv, pixels = gt["gt_body"].values, gt["gt_reflectors2d"].values, gt["gt_pixels"].values
+            arrays = {kind: (np.stack([est[x].values, est[y].values], axis=-1), est[c].values)  # (frame, reflector, 2)
+                      for kind, (x, y, c) in {"filtered": ("x", "y", "confidence"),
+                                              "unfiltered": ("candidate_x", "candidate_y",
+                                                             "candidate_confidence")}.items()}
             for i in range(est.sizes["frame"]):
                 radius = pck_radius(body[i])
-                for kind, (x, y, c) in {"filtered": ("x", "y", "confidence"),
-                                        "unfiltered": ("candidate_x", "candidate_y", "candidate_confidence")}.items():
-                    xy = np.stack([est[x].values[i], est[y].values[i]], axis=1)
+                for kind, (xy, confidence) in arrays.items():
                     for matches in (seq_matches[kind], total[kind]):
-                        match_2d(matches, xy, est[c].values[i], uv[i], pixels[i], radius)
+                        match_2d(matches, xy[i], confidence[i], uv[i], pixels[i], radius)
         per_sequence[seq.id][key] = {k: summarize_2d(m, names) for k, m in seq_matches.items()}
     out = {k: summarize_2d(m, names) for k, m in total.items()}
     out["sweep"] = {c: summarize_2d(total["filtered"], names, c_min=c) for c in C_MIN_SWEEP}

@@ -34,6 +34,7 @@ from mocapflow.tasks.shared.kinematics import Y_UP_TO_Z_UP
 from mocapflow.tasks.studio.bvh import parse_bvh
 
 UNIT_SCALE = 1000.0  # metres -> millimetres
+SUIT_SCHEMAS = {"c3d": ("suit_filled", "suit_points"), "ply": ("suit_filled",)}  # pipeline/export_suit.py
 BVH_SCALE = 100.0  # metres -> centimetres
 # mocapflow world (x right, y forward, z up) -> BVH (Y up, facing +Z, the subject's left +X)
 Z_UP_TO_Y_UP = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
@@ -281,6 +282,9 @@ def export_files(catalog, sequences: str | None, fmt: str, stage: str | None, ou
 
     if up is not None and fmt != "trc":
         raise InputError(f"--up {up} applies to TRC only ({fmt} has a fixed up axis: C3D Z, BVH Y); drop --up")
+    if fmt == "ply" or (stage in catalog.stages and catalog.stages[stage].spec.output in SUIT_SCHEMAS["c3d"]) or \
+            (stage is None and fmt == "c3d" and not any(stage_writing(catalog, s) for s in SCHEMAS["c3d"])):
+        return export_suit_files(catalog, sequences, fmt, stage, out_dir, workers, processes)
     writer = (lambda data, path: write_trc(data, path, up or "y")) if fmt == "trc" else WRITERS.get(fmt)
 
     stage = stage or _default_stage(catalog, fmt)
@@ -336,6 +340,26 @@ def _export_uuo(catalog, plan, store: Store, stage: str, sequence: str, solved: 
         against = f"the labelled reference ({reference})"
     folder = _inside(out_dir, sequence)
     return export_uuo.write_report(folder, sequence, stage, solved, markers, truth, against, files=[])
+
+
+def export_suit_files(catalog, sequences: str | None, fmt: str, stage: str | None, out_dir: Path, workers: int,
+                      processes: bool = True) -> list[Path]:
+    """The checkerboard suit's corners as C3D or its filled mesh as PLY (pipeline/export_suit.py)."""
+    from mocapflow.pipeline.export_suit import SUIT_SCHEMAS, export_suit
+    from mocapflow.pipeline.scheduler import compute_missing
+
+    if fmt not in SUIT_SCHEMAS:
+        raise PlanError(f"a suit stage exports as {' or '.join(SUIT_SCHEMAS)}, not {fmt}; pass --format c3d or ply")
+    stage = stage or next((s for schema in SUIT_SCHEMAS[fmt] if (s := stage_writing(catalog, schema))), None)
+    if stage not in catalog.stages or catalog.stages[stage].spec.output not in SUIT_SCHEMAS[fmt]:
+        raise PlanError(f"no stage {stage!r} to export as {fmt} (it needs one writing "
+                        f"{' or '.join(SUIT_SCHEMAS[fmt])}); the catalog's stages: {list(catalog.stages)}")
+    images = stage_writing(catalog, "suit_images")
+    store = Store(catalog.root)
+    plan = build_plan(catalog, sequences)
+    compute_missing(select(plan, catalog, store, only=None, until=stage), store, workers=workers, processes=processes,
+                    what="cannot export")
+    return export_suit(plan, store, images, stage, fmt, out_dir)
 
 
 def _inside(out_dir: Path, name: str) -> Path:

@@ -8,17 +8,28 @@ over 0-20 cm and the per-joint mean error (Table 8 joints).
 from __future__ import annotations
 
 import html
+import json
 import os
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
 import numpy as np
 import xarray as xr
 
-from mocapflow.pipeline.errors import StorageError
-from mocapflow.tasks.shared.body import PARENTS
+from mocapflow.pipeline.errors import PlanError, StorageError
+from mocapflow.pipeline.report_viewer import VIEWER
+from mocapflow.tasks.shared.body import JOINT_NAMES, PARENTS
 
 WHITE, GREY, BLACK = (255, 255, 255), (150, 150, 150), (0, 0, 0)
+SOLVED = (80, 200, 255)  # BGR orange
+TRUTH = (255, 210, 140)  # BGR light blue
+BAR = (180, 119, 31)  # BGR blue: one colour for every bar, the length carries the value
+# A categorical palette (Tableau 20, BGR): neighbouring entries differ, unlike a rainbow's
+PALETTE = [(180, 119, 31), (14, 127, 255), (44, 160, 44), (40, 39, 214), (189, 103, 148), (75, 86, 140),
+           (194, 119, 227), (127, 127, 127), (34, 189, 188), (207, 190, 23), (232, 199, 174), (120, 187, 255),
+           (138, 223, 152), (150, 152, 255), (213, 176, 197), (148, 156, 196), (210, 182, 247), (199, 199, 199),
+           (141, 219, 219), (229, 218, 158)]
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 
 
@@ -43,6 +54,9 @@ def overlay(ir: np.ndarray, xy: np.ndarray, gt_uv: np.ndarray, names: list[str],
             cv2.circle(img, p, 3, _colour(r, len(names)), 1 if hollow else -1, cv2.LINE_AA)
             cv2.putText(img, name, (p[0] + 4, p[1] - 4), FONT, 0.3, _colour(r, len(names)), 1, cv2.LINE_AA)
     cv2.putText(img, title, (8, 20), FONT, 0.55, WHITE, 1, cv2.LINE_AA)
+    if img.shape[0] >= 200:  # the legend, where the image has room for it
+        cv2.putText(img, "dot: estimate (hollow: recovered)   ring: ground truth", (8, img.shape[0] - 10), FONT, 0.4,
+                    WHITE, 1, cv2.LINE_AA)
     return img
 
 
@@ -57,11 +71,13 @@ def skeleton_panel(est: np.ndarray, gt: np.ndarray, title: str, size: int = 260)
         def to_px(p, centre=centre, scale=scale):
             return int(size / 2 + (p[0] - centre[0]) * scale), int(size / 2 - (p[1] - centre[1]) * scale)
 
-        for joints, colour in ((gt, GREY), (est, (80, 200, 255))):
+        for joints, colour, width in ((est, SOLVED, 4), (gt, TRUTH, 1)):  # the truth on top, thin: never hidden
             for j, parent in enumerate(PARENTS):
                 if parent >= 0 and np.isfinite(joints[[j, parent]]).all():
-                    cv2.line(img, to_px(joints[j, axes]), to_px(joints[parent, axes]), colour, 2, cv2.LINE_AA)
+                    cv2.line(img, to_px(joints[j, axes]), to_px(joints[parent, axes]), colour, width, cv2.LINE_AA)
         cv2.putText(img, f"{title} {label}", (6, 16), FONT, 0.42, WHITE, 1, cv2.LINE_AA)
+        cv2.putText(img, "solved", (6, size - 24), FONT, 0.4, SOLVED, 1, cv2.LINE_AA)
+        cv2.putText(img, "ground truth", (6, size - 8), FONT, 0.4, TRUTH, 1, cv2.LINE_AA)
         panels.append(img)
     return np.hstack(panels)
 
@@ -71,7 +87,7 @@ def line_plot(x: np.ndarray, ys: dict[str, np.ndarray], *, title: str, xlabel: s
     """A minimal line chart (white background, axes, ticks, legend)."""
     w, h = size
     img = np.full((h, w, 3), 255, np.uint8)
-    left, right, top, bottom = 60, w - 20, 40, h - 50
+    left, right, top, bottom = 60, w - 180, 40, h - 50  # the legend sits right of the axes, off the curves
 
     def to_px(a, b):
         return (int(left + (a - x.min()) / (x.max() - x.min()) * (right - left)),
@@ -80,18 +96,19 @@ def line_plot(x: np.ndarray, ys: dict[str, np.ndarray], *, title: str, xlabel: s
     cv2.rectangle(img, (left, top), (right, bottom), BLACK, 1)
     for k in range(6):
         yv = y_max * k / 5
-        cv2.putText(img, f"{yv:.1f}", (12, to_px(x.min(), yv)[1] + 4), FONT, 0.4, BLACK, 1, cv2.LINE_AA)
+        cv2.putText(img, f"{yv:g}", (12, to_px(x.min(), yv)[1] + 4), FONT, 0.4, BLACK, 1, cv2.LINE_AA)
         cv2.line(img, (left, to_px(x.min(), yv)[1]), (right, to_px(x.min(), yv)[1]), (225, 225, 225), 1)
     for xv in np.linspace(x.min(), x.max(), 5):
         cv2.putText(img, f"{xv:g}", (to_px(xv, 0)[0] - 8, bottom + 18), FONT, 0.4, BLACK, 1, cv2.LINE_AA)
     for k, (label, y) in enumerate(ys.items()):
-        colour = _colour(k, len(ys) + 1)
+        colour = PALETTE[k % len(PALETTE)]
         pts = np.array([to_px(a, b) for a, b in zip(x, y)], np.int32)
         cv2.polylines(img, [pts], False, colour, 2, cv2.LINE_AA)
-        cv2.putText(img, label, (left + 10, top + 20 + 18 * k), FONT, 0.45, colour, 1, cv2.LINE_AA)
-    cv2.putText(img, title, (left, 25), FONT, 0.55, BLACK, 1, cv2.LINE_AA)
+        cv2.line(img, (right + 12, top + 10 + 18 * k), (right + 32, top + 10 + 18 * k), colour, 2, cv2.LINE_AA)
+        cv2.putText(img, label[:20], (right + 38, top + 14 + 18 * k), FONT, 0.42, BLACK, 1, cv2.LINE_AA)
+    cv2.putText(img, title, (left, 16), FONT, 0.55, BLACK, 1, cv2.LINE_AA)
     cv2.putText(img, xlabel, ((left + right) // 2 - 40, h - 12), FONT, 0.45, BLACK, 1, cv2.LINE_AA)
-    cv2.putText(img, ylabel, (4, top - 10), FONT, 0.45, BLACK, 1, cv2.LINE_AA)
+    cv2.putText(img, ylabel, (4, top - 8), FONT, 0.45, BLACK, 1, cv2.LINE_AA)
     return img
 
 
@@ -107,7 +124,7 @@ def bar_chart(values: dict[str, float], *, title: str, unit: str, size=(640, 420
         cv2.putText(img, name, (8, y + int(row * 0.6)), FONT, 0.42, BLACK, 1, cv2.LINE_AA)
         if np.isfinite(v):
             x = int(left + v / top_value * (right - left))
-            cv2.rectangle(img, (left, y + 3), (x, y + int(row) - 3), _colour(k, len(values)), -1)
+            cv2.rectangle(img, (left, y + 3), (x, y + int(row) - 3), BAR, -1)
             cv2.putText(img, f"{v:.1f} {unit}", (x + 4, y + int(row * 0.6)), FONT, 0.4, BLACK, 1, cv2.LINE_AA)
     cv2.putText(img, title, (8, 25), FONT, 0.55, BLACK, 1, cv2.LINE_AA)
     return img
@@ -139,8 +156,8 @@ def figures(folder: Path, raw: xr.Dataset, reflectors: xr.Dataset, poses: xr.Dat
     curve_x = np.array(list(p["curve"]), float)
     curves = {"all joints": np.array(list(p["curve"].values()))}
     curves.update({name: np.array(list(e["curve"].values())) for name, e in p["per_exercise"].items()})
-    write_png(out[2], line_plot(curve_x, curves, title="3D PCK of the Table 8 joints", xlabel="threshold (cm)",
-                                ylabel="fraction"))
+    write_png(out[2], line_plot(curve_x, {k: 100 * v for k, v in curves.items()}, title="3D PCK of the Table 8 joints",
+                                xlabel="threshold (cm)", ylabel="correct (%)", y_max=100.0))
     write_png(out[3], bar_chart({n: j["mae_cm"] for n, j in p["per_joint"].items()}, title="mean 3D error per joint",
                                 unit="cm"))
     return out
@@ -166,3 +183,270 @@ def _link(target: Path, page_folder: Path) -> str:
 
 def _fmt(v) -> str:
     return f"{v:.4g}" if isinstance(v, float) else str(v)
+
+
+# ---- `mocapflow report`: any run, with or without ground truth -------------------------------------------
+MARKER_SCHEMAS = ("smoothed_markers", "markers3d", "raw_markers")  # the first a catalog writes is reported
+
+
+@dataclass
+class Take:
+    """What the report shows of one sequence: its markers (and where they come from), the fused views' evidence,
+    the solved joints, and the ground truth where the recording has it."""
+
+    id: str
+    fps: float
+    label: str
+    stage: str
+    names: list[str]
+    position: np.ndarray  # (frame, marker, 3) m, NaN where missing
+    views: np.ndarray | None = None  # (frame, marker) views fused
+    residual: np.ndarray | None = None  # (frame, marker) m, mean distance of the views' estimates from the fused
+    # point, NaN where fewer than two views saw the marker
+    joints: np.ndarray | None = None  # (frame, joint, 3) m
+    joint_names: list[str] = field(default_factory=list)
+    parents: list[int] = field(default_factory=list)
+    gt_joints: np.ndarray | None = None  # (frame, joint, 3) m
+
+
+def gaps(present: np.ndarray) -> list[tuple[int, int]]:
+    """(first frame, length) of each run of missing frames.  (frame,) bool"""
+    missing = np.concatenate([[False], ~present, [False]]).astype(np.int8)
+    starts, stops = np.flatnonzero(np.diff(missing) == 1), np.flatnonzero(np.diff(missing) == -1)
+    return [(int(a), int(b - a)) for a, b in zip(starts, stops)]
+
+
+def marker_rows(take: Take) -> list[dict]:
+    """Per marker: frames tracked (%), gaps (count, longest in frames and seconds), the median residual (mm: the
+    mean distance of the views' estimates from the fused point, in frames seen by two views or more) and the mean
+    number of views where tracked."""
+    rows = []
+    present = np.isfinite(take.position).all(axis=-1)  # (frame, marker)
+    for m, name in enumerate(take.names):
+        runs = gaps(present[:, m])
+        longest = max((n for _, n in runs), default=0)
+        row = {"marker": name, "tracked %": round(100.0 * present[:, m].mean(), 1), "gaps": len(runs),
+               "longest gap (frames)": longest, "longest gap (s)": round(longest / take.fps, 3)}
+        if take.residual is not None:
+            r = take.residual[:, m][np.isfinite(take.residual[:, m])]
+            row["median residual (mm)"] = round(1000.0 * float(np.median(r)), 1) if r.size else float("nan")
+        if take.views is not None:
+            seen = take.views[:, m][take.views[:, m] > 0]
+            row["views (mean)"] = round(float(seen.mean()), 2) if seen.size else 0.0
+        rows.append(row)
+    return rows
+
+
+def trajectories_plot(take: Take, size=(980, 600)) -> np.ndarray:
+    """x, y and z of every marker over time (s), one panel each, a legend of the markers on the right."""
+    w, h = size
+    img = np.full((h, w, 3), 255, np.uint8)
+    left, right, legend_x = 70, w - 200, w - 185
+    t = np.arange(take.position.shape[0]) / take.fps
+    panel_h = (h - 60) // 3
+    for axis, label in enumerate("xyz"):
+        top = 30 + axis * panel_h
+        bottom = top + panel_h - 25
+        values = take.position[..., axis]
+        lo, hi = (np.nanmin(values), np.nanmax(values)) if np.isfinite(values).any() else (0.0, 1.0)
+        hi = hi if hi > lo else lo + 1e-3
+        cv2.rectangle(img, (left, top), (right, bottom), BLACK, 1)
+        for v in (lo, hi):
+            py = int(bottom - (v - lo) / (hi - lo) * (bottom - top))
+            cv2.putText(img, f"{v:.2f}", (8, py + 4), FONT, 0.38, BLACK, 1, cv2.LINE_AA)
+        cv2.putText(img, f"{label} (m)", (8, (top + bottom) // 2 + 4), FONT, 0.45, BLACK, 1, cv2.LINE_AA)
+        for m in range(len(take.names)):
+            xs = left + (t / max(t[-1], 1e-9)) * (right - left)
+            ys = bottom - (values[:, m] - lo) / (hi - lo) * (bottom - top)
+            ok = np.isfinite(ys)
+            for run in np.split(np.flatnonzero(ok), np.flatnonzero(np.diff(np.flatnonzero(ok)) > 1) + 1):
+                if run.size > 1:  # a gap breaks the line
+                    pts = np.stack([xs[run], ys[run]], 1).astype(np.int32)
+                    cv2.polylines(img, [pts], False, PALETTE[m % len(PALETTE)], 1, cv2.LINE_AA)
+    cv2.putText(img, f"{take.id}: marker trajectories ({take.stage})", (left, 20), FONT, 0.5, BLACK, 1, cv2.LINE_AA)
+    cv2.putText(img, f"0 - {t[-1]:.2f} s", (left, h - 12), FONT, 0.42, BLACK, 1, cv2.LINE_AA)
+    row = min(18, (h - 40) // max(len(take.names), 1))
+    for m, name in enumerate(take.names):
+        y = 35 + m * row
+        cv2.line(img, (legend_x, y - 4), (legend_x + 18, y - 4), PALETTE[m % len(PALETTE)], 2, cv2.LINE_AA)
+        cv2.putText(img, name[:22], (legend_x + 24, y), FONT, min(0.4, row / 40), BLACK, 1, cv2.LINE_AA)
+    return img
+
+
+def viewer_data(takes: list[Take]) -> dict:
+    """The 3D viewer's data: per sequence its markers, skeleton and ground-truth skeleton per frame, in mm."""
+    def mm(a):
+        if a is None:
+            return None
+        return [[None if not np.isfinite(p).all() else [round(float(c) * 1000) for c in p] for p in f] for f in a]
+
+    return {"sequences": [{"id": t.id, "label": t.label, "fps": t.fps, "frames": int(t.position.shape[0]),
+                           "markers": t.names, "marker_xyz": mm(t.position), "joints": t.joint_names,
+                           "parents": t.parents, "joint_xyz": mm(t.joints), "gt_joint_xyz": mm(t.gt_joints)}
+                          for t in takes],
+            "palette": ["#%02x%02x%02x" % (r, g, b) for b, g, r in PALETTE]}
+
+
+def viewer_html(takes: list[Take]) -> str:
+    """The self-contained 3D viewer (HTML, inline script and data, no network)."""
+    data = json.dumps(viewer_data(takes), separators=(",", ":")).replace("</", "<\\/")
+    return VIEWER.replace("/*DATA*/null", data)
+
+
+def html_table(rows: list[dict]) -> str:
+    """Rows of equal keys as an HTML table, numbers to 3 significant digits."""
+    if not rows:
+        return "<p>(none)</p>"
+    head = "".join(f"<th>{html.escape(k)}</th>" for k in rows[0])
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(_cell(v))}</td>" for v in r.values()) + "</tr>" for r in rows)
+    return f"<table class='grid'><tr>{head}</tr>{body}</table>"
+
+
+def _cell(v) -> str:
+    if isinstance(v, float):
+        return f"{v:g}" if np.isfinite(v) else "-"
+    return str(v)
+
+
+# The evaluation's JSON keys, named for a reader: (label, scale, unit)
+NAMED_FIGURES = {
+    "sequences": ("sequences", 1, ""), "pck3d_20cm": ("3D PCK @ 20 cm, Table 8 joints", 100, "%"),
+    "pck3d_5cm": ("3D PCK @ 5 cm, Table 8 joints", 100, "%"), "mae3d_cm": ("3D joint MAE", 1, "cm"),
+    "rmse3d_cm": ("3D joint RMSE", 1, "cm"), "poses_solved": ("frames solved", 100, "%"),
+    "map2d": ("2D mAP, filtered", 100, "%"), "map2d_unfiltered": ("2D mAP, unfiltered", 100, "%"),
+    "map2d_refined": ("2D mAP, refined from the poses", 100, "%"), "precision2d": ("2D precision", 100, "%"),
+    "recall2d": ("2D recall", 100, "%"), "marker_err_median_mm": ("3D marker error, median (smoothed)", 1, "mm"),
+    "marker_err_p95_mm": ("3D marker error, 95th percentile (smoothed)", 1, "mm"),
+    "marker_completeness": ("3D markers present (smoothed)", 100, "%"),
+    "marker_fused_err_median_mm": ("3D marker error, median (fused)", 1, "mm"),
+    "flow_epe_mm": ("scene flow end-point error, mean", 1, "mm"), "flow_coverage": ("scene flow coverage", 100, "%"),
+}
+
+
+def named_figures(figures_: dict) -> dict[str, str]:
+    """The headline figures with names and units (the known ones, in NAMED_FIGURES order)."""
+    out = {}
+    for key, (label, scale, unit) in NAMED_FIGURES.items():
+        if key in figures_ and isinstance(figures_[key], (int, float)):
+            v = figures_[key] * scale
+            out[label] = f"{v:.4g} {unit}".strip() if isinstance(v, float) else f"{v} {unit}".strip()
+    return out
+
+
+def write_report(folder: Path, takes: list[Take], *, title: str, summary: dict, accuracy: str | None,
+                 images: list[Path] = (), files: list[Path] = ()) -> Path:
+    """``folder/report.html``: the summary, the accuracy tables (or why there are none), per sequence the marker
+    table and the trajectories, the figures, the 3D viewer and the files; every image beside it."""
+    folder.mkdir(parents=True, exist_ok=True)
+    sections = []
+    for take in takes:
+        png = folder / f"trajectories_{take.id}.png"
+        write_png(png, trajectories_plot(take))
+        heading = html.escape(take.id + (f" ({take.label})" if take.label and take.label != take.id else ""))
+        sections.append(f"<h3 id='seq-{html.escape(take.id)}'>{heading}</h3><p>{take.position.shape[0]} frames at "
+                        f"{take.fps:g} fps, {len(take.names)} markers from stage <code>{html.escape(take.stage)}</code>"
+                        f"</p>{html_table(marker_rows(take))}<figure><img src='{html.escape(png.name)}'>"
+                        f"<figcaption>trajectories of {heading}; a gap breaks its line</figcaption></figure>")
+    rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(_fmt(v))}</td></tr>" for k, v in summary.items())
+    imgs = "".join(f'<figure><img src="{html.escape(_link(i, folder))}">'
+                   f"<figcaption>{html.escape(i.stem.replace('_', ' '))}</figcaption></figure>" for i in images)
+    links = "".join(f'<li><a href="{html.escape(_link(f, folder))}">{html.escape(f.name)}</a></li>' for f in files)
+    accuracy_html = (f"<pre>{html.escape(accuracy)}</pre>" if accuracy else
+                     "<p>No ground truth in these recordings: accuracy is not measured; the tables below describe "
+                     "the take itself.</p>")
+    viewer = viewer_html(takes)
+    body = viewer[viewer.index("<body>") + 6:viewer.index("</body>")]
+    style = viewer[viewer.index("<style>") + 7:viewer.index("</style>")]
+    page = folder / "report.html"
+    page.write_text(
+        f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title><style>"
+        "body{font-family:sans-serif;margin:2em}img{max-width:100%}td,th{padding:2px 10px;text-align:right}"
+        "td:first-child,th:first-child{text-align:left}"
+        "table.grid{border-collapse:collapse}table.grid td,table.grid th{border-bottom:1px solid #ddd}"
+        f"pre{{background:#f4f4f4;padding:1em;overflow:auto}}{style}</style></head><body>"
+        f"<h1>{html.escape(title)}</h1><table>{rows}</table><h2>Accuracy</h2>{accuracy_html}{imgs}"
+        f"<h2>3D view</h2>{body}<h2>Markers per sequence</h2>{''.join(sections)}"
+        f"<h2>Files</h2><ul>{links or '<li>(none)</li>'}</ul></body></html>\n")
+    return page
+
+
+def gather(catalog, plan, store) -> list[Take]:
+    """Every sequence of ``plan`` as the report shows it, from the stored artifacts: the markers of the last
+    stage writing one of ``MARKER_SCHEMAS``, the views and residuals of a markers3d stage, the solved poses and the
+    recording's ground-truth joints where there are."""
+    from mocapflow.pipeline.evaluate import stage_writing
+
+    stage = next((s for s in map(lambda schema: stage_writing(catalog, schema), MARKER_SCHEMAS) if s), None)
+    if stage is None:
+        raise PlanError(f"the catalog has no stage writing markers ({', '.join(MARKER_SCHEMAS)}) to report on; add "
+                        "one (see catalog.yaml)")
+    fused, poses = stage_writing(catalog, "markers3d"), stage_writing(catalog, "poses")
+    source = next((s.name for s in catalog.stages.values() if s.spec.source), None)
+    takes = []
+    for seq in plan.sequences:
+        markers = plan.open(store, stage, seq.id).load()
+        dim = "reflector" if "reflector" in markers.dims else "marker"
+        raw = plan.open(store, source, seq.id) if source else None
+        fps = float(markers.attrs.get("fps", raw.attrs["fps"] if raw is not None else 30.0))
+        take = Take(seq.id, fps, str((raw.attrs if raw is not None else {}).get("exercise", "")), stage,
+                    [str(n) for n in markers[dim].values], markers["position"].values.astype(np.float64))
+        if fused is not None:
+            f = plan.open(store, fused, seq.id)
+            take.views = f["views"].values
+            residual = f["residual"].values  # (frame, marker, view), NaN where a view has no estimate
+            counted = np.isfinite(residual).sum(-1)
+            with np.errstate(invalid="ignore"):  # a view alone is its own fused point: no residual there
+                take.residual = np.where(counted >= 2, np.nansum(residual, -1) / np.maximum(counted, 1), np.nan)
+        if poses is not None:
+            p = plan.open(store, poses, seq.id).load()
+            take.joints, take.joint_names = p["position"].values, [str(j) for j in p["joint"].values]
+            take.parents = [int(i) for i in PARENTS] if take.joint_names == list(JOINT_NAMES) else []
+        if raw is not None and "gt_joints" in raw and take.joints is not None:
+            take.gt_joints = raw["gt_joints"].values
+        takes.append(take)
+    return takes
+
+
+def has_ground_truth(catalog, plan, store) -> bool:
+    """Whether every sequence's recording carries ground truth (``gt_*`` variables: the studio's)."""
+    source = next((s.name for s in catalog.stages.values() if s.spec.source), None)
+    return source is not None and bool(plan.sequences) and all(
+        any(str(v).startswith("gt_") for v in plan.open(store, source, seq.id).data_vars) for seq in plan.sequences)
+
+
+def build_report(catalog, plan, store, folder: Path, *, title: str, summary: dict | None = None,
+                 files: list[Path] = (), result: dict | None = None) -> tuple[Path, list[Path], dict]:
+    """The report of a computed run: with ground truth, the accuracy tables and figures; always, per sequence the
+    marker table, trajectories and the 3D view. ``result``: the evaluation, when already made. Returns the page,
+    the images and the evaluation's figures."""
+    from mocapflow.pipeline.evaluate import evaluate, headline, table
+
+    takes = gather(catalog, plan, store)
+    images, accuracy, figures_ = [], None, {}
+    if result is None and has_ground_truth(catalog, plan, store):
+        try:
+            result = evaluate(catalog, plan, store, flow=False)  # the scene flow's figures take most of the time
+        except PlanError as exc:  # ground truth, but no stage the evaluation scores: say so on the page
+            accuracy = f"not measured: {exc}"
+    if result is not None:
+        accuracy, figures_ = table(result), headline(result)
+        images = _accuracy_figures(folder, catalog, plan, store, result)
+    named = {"sequences": len(takes), "frames": sum(t.position.shape[0] for t in takes),
+             **named_figures(figures_), **(summary or {})}
+    page = write_report(folder, takes, title=title, summary=named, accuracy=accuracy, images=images, files=files)
+    return page, images + [folder / f"trajectories_{t.id}.png" for t in takes], figures_
+
+
+def _accuracy_figures(folder: Path, catalog, plan, store, result: dict) -> list[Path]:
+    """The DeepMoCap figures (2D estimates over IR, skeletons, PCK, per-joint error) of the first sequence, where
+    the catalog has 2D reflectors and poses."""
+    from mocapflow.pipeline.evaluate import stage_writing
+
+    stage_2d, poses = stage_writing(catalog, "reflectors2d"), stage_writing(catalog, "poses")
+    source = stage_writing(catalog, "raw_sequence")
+    if stage_2d is None or poses is None or source is None or "poses" not in result:
+        return []
+    seq = plan.sequences[0]
+    raw = plan.open(store, source, seq.id)
+    reflectors = xr.concat([plan.open(store, stage_2d, seq.id, v).sel(view=v).load() for v in seq.views], dim="view")
+    return figures(folder, raw, reflectors, plan.open(store, poses, seq.id).load(), result)

@@ -147,3 +147,34 @@ SUIT_NET_WEIGHTS = register_schema(ArtifactSchema(
     description="a trained network of the suit's 2D chain (CornerdetNet, RejectorNet or RecogNet): its "
                 "architecture, tensor layout, weights and training record",
 ))
+
+SUIT_CORNER_SAMPLES = register_schema(ArtifactSchema(
+    name="suit_corner_samples",
+    version=1,
+    coords={**_VIEW, **_FRAME},
+    variables={
+        "crops": VarSpec(("view", "frame", "crop", "cy", "cx"), "uint8", "counts", description="20 x 20 grey crops"),
+        "present": VarSpec(("view", "frame", "crop"), "bool", description="a corner in the central 8 x 8 cell"),
+        "position": VarSpec(("view", "frame", "crop", "uv"), "float32",
+                            description="the corner's (x, y) normalised in the cell, 0 where absent"),
+        "used": VarSpec(("view", "frame", "crop"), "bool", description="False past the image's crops (padding)"),
+    },
+    frame_chunk=4,
+    description="CornerdetNet's training crops cut from studio images with their truth (§4.1)",
+))
+
+SUIT_QUAD_SAMPLES = register_schema(ArtifactSchema(
+    name="suit_quad_samples",
+    version=1,
+    coords={**_VIEW, **_FRAME},
+    variables={
+        "crops": VarSpec(("view", "frame", "crop", "qy", "qx"), "uint8", "counts",
+                         description="candidate quads of detected corners warped to 104 x 104"),
+        "valid": VarSpec(("view", "frame", "crop"), "bool", description="the four corners of a coded square"),
+        "rotation": VarSpec(("view", "frame", "crop"), "int8", description="quarter turns, -1 invalid"),
+        "code": VarSpec(("view", "frame", "crop"), "int16", description="code index, -1 invalid"),
+        "used": VarSpec(("view", "frame", "crop"), "bool", description="False past the image's crops (padding)"),
+    },
+    frame_chunk=2,
+    description="RejectorNet's and RecogNet's training crops: candidate quads of studio images labelled from the truth",
+))

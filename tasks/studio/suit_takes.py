@@ -26,7 +26,7 @@ from mocapflow.tasks.studio.mesh_render import (Lighting, MeshScene, cast_view, 
                                                  visibility)
 from mocapflow.tasks.suit.pattern import Suit, texture, uv_charts
 
-SUIT_STUDIO_VERSION = "1"
+SUIT_STUDIO_VERSION = "1+texel"
 # Softboxes all around (§3 "Camera system": 32 of them): a strong diffuse term, two soft key lights, a dark room.
 SOFTBOXES = Lighting(directions=((0.4, -0.6, 0.7), (-0.5, 0.8, 0.3)), intensities=(0.35, 0.25), ambient=0.55,
                      background=0.05)

@@ -504,12 +504,9 @@ def train_cornerdet(samples: CornerSamples, config: TrainConfig = TrainConfig(),
     if len(samples) < config.batch or not samples.present.any() or samples.present.all():
         raise CornerError(f"training needs at least one batch ({config.batch}) of crops with both positives and "
                           f"negatives; got {len(samples)} crops, {int(samples.present.sum())} positive")
-    torch.manual_seed(seed)
-    gen = torch.Generator().manual_seed(seed)
-    rng = np.random.default_rng([seed, 17])
-    net = CornerdetNet(config.net)
-    opt = torch.optim.Adam(net.parameters(), lr=config.learning_rate)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, config.iterations, eta_min=0.01 * config.learning_rate)
+    gen, rng, device = seeded(seed, 17)
+    net = CornerdetNet(config.net).to(device)
+    opt, sched = adam_cosine(list(net.parameters()), config.learning_rate, config.iterations)
     crops = torch.from_numpy(samples.crops)
     present = torch.from_numpy(samples.present.astype(np.float32))
     position = torch.from_numpy(samples.position.astype(np.float32))
@@ -518,12 +515,27 @@ def train_cornerdet(samples: CornerSamples, config: TrainConfig = TrainConfig(),
         idx = torch.from_numpy(rng.integers(len(samples), size=config.batch))
         x, p = dihedral(crops[idx].float().div_(255.0)[:, None], position[idx], gen)
         x = augment_crops(x, config.augment, gen)
-        loss = cornerdet_loss(net(x)[:, :, 0, 0], present[idx], p, config.position_weight)
+        loss = cornerdet_loss(net(x.to(device))[:, :, 0, 0], present[idx].to(device), p.to(device),
+                              config.position_weight)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
         sched.step()
-    return net.eval()
+    return net.cpu().eval()
+
+
+def seeded(seed: int, stream: int) -> tuple[torch.Generator, np.random.Generator, str]:
+    """A training's randomness from its seed (torch's global one too) and the device it runs on: the GPU when
+    present (batches are still drawn on the CPU)."""
+    torch.manual_seed(seed)
+    return (torch.Generator().manual_seed(seed), np.random.default_rng([seed, stream]),
+            "cuda" if torch.cuda.is_available() else "cpu")
+
+
+def adam_cosine(params: list, learning_rate: float, iterations: int):
+    """Adam with a cosine decay to 1 % of the learning rate over the iterations.  -> optimizer, scheduler"""
+    opt = torch.optim.Adam(params, lr=learning_rate)
+    return opt, torch.optim.lr_scheduler.CosineAnnealingLR(opt, iterations, eta_min=0.01 * learning_rate)
 
 
 def dihedral(x: torch.Tensor, position: torch.Tensor, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
@@ -545,21 +557,21 @@ def augment_crops(x: torch.Tensor, aug: Augment, gen: torch.Generator) -> torch.
     (n, 1, 20, 20) in [0, 1] -> same"""
     n = len(x)
 
-    def draw(lo: float, hi: float) -> torch.Tensor:
-        return (lo + (hi - lo) * torch.rand(n, generator=gen))[:, None, None, None]
+    def draw(lo: float, hi: float) -> torch.Tensor:  # drawn on the CPU (the generator's), used where x is
+        return (lo + (hi - lo) * torch.rand(n, generator=gen))[:, None, None, None].to(x.device)
 
-    sigma = draw(*aug.blur) * (torch.rand(n, 1, 1, 1, generator=gen) < aug.blur_share)
+    sigma = draw(*aug.blur) * (torch.rand(n, 1, 1, 1, generator=gen) < aug.blur_share).to(x.device)
     x = _gaussian_blur(x, sigma.flatten())
     mean = x.mean(dim=(2, 3), keepdim=True)
     x = (x - mean) * draw(*aug.contrast) + mean + draw(-aug.brightness, aug.brightness)
     x = x.clamp(0, 1) ** draw(*aug.gamma)
-    x = x + draw(*aug.noise) * torch.randn(x.shape, generator=gen)
+    x = x + draw(*aug.noise) * torch.randn(x.shape, generator=gen).to(x.device)
     return torch.round(x.clamp(0, 1) * 255) / 255
 
 
 def _gaussian_blur(x: torch.Tensor, sigma: torch.Tensor, radius: int = 3) -> torch.Tensor:
     """Per-crop separable Gaussian blur (sigma 0: unchanged), replicated borders.  (n, 1, y, x), (n,) -> same"""
-    t = torch.arange(-radius, radius + 1, dtype=x.dtype)
+    t = torch.arange(-radius, radius + 1, dtype=x.dtype, device=x.device)
     k = torch.exp(-0.5 * (t[None] / sigma.clamp(min=1e-3)[:, None]) ** 2)  # (n, 2r + 1)
     k = k / k.sum(dim=1, keepdim=True)
     n = len(x)
@@ -567,3 +579,42 @@ def _gaussian_blur(x: torch.Tensor, sigma: torch.Tensor, radius: int = 3) -> tor
     y = F.conv2d(y, k[:, None, None, :], groups=n)
     y = F.conv2d(y, k[:, None, :, None], groups=n)
     return y.transpose(0, 1)
+
+
+# ---------------------------------------------------------------------------------------------------- the stage
+
+@dataclass(frozen=True)
+class FindCornersConfig:
+    detect: DetectConfig = DetectConfig()
+    capacity: int = 4096  # most detections kept per image (the artifact's padding), highest logit first
+    weights: str = ""  # a CornerdetNet file; empty: the packaged one
+
+
+def cornerdet_from_weights(weights: dict) -> CornerdetNet:
+    """The network a weights file holds ({"architecture", "state"}, tasks/shared/weights.py), in eval mode."""
+    arch = weights["architecture"]
+    net = CornerdetNet(CornerNetConfig(widths=tuple(arch["widths"]), hidden=int(arch["hidden"]),
+                                       batch_norm=bool(arch.get("batch_norm", True))))
+    net.load_state_dict(weights["state"])
+    return net.eval()
+
+
+def find_corners(images, config: FindCornersConfig, weights: dict):
+    """Task: suit_corners of every view and frame of suit_images (§3.1)."""
+    import xarray as xr
+
+    net = cornerdet_from_weights(weights)
+    views, frames = images["view"].values, images["frame"].values
+    shape = (len(views), len(frames), config.capacity)
+    x, y, logit = (np.full(shape, np.nan, np.float32) for _ in range(3))
+    torch.set_num_threads(1)
+    for v in range(len(views)):
+        for f in range(len(frames)):
+            found = detect_corners(images["image"].values[v, f], net, config.detect)
+            order = np.argsort(-found.logit, kind="stable")[:config.capacity]
+            n = len(order)
+            x[v, f, :n], y[v, f, :n] = found.xy[order, 0], found.xy[order, 1]
+            logit[v, f, :n] = found.logit[order]
+    dims = ("view", "frame", "detection")
+    return xr.Dataset({"x": (dims, x), "y": (dims, y), "logit": (dims, logit)},
+                      coords={"view": views, "frame": frames})

@@ -60,26 +60,22 @@ def quad_truth(xy: np.ndarray, quads: np.ndarray, truth: np.ndarray, visible: np
     """Which coded square each candidate quad truly is, and in which rotation.
 
     xy (n, 2) detections; quads (q, 4) detection indices (-1 padding); truth (corner, 2), visible (corner,);
-    square_corners (square, 4). -> square (q,) (-1: not a coded square's four corners), rotation (q,): the quad's
-    vertex r is the square's vertex 0 (the upright top-left), -1 where square is -1.
+    square_corners (square, 4). -> square (q,) (-1: not a coded square's four corners), rotation (q,): quad vertex i
+    is the square's vertex (i + r) mod 4 (tasks/suit/codes.py), -1 where square is -1.
     """
     square = np.full(len(quads), -1)
     rotation = np.full(len(quads), -1)
-    seen = np.flatnonzero(visible)
+    seen = np.flatnonzero(visible & np.isfinite(truth).all(axis=1))
     if not len(seen) or not len(quads):
         return square, rotation
     d, nearest = cKDTree(truth[seen]).query(np.nan_to_num(xy, nan=-1e9))
     corner_of = np.where(d <= match_px, seen[nearest], -1)  # (n,) the true corner at each detection
     ids = np.where(quads >= 0, corner_of[np.maximum(quads, 0)], -1)  # (q, 4)
-    lookup = {tuple(row): s for s, row in enumerate(square_corners)}
+    lookup = {tuple(np.roll(row, -r)): (s, r) for s, row in enumerate(square_corners) for r in range(4)}
     for q, row in enumerate(ids):
-        if (row < 0).any():
-            continue
-        for r in range(4):
-            s = lookup.get(tuple(np.roll(row, -r)))
-            if s is not None:
-                square[q], rotation[q] = s, r
-                break
+        hit = lookup.get(tuple(row)) if (row >= 0).all() else None
+        if hit is not None:
+            square[q], rotation[q] = hit
     return square, rotation
 
 

@@ -44,9 +44,12 @@ class SuitSize:
     min_edge_m: float = 0.012  # and its shortest rest edge, at least
 
 
-# About 1,500 and 1,100 corners on the default body, like the paper's medium (1,487) and small (1,119) suits.
-SUITS = {"medium": SuitSize("medium", 0.0159, (0.003, 0.002), seed=1),
-         "small": SuitSize("small", 0.0177, (0.011, 0.007), seed=2)}
+# About 1,350 and 1,100 corners on the default body, like the paper's medium (1,487) and small (1,119) suits.
+# Squares and shifts are whole texels of a 2,048-texel print (and of any print 2,048 * 2^k wide), so every square
+# edge falls on a texel boundary and the printed corner is exactly the nominal one.
+TEXELS = 2048
+SUITS = {"medium": SuitSize("medium", 33 / TEXELS, (6 / TEXELS, 4 / TEXELS), seed=1),
+         "small": SuitSize("small", 36 / TEXELS, (22 / TEXELS, 14 / TEXELS), seed=2)}
 
 
 @dataclass(frozen=True)
@@ -216,19 +219,24 @@ def texture(suit: Suit, uv: np.ndarray, faces_in_chart: np.ndarray, resolution: 
     cu = (np.arange(resolution) + 0.5) / resolution
     i = np.floor((cu - off[0]) / s).astype(int)
     j = np.floor(((1 - cu) - off[1]) / s).astype(int)  # row r is v = 1 - (r + 0.5) / resolution
-    board = np.where((i[None, :] + j[:, None]) % 2 == 0, _level(WHITE), _level(BLACK)).astype(np.uint8)
-    image = np.where(chart > 0, board, np.uint8(_level(BARE)))
+    board = np.where((i[None, :] + j[:, None]) % 2 == 0, level(WHITE), level(BLACK)).astype(np.uint8)
+    image = np.where(chart > 0, board, np.uint8(level(BARE)))
     px = s * resolution  # a square's width in texels
-    thick = max(1, int(round(0.08 * px)))
     for code, quad in zip(suit.codes, suit.square_corners):
         gi, gj = suit.corner_grid[quad[3]]  # bottom-left corner of the square
-        scale = _font_scale(code, px, thick)
-        (w, h), _ = cv2.getTextSize(code, cv2.FONT_HERSHEY_SIMPLEX, scale, thick)
-        x = (gi * s + off[0]) * resolution + (px - w) / 2
-        y = (1 - (gj * s + off[1])) * resolution - (px - h) / 2  # text baseline, rows grow downwards
-        cv2.putText(image, code, (int(round(x)), int(round(y))), cv2.FONT_HERSHEY_SIMPLEX, scale, _level(BLACK),
-                    thick, cv2.LINE_AA)
+        print_code(image, code, (gi * s + off[0]) * resolution, (1 - (gj * s + off[1])) * resolution, px)
     return image.astype(np.float32) / 255.0
+
+
+def print_code(image: np.ndarray, code: str, left: float, bottom: float, px: float) -> None:
+    """Print ``code`` upright in black on the white square of side ``px`` whose bottom-left corner is at column
+    ``left``, row ``bottom`` of ``image`` (uint8, rows grow downwards), in place: half a square tall, centred."""
+    thick = max(1, int(round(0.08 * px)))
+    scale = _font_scale(code, px, thick)
+    (w, h), _ = cv2.getTextSize(code, cv2.FONT_HERSHEY_SIMPLEX, scale, thick)
+    x, y = left + (px - w) / 2, bottom - (px - h) / 2  # the text's baseline
+    cv2.putText(image, code, (int(round(x)), int(round(y))), cv2.FONT_HERSHEY_SIMPLEX, scale, level(BLACK), thick,
+                cv2.LINE_AA)
 
 
 def _font_scale(code: str, px: float, thick: int) -> float:
@@ -238,5 +246,5 @@ def _font_scale(code: str, px: float, thick: int) -> float:
     return scale * min(1.0, 0.8 * px / max(w, 1))
 
 
-def _level(albedo: float) -> int:
+def level(albedo: float) -> int:
     return int(round(albedo * 255))

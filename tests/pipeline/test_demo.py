@@ -5,6 +5,7 @@ import json
 
 import cv2
 
+from browser import run_browser
 from conftest import last_json, mocapflow
 from mocapflow.pipeline.export import read_bvh_joints, read_c3d
 
@@ -30,7 +31,15 @@ def test_demo_runs_everything_and_is_served_from_cache_the_second_time(tmp_path)
         img = cv2.imread(str(out / "report" / f"{png}.png"))
         assert img is not None and img.std() > 5, png  # drawn, not blank
     page = (out / "report" / "report.html").read_text()
-    assert "reflectors.png" in page and "pck3d_20cm" in page and "jumping_jack_s1.bvh" in page
+    assert "reflectors.png" in page and "jumping_jack_s1.bvh" in page
+    pck = first["pck3d_20cm"] * 100
+    assert f"<td>3D PCK @ 20 cm, Table 8 joints</td><td>{pck:.4g} %</td>" in page  # named, in %
+    assert "MAE cm" in page and "PCK@20cm" in page  # the accuracy tables, in units and %
+    assert "<h3 id='seq-jumping_jack_s1'>jumping_jack_s1 (jumping_jack)</h3>" in page  # a named sequence
+    assert "median residual (mm)" in page and "views (mean)" in page
+    dom = run_browser(out / "report" / "report.html", tmp_path, "--dump-dom")  # the 3D view with its skeletons
+    assert dom.returncode == 0 and 'data-frames="40"' in dom.stdout, dom.stderr[-2000:]
+    assert "solved skeleton" in dom.stdout and "ground-truth skeleton" in dom.stdout
 
     second = last_json(mocapflow(*args, cwd=tmp_path, timeout=900))
     assert second["partitions computed"] == 0
