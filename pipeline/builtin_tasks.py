@@ -16,7 +16,7 @@ from mocapflow.tasks.suit.oracle import OracleConfig
 from mocapflow.tasks.suit.quads import QuadConfig
 from mocapflow.tasks.suit.reconstruct import ReconstructConfig
 from mocapflow.tasks.suit import training as suit_training
-from mocapflow.tasks.uuo import prior, segmentation, solve
+from mocapflow.tasks.uuo import labelled, prior, segmentation, solve
 
 
 # The `frames` stage: every raw sequence of a dataset synthesized (studio) or imported
@@ -283,4 +283,30 @@ register(TaskSpec(
     output="uuo_body", partition="sequence", whole_sequence=True, inputs={"markers": "raw_markers", "yaw0": "uuo_body"},
     reads={"markers": ("position",)},
     description="one root-yaw hypothesis, refined (the paper's '- MHT' ablation, Table 3)",
+))
+register(TaskSpec(
+    name="file_prior", fn=prior.file_prior, version="1", params=prior.FilePriorConfig,
+    output="body_prior", partition="sequence", inputs={"markers": "raw_markers"},
+    reads={"markers": ("position", "prior_joints")}, whole_sequence=True,
+    description="a monocular estimate brought as template joints per frame (the take's prior file), Anny fitted "
+                "to them",
+))
+register(TaskSpec(
+    name="reference_prior", fn=prior.reference_prior, version="1", params=prior.SimulatedPriorConfig,
+    output="body_prior", partition="sequence", inputs={"markers": "raw_markers", "reference": "uuo_body"},
+    reads={"markers": ("position",), "reference": ("bone_rotation", "root", "joints")}, whole_sequence=True,
+    description="a solved reference body (a recorded take's labelled solve) degraded like a monocular estimate",
+))
+register(TaskSpec(
+    name="merge_labels", fn=labelled.merge_labels, version="1", params=labelled.MergeLabelsConfig,
+    output="raw_markers", partition="sequence", inputs={"markers": "raw_markers"},
+    reads={"markers": ("position", "timestamp", "label")}, whole_sequence=True,
+    description="a labelled recording's fragments of one label joined, unlabelled trajectories dropped (the "
+                "labelled reference's markers)",
+))
+register(TaskSpec(
+    name="drop_labels", fn=labelled.drop_labels, version="1", params=labelled.DropLabelsConfig,
+    output="raw_markers", partition="sequence", inputs={"markers": "raw_markers"},
+    reads={"markers": ("position", "timestamp")}, whole_sequence=True,
+    description="a recording's labels hidden: trajectories m000, m001, ... in the file's order",
 ))

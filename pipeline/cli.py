@@ -364,18 +364,22 @@ def train(catalog_path, overrides, sequences, stage, out, workers, threads, as_j
 @catalog_option
 @set_option
 @sequences_option
-@click.option("--format", "fmt", type=click.Choice(["c3d", "trc", "bvh", "ply"]), default="c3d", show_default=True,
+@click.option("--format", "fmt", type=click.Choice(["c3d", "trc", "bvh", "ply", "report"]), default="c3d",
+              show_default=True,
               help="c3d/trc: labelled 3D markers; bvh: the solved poses; for the suit: c3d its labelled corners, ply "
-                   "the filled suit mesh per frame")
+                   "the filled suit mesh per frame; for a UUO solve: c3d its markers labelled by body part and vertex, "
+                   "bvh the solved rig, report a page of figures")
 @click.option("--stage", default=None,
-              help="the stage to export [c3d/trc: the last smoothed stage, else markers3d; bvh: the poses stage]")
+              help="the stage to export [c3d/trc: the last smoothed stage, else markers3d, else the UUO solve; bvh: "
+                   "the poses stage, else the UUO solve; report: the UUO solve]")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="folder for <sequence>.<format>")
 @click.option("--up", type=click.Choice(["y", "z"]), default=None,
               help="trc only: the file's up axis [default: y, as OpenSim reads TRC; z keeps the studio's Z-up world]")
 @workers_option
 @threads_option
 def export(catalog_path, overrides, sequences, fmt, stage, out_dir, up, workers, threads):
-    """Write markers as C3D or TRC, or poses as BVH, one file per sequence (computes missing partitions first)."""
+    """Write markers as C3D or TRC, poses as BVH, or a UUO report, one per sequence (computes missing partitions
+    first)."""
     from mocapflow.pipeline.export import export_files
 
     for path in export_files(load_catalog(catalog_path, overrides), sequences, fmt, stage, Path(out_dir), workers,

@@ -5,6 +5,12 @@ Per stage: MPJPE, MPJVE, V2V and m2s over the evaluation split, per layout (a wh
 marker count, ``body40``; a partial one by its part, also scored on the part's joints), the joints after each
 solver stage (the paper's Table 4), and the labelling: the share of real markers given a vertex, and of those
 the share on the right body part.
+
+Recorded takes have no truth: with ``evaluation: {uuo_reference: STAGE}`` every other UUO stage is scored
+against that stage's body, the same solver on the labelled markers (the paper's "labelled markers" row): MPJPE,
+MPJVE and V2V against it, m2s of the labelled markers on both bodies, and the labelling's consistency: for each
+true label, the share of the frames it is seen whose trajectory got the label's majority part (an unlabelled
+trajectory counting against), and the share that got the reference's part for that label.
 """
 
 from __future__ import annotations
@@ -76,6 +82,9 @@ def evaluate_uuo(catalog, plan, store, stages: list[str], per_sequence: dict) ->
     """Figures per UUO stage: overall (mean over takes), per layout and per take."""
     from mocapflow.pipeline.evaluate import stage_writing
 
+    reference = catalog.evaluation.get("uuo_reference")
+    if reference is not None:  # recorded takes: no truth, a labelled reference
+        return evaluate_against_reference(catalog, plan, store, stages, str(reference), per_sequence)
     markers_stage = stage_writing(catalog, "raw_markers")
     if markers_stage is None:
         raise PlanError("the catalog solves UUO bodies but has no stage writing raw_markers to score them against")
@@ -113,6 +122,9 @@ def uuo_headline(result: dict) -> dict:
     out = {}
     for i, (stage, r) in enumerate(result.items()):
         o = r["overall"]
+        if "reference" in r:  # recorded takes against their labelled reference
+            out.update({f"uuo_real_{stage}_{k}": o[k] for k in ("mpjpe_mm", "m2s_mm", "consistency")})
+            continue
         if i == 0:
             out.update({"uuo_stage": stage, "uuo_mpjpe_mm": o["mpjpe_mm"], "uuo_mpjve_mm": o["mpjve_mm"],
                         "uuo_v2v_mm": o["v2v_mm"], "uuo_m2s_mm": o["m2s_mm"]})
@@ -126,6 +138,8 @@ def uuo_headline(result: dict) -> dict:
 def uuo_table(result: dict) -> list[str]:
     from mocapflow.pipeline.evaluate import _format
 
+    if any("reference" in r for r in result.values()):
+        return reference_table(result)
     rows = [("UUO stage", "layout", "takes", "MPJPE mm", "part MPJPE", "MPJVE mm/frame", "V2V mm", "m2s mm (truth)",
              "labelled", "right part")]
     for stage, r in result.items():
@@ -142,3 +156,100 @@ def uuo_table(result: dict) -> list[str]:
         stage_rows.append((stage, *(f"{s[k]:.1f}" if k in s and np.isfinite(s[k]) else "-"
                                     for k in ("matching", "pose_fit", "ik", "refined"))))
     return lines + ["", "MPJPE (mm) after each solver stage (Table 4)"] + _format(stage_rows)
+
+
+# ---- recorded takes: the unlabelled solves against the labelled reference (the paper's "labelled markers" row) ----
+
+def label_consistency(labels: list[str], parts: np.ndarray, positions: np.ndarray,
+                      reference_part: dict[str, str]) -> dict[str, dict]:
+    """Per true label: over the frames a trajectory of that label is seen, the share whose trajectory got the
+    label's majority part (``consistent``; an unlabelled trajectory counts against it), and the share whose part
+    is the reference's part of the label (``agrees``).  labels, parts (trajectory,), positions (frame, trajectory, 3)"""
+    seen = np.isfinite(positions).all(-1)  # (frame, trajectory)
+    out = {}
+    for label in dict.fromkeys(labels):
+        index = [i for i, name in enumerate(labels) if name == label]
+        frame_parts = np.concatenate([np.repeat(parts[i], seen[:, i].sum()) for i in index]).astype(str)
+        if not len(frame_parts):
+            continue
+        named = frame_parts[frame_parts != ""]
+        majority = max(set(named), key=lambda p: (named == p).sum()) if len(named) else ""
+        out[label] = {"frames": int(len(frame_parts)), "majority": majority, "fragments": len(index),
+                      "consistent": float((frame_parts == majority).mean()) if majority else 0.0,
+                      "agrees": float((frame_parts == reference_part.get(label, "")).mean())}
+    return out
+
+
+def score_against_reference(solved, reference, raw_labels: list[str], raw_positions: np.ndarray,
+                            real_positions: np.ndarray) -> dict:
+    """One recorded take's unlabelled solve against its labelled reference (mm, shares). ``raw_labels`` and
+    ``raw_positions`` (frame, trajectory, 3): the file's trajectories in the solver's order; ``real_positions``:
+    the labelled markers (fragments joined, no ghosts), over which m2s is taken for both bodies."""
+    joints = solved["joints"].values.astype(np.float64)
+    ref_joints = reference["joints"].values.astype(np.float64)
+    body, vertices = _mesh(solved.attrs["phenotype"], solved["bone_rotation"].values, solved["root"].values)
+    ref_body, ref_vertices = _mesh(reference.attrs["phenotype"], reference["bone_rotation"].values,
+                                   reference["root"].values)
+    reference_part = dict(zip((str(m) for m in reference["marker"].values), (str(p) for p in reference["part"].values)))
+    per_label = label_consistency(raw_labels, solved["part"].values, raw_positions, reference_part)
+    weights = np.array([r["frames"] for r in per_label.values()], float)
+    return {"frames": len(joints), "labels": len(per_label), "trajectories": len(raw_labels),
+            "mpjpe_mm": 1000 * metrics.mpjpe(joints, ref_joints), "mpjve_mm": 1000 * metrics.mpjve(joints, ref_joints),
+            "v2v_mm": 1000 * metrics.v2v(vertices, ref_vertices),
+            "m2s_mm": 1000 * metrics.m2s(real_positions, vertices, body.faces),
+            "m2s_reference_mm": 1000 * metrics.m2s(real_positions, ref_vertices, ref_body.faces),
+            "consistency": float(np.mean([r["consistent"] for r in per_label.values()])),
+            "consistency_frames": float(np.average([r["consistent"] for r in per_label.values()], weights=weights)),
+            "agreement": float(np.mean([r["agrees"] for r in per_label.values()])),
+            "hypothesis_yaw_deg": float(solved.attrs.get("yaw_deg", np.nan)), "per_label": per_label}
+
+
+def evaluate_against_reference(catalog, plan, store, stages: list[str], reference: str, per_sequence: dict) -> dict:
+    """Figures per UUO stage on recorded takes, against the ``reference`` stage's body (evaluation.uuo_reference)."""
+    from mocapflow.pipeline.evaluate import stage_writing
+    from mocapflow.tasks.uuo.labelled import base_label
+
+    if reference not in catalog.stages or catalog.stages[reference].spec.output != "uuo_body":
+        raise PlanError(f"evaluation.uuo_reference names {reference!r}, not a stage writing uuo_body; name the "
+                        "labelled solve's stage")
+    raw_stage = stage_writing(catalog, "raw_markers")
+    labelled_stage = catalog.stages[reference].inputs["markers"]
+    params = catalog.stages[labelled_stage].params
+    drop_prefix = getattr(params, "drop_prefix", True)
+    out = {}
+    for stage in [s for s in stages if s != reference]:
+        takes = {}
+        for seq in plan.sequences:
+            raw = plan.open(store, raw_stage, seq.id).load()
+            if "label" not in raw:
+                raise PlanError(f"sequence {seq.id!r}: the markers carry no labels; read them with labels: use to "
+                                "score against the labelled reference")
+            labels = [base_label(label, drop_prefix) for label in raw["label"].values]
+            solved = plan.open(store, stage, seq.id).load()
+            if solved.sizes["marker"] != len(labels):
+                raise PlanError(f"stage {stage!r} solved {solved.sizes['marker']} trajectories of {seq.id!r}, the "
+                                f"file has {len(labels)}; solve the file's trajectories (drop_labels)")
+            real = plan.open(store, labelled_stage, seq.id)["position"].transpose("frame", "marker", "xyz").values
+            takes[seq.id] = score_against_reference(
+                solved, plan.open(store, reference, seq.id).load(), labels,
+                raw["position"].transpose("frame", "marker", "xyz").values, real.astype(np.float64))
+            per_sequence.setdefault(seq.id, {})[f"uuo_{stage}"] = {k: v for k, v in takes[seq.id].items()
+                                                                   if k != "per_label"}
+        keys = [k for k, v in next(iter(takes.values())).items() if isinstance(v, float)] if takes else []
+        out[stage] = {"reference": reference, "takes": takes,
+                      "overall": {**{k: float(np.nanmean([t[k] for t in takes.values()])) for k in keys},
+                                  "takes": len(takes)}}
+    return out
+
+
+def reference_table(result: dict) -> list[str]:
+    from mocapflow.pipeline.evaluate import _format
+
+    rows = [("UUO stage", "take", "MPJPE mm", "MPJVE mm/frame", "V2V mm", "m2s mm (reference)", "labels",
+             "consistency", "agrees with reference")]
+    for stage, r in result.items():
+        for take, t in list(r["takes"].items()) + [("all", r["overall"])]:
+            rows.append((stage, take, f"{t['mpjpe_mm']:.1f}", f"{t['mpjve_mm']:.2f}", f"{t['v2v_mm']:.1f}",
+                         f"{t['m2s_mm']:.1f} ({t['m2s_reference_mm']:.1f})", str(t.get("labels", "-")),
+                         f"{t['consistency']:.0%}", f"{t['agreement']:.0%}"))
+    return [f"against the labelled reference ({next(iter(result.values()))['reference']})"] + _format(rows)

@@ -1,4 +1,5 @@
-"""`mocapflow export`: labelled 3D markers as C3D (ezc3d) or TRC files, solved poses as BVH.
+"""`mocapflow export`: labelled 3D markers as C3D (ezc3d) or TRC files, solved poses as BVH; UUO's solved bodies as
+a labelled C3D, a BVH of the solved rig or a report page (pipeline/export_uuo.py).
 
 Both marker formats carry the labels (DeepMoCap's reflector names), the frame rate and the unit (millimetres, the
 convention of both). C3D keeps the Z-up world of mocapflow (POINT:X_SCREEN/Y_SCREEN) and stores floats, with
@@ -83,7 +84,8 @@ def write_c3d(markers: xr.Dataset, path: Path) -> None:
     _write(path, lambda p: _write_c3d(p, xyz, names, fps, scale, word4))
 
 
-def _write_c3d(path: Path, xyz: np.ndarray, names: list[str], fps: float, scale: float, word4: np.ndarray) -> None:
+def _write_c3d(path: Path, xyz: np.ndarray, names: list[str], fps: float, scale: float, word4: np.ndarray,
+               descriptions: list[str] | None = None) -> None:
     """Float (Intel) C3D with the spec's point word 4 (camera bits in the high byte, residual / |SCALE| in the low
     byte, -1 when missing) and the header's scale equal to POINT:SCALE. ezc3d writes the file; word 4 and the header
     scale are then set here, as ezc3d puts the residual in the high byte of word 4 and leaves the header scale at -1."""
@@ -94,6 +96,8 @@ def _write_c3d(path: Path, xyz: np.ndarray, names: list[str], fps: float, scale:
     c3d["parameters"]["POINT"]["LABELS"]["value"] = names
     c3d["parameters"]["POINT"]["UNITS"]["value"] = ["mm"]
     c3d["parameters"]["POINT"]["SCALE"]["value"] = [scale]
+    if descriptions is not None:
+        c3d["parameters"]["POINT"]["DESCRIPTIONS"]["value"] = descriptions
     c3d.add_parameter("POINT", "X_SCREEN", "+X")
     c3d.add_parameter("POINT", "Y_SCREEN", "+Z")  # Z up
     points = np.ones((4, len(names), xyz.shape[0]))
@@ -177,9 +181,17 @@ def _filled(poses: xr.Dataset) -> tuple[np.ndarray, np.ndarray]:
 def bvh_text(poses: xr.Dataset) -> str:
     """BVH text (Y up, centimetres) of solved poses on their skeleton."""
     names = [str(n) for n in poses["joint"].values]
-    offsets = poses["offset"].transpose("joint", "xyz").values.astype(np.float64) @ Z_UP_TO_Y_UP.T * BVH_SCALE
     parents = _parents(poses)
     quat, root = _filled(poses)
+    return bvh_core(names, parents, poses["offset"].transpose("joint", "xyz").values.astype(np.float64), quat, root,
+                    float(poses.attrs["fps"]))
+
+
+def bvh_core(names: list[str], parents: np.ndarray, offsets: np.ndarray, quat: np.ndarray, root: np.ndarray,
+             fps: float) -> str:
+    """BVH text of a skeleton: offsets (joint, 3) m from the parent in mocapflow's Z-up world, local rotations
+    (frame, joint, 4) x y z w, root positions (frame, 3) m; written Y up, centimetres."""
+    offsets = offsets @ Z_UP_TO_Y_UP.T * BVH_SCALE
     children = {j: [c for c in range(len(names)) if parents[c] == j] for j in range(len(names))}
     lines, order = ["HIERARCHY"], []  # order: joints as the hierarchy lists them, the MOTION column order
 
@@ -202,7 +214,6 @@ def bvh_text(poses: xr.Dataset) -> str:
     local = Z_UP_TO_Y_UP @ Rotation.from_quat(quat.reshape(-1, 4)).as_matrix() @ Z_UP_TO_Y_UP.T
     euler = Rotation.from_matrix(local).as_euler("ZXY", degrees=True).reshape(quat.shape[:2] + (3,))  # R = Rz Rx Ry
     motion = np.concatenate([root @ Z_UP_TO_Y_UP.T * BVH_SCALE, euler[:, order].reshape(len(euler), -1)], axis=1)
-    fps = float(poses.attrs["fps"])
     lines += ["MOTION", f"Frames: {len(motion)}", f"Frame Time: {1.0 / fps:.8f}"]
     lines += [" ".join(f"{v:.5f}" for v in row) for row in motion]
     return "\n".join(lines) + "\n"
@@ -245,23 +256,39 @@ def _write(path: Path, write) -> None:
 
 
 WRITERS = {"c3d": write_c3d, "trc": write_trc, "bvh": write_bvh}
-SCHEMAS = {"c3d": ("smoothed_markers", "markers3d"), "trc": ("smoothed_markers", "markers3d"), "bvh": ("poses",)}
+SCHEMAS = {"c3d": ("smoothed_markers", "markers3d", "uuo_body"), "trc": ("smoothed_markers", "markers3d"),
+           "bvh": ("poses", "uuo_body"), "report": ("uuo_body",)}
+
+
+def _default_stage(catalog, fmt: str) -> str | None:
+    """The stage a format exports when none is named: the plausibility-checked markers, else the last smoothed or
+    fused ones, the poses, or the first UUO solve that chooses among hypotheses (the headline one of `mocapflow
+    evaluate`)."""
+    for schema in SCHEMAS[fmt]:
+        if schema == "uuo_body":
+            found = [s.name for s in catalog.stages.values() if s.spec.output == schema and schema in s.spec.inputs.values()]
+            if found:
+                return found[0]
+        elif (found := final_stage(catalog, schema)):
+            return found
+    return None
 
 
 def export_files(catalog, sequences: str | None, fmt: str, stage: str | None, out_dir: Path,
                  workers: int, processes: bool = True, up: str | None = None) -> list[Path]:
     """Write ``<out_dir>/<sequence>.<fmt>`` for every sequence of ``stage`` (computing missing partitions first
-    on ``workers`` local worker processes, or threads). ``up`` is TRC's up axis, ``y`` (default) or ``z``."""
+    on ``workers`` local worker processes, or threads); a UUO report is ``<out_dir>/<sequence>/report.html``.
+    ``up`` is TRC's up axis, ``y`` (default) or ``z``."""
     from mocapflow.pipeline.scheduler import compute_missing
 
+    if up is not None and fmt != "trc":
+        raise InputError(f"--up {up} applies to TRC only ({fmt} has a fixed up axis: C3D Z, BVH Y); drop --up")
     if fmt == "ply" or (stage in catalog.stages and catalog.stages[stage].spec.output in SUIT_SCHEMAS["c3d"]) or \
             (stage is None and fmt == "c3d" and not any(stage_writing(catalog, s) for s in SCHEMAS["c3d"])):
         return export_suit_files(catalog, sequences, fmt, stage, out_dir, workers, processes)
-    if up is not None and fmt != "trc":
-        raise InputError(f"--up {up} applies to TRC only ({fmt} has a fixed up axis: C3D Z, BVH Y); drop --up")
-    writer = (lambda data, path: write_trc(data, path, up or "y")) if fmt == "trc" else WRITERS[fmt]
+    writer = (lambda data, path: write_trc(data, path, up or "y")) if fmt == "trc" else WRITERS.get(fmt)
 
-    stage = stage or next((s for schema in SCHEMAS[fmt] if (s := final_stage(catalog, schema))), None)
+    stage = stage or _default_stage(catalog, fmt)
     if stage not in catalog.stages:
         raise PlanError(f"no stage {stage!r} to export as {fmt} (it needs one writing {' or '.join(SCHEMAS[fmt])}); "
                         f"the catalog's stages: {list(catalog.stages)}")
@@ -271,14 +298,49 @@ def export_files(catalog, sequences: str | None, fmt: str, stage: str | None, ou
                         "pick another --stage")
     store = Store(catalog.root)
     plan = build_plan(catalog, sequences)
-    compute_missing(select(plan, catalog, store, only=None, until=stage), store, workers=workers, processes=processes,
-                    what="cannot export")
+    reference = catalog.evaluation.get("uuo_reference")
+    for needed in [stage] + ([str(reference)] if fmt == "report" and reference in catalog.stages else []):
+        compute_missing(select(plan, catalog, store, only=None, until=needed), store, workers=workers,
+                        processes=processes, what="cannot export")
     written = []
     for item in plan.for_stages([stage]):
-        path = _inside(out_dir, f"{item.partition.sequence}.{fmt}")
-        writer(store.open(stage, item.key, item.stage.schema).load(), path)
+        sequence = item.partition.sequence
+        data = store.open(stage, item.key, item.stage.schema).load()
+        if output == "uuo_body":
+            written.append(_export_uuo(catalog, plan, store, stage, sequence, data, fmt, out_dir))
+            continue
+        path = _inside(out_dir, f"{sequence}.{fmt}")
+        writer(data, path)
         written.append(path)
     return written
+
+
+def _export_uuo(catalog, plan, store: Store, stage: str, sequence: str, solved: xr.Dataset, fmt: str,
+                out_dir: Path) -> Path:
+    """One UUO solve as a labelled C3D, a BVH of the solved rig, or a report page (pipeline/export_uuo.py)."""
+    from mocapflow.pipeline import export_uuo
+
+    markers_stage = catalog.stages[stage].inputs["markers"]
+    markers = plan.open(store, markers_stage, sequence).load()
+    if fmt == "c3d":
+        path = _inside(out_dir, f"{sequence}.c3d")
+        export_uuo.write_uuo_c3d(solved, markers, path)
+        return path
+    if fmt == "bvh":
+        path = _inside(out_dir, f"{sequence}.bvh")
+        export_uuo.write_uuo_bvh(solved, path)
+        return path
+    truth, against = None, ""
+    raw_stage = stage_writing(catalog, "raw_markers")
+    raw = plan.open(store, raw_stage, sequence) if raw_stage else None
+    reference = catalog.evaluation.get("uuo_reference")
+    if raw is not None and "gt_joints" in raw:
+        truth, against = raw["gt_joints"].values.astype(np.float64), "the studio's truth"
+    elif reference in catalog.stages and reference != stage:
+        truth = plan.open(store, str(reference), sequence)["joints"].values.astype(np.float64)
+        against = f"the labelled reference ({reference})"
+    folder = _inside(out_dir, sequence)
+    return export_uuo.write_report(folder, sequence, stage, solved, markers, truth, against, files=[])
 
 
 def export_suit_files(catalog, sequences: str | None, fmt: str, stage: str | None, out_dir: Path, workers: int,

@@ -12,7 +12,13 @@ single yaw offset). Implementations of the stage ``prior``:
   articulated error; HMR 2.0 publishes about 54 mm on 3DPW) and MPJPE after one rigid registration with scale
   of the whole take (the paper's HMR2.0+RR: 132-150 mm on its three datasets). The defaults give about 54 and
   140 mm on the studio's exercises (benchmarks/uuo_solver.py prints both);
-- ``no_prior``: markers only (the paper's marker-only rows): a neutral body in its rest pose.
+- ``no_prior``: markers only (the paper's marker-only rows): a neutral body in its rest pose;
+- ``file_prior``: a monocular estimate a user brings (any method), as the 20 template joints per frame
+  (tasks/shared/body.py JOINT_NAMES, metres, Z up; NaN rows for lost frames), read by pipeline/prior_files.py.
+  Anny's rig is fitted to them (``fit_joints``): the SMPL-like bones of PRIOR_BONES turn, the others follow
+  their parents, the phenotype's size follows the joints' lengths;
+- ``reference_prior``: ``simulated_prior``'s degradation applied to a solved body (a recorded take's labelled
+  reference) instead of the studio's truth.
 """
 
 from __future__ import annotations
@@ -26,7 +32,8 @@ from scipy.spatial.transform import Rotation
 
 from mocapflow.tasks.shared.body import JOINT_NAMES
 from mocapflow.tasks.shared.kinematics import local_rotations, rigid_fit, world_rotations
-from mocapflow.tasks.shared.mesh_body import MeshBody, Phenotype, mesh_body, pose_mesh
+from mocapflow.tasks.shared.mesh_body import PHENOTYPE_NAMES, MeshBody, Phenotype, mesh_body, phenotype_for_height, \
+    pose_mesh
 
 
 class PriorError(ValueError):
@@ -145,22 +152,145 @@ def simulated_prior(markers: xr.Dataset, config: SimulatedPriorConfig) -> xr.Dat
     if missing:
         raise PriorError(f"a simulated prior degrades the studio's truth, and these markers lack {missing}; use "
                          "prior: file (a monocular estimate you bring) or prior: none on recorded markers")
-    body = mesh_body(Phenotype(**markers.attrs["phenotype"]))
-    rotations = Rotation.from_quat(markers["gt_bone_rotations"].values.reshape(-1, 4)).as_matrix()
-    rotations = rotations.reshape(markers.sizes["frame"], -1, 3, 3)
-    fps = float(markers.attrs["fps"])
-    out = degrade(body, rotations, markers["gt_root"].values, fps, config, np.random.default_rng(config.seed))
+    return _degraded(markers["frame"].values, markers.attrs["phenotype"], markers["gt_bone_rotations"].values,
+                     markers["gt_root"].values, markers["gt_joints"].values, float(markers.attrs["fps"]), config,
+                     "simulated")
+
+
+def reference_prior(markers: xr.Dataset, reference: xr.Dataset, config: SimulatedPriorConfig) -> xr.Dataset:
+    """Stage ``prior`` (simulated from a reference): a solved body (uuo_body, e.g. the labelled solve of a
+    recorded take) degraded like a monocular estimate, as ``simulated_prior`` degrades the studio's truth."""
+    if reference.sizes["frame"] != markers.sizes["frame"]:
+        raise PriorError(f"the reference body has {reference.sizes['frame']} frames and the markers "
+                         f"{markers.sizes['frame']}; solve the reference on the same take")
+    fps = float(markers.attrs.get("fps", reference.attrs.get("fps", 0.0)))
+    return _degraded(markers["frame"].values, reference.attrs["phenotype"], reference["bone_rotation"].values,
+                     reference["root"].values, reference["joints"].values, fps, config, "reference")
+
+
+def _degraded(frames: np.ndarray, phenotype: dict, quats: np.ndarray, root: np.ndarray, truth_joints: np.ndarray,
+              fps: float, config: SimulatedPriorConfig, source: str) -> xr.Dataset:
+    """A body (bone quaternions (frame, bone, 4), root (frame, 3)) degraded by ``degrade``, as a body_prior."""
+    body = mesh_body(Phenotype(**phenotype))
+    rotations = Rotation.from_quat(quats.reshape(-1, 4)).as_matrix().reshape(quats.shape[:2] + (3, 3))
+    out = degrade(body, rotations, root, fps, config, np.random.default_rng(config.seed))
     prior_body = mesh_body(out["phenotype"])
     posed = pose_mesh(prior_body, out["rotations"], out["root"])
     joints = posed.heads[:, prior_body.joint_bones()]
-    truth = markers["gt_joints"].values.astype(np.float64)
-    quats = Rotation.from_matrix(out["rotations"].reshape(-1, 3, 3)).as_quat().reshape(rotations.shape[:2] + (4,))
+    truth = truth_joints.astype(np.float64)
+    valid = out["valid"]
+    return prior_dataset(frames, body, out["rotations"], out["root"], joints, valid, fps, out["phenotype"], source,
+                         registered_mpjpe_mm=1000.0 * registered_mpjpe(joints[valid], truth[valid]),
+                         pa_mpjpe_mm=1000.0 * procrustes_mpjpe(joints[valid], truth[valid]))
+
+
+def prior_dataset(frames: np.ndarray, body: MeshBody, rotations: np.ndarray, root: np.ndarray, joints: np.ndarray,
+                  valid: np.ndarray, fps: float, phenotype: Phenotype, source: str, **attrs) -> xr.Dataset:
+    """A body_prior dataset.  rotations (frame, bone, 3, 3) world, root (frame, 3), joints (frame, joint, 3)"""
+    quats = Rotation.from_matrix(rotations.reshape(-1, 3, 3)).as_quat().reshape(rotations.shape[:2] + (4,))
     return xr.Dataset(
-        {"bone_rotation": (("frame", "bone", "quat"), quats), "root": (("frame", "xyz"), out["root"]),
-         "joints": (("frame", "joint", "xyz"), joints.astype(np.float32)), "valid": (("frame",), out["valid"])},
-        coords={"frame": markers["frame"].values, "bone": np.array(body.bone_names, dtype=object),
+        {"bone_rotation": (("frame", "bone", "quat"), quats), "root": (("frame", "xyz"), root),
+         "joints": (("frame", "joint", "xyz"), joints.astype(np.float32)), "valid": (("frame",), valid)},
+        coords={"frame": frames, "bone": np.array(body.bone_names, dtype=object),
                 "joint": np.array(JOINT_NAMES, dtype=object), "xyz": np.array(["x", "y", "z"], dtype=object),
                 "quat": np.array(["x", "y", "z", "w"], dtype=object)},
-        attrs={"fps": fps, "phenotype": asdict(out["phenotype"]), "source": "simulated",
-               "registered_mpjpe_mm": 1000.0 * registered_mpjpe(joints[out["valid"]], truth[out["valid"]]),
-               "pa_mpjpe_mm": 1000.0 * procrustes_mpjpe(joints[out["valid"]], truth[out["valid"]])})
+        attrs={"fps": fps, "phenotype": asdict(phenotype), "source": source, **attrs})
+
+
+@dataclass(frozen=True)
+class FilePriorConfig:
+    phenotype: Phenotype = Phenotype()  # the starting shape; its height is set from the joints' lengths
+    iterations: int = 150  # L-BFGS iterations of the joint fit
+    pose_weight: float = 1e-3  # E_Theta (Eq. 5) toward the rest pose: fixes the twists joints cannot tell
+    follow_weight: float = 1.0  # on the rotation of bones outside PRIOR_BONES: they follow their parents
+    shape_weight: float = 1e-3  # E_beta (Eq. 2) toward the starting phenotype
+
+    def __post_init__(self):
+        if self.iterations < 1 or min(self.pose_weight, self.follow_weight, self.shape_weight) < 0:
+            raise PriorError(f"file prior settings out of range: iterations >= 1, weights >= 0 (got {self})")
+
+
+# Template joints that fix the trunk's orientation (the root's start on each frame) and the limb chains whose
+# summed lengths give the body's size.
+_TRUNK = ("Hips", "SpineBase", "Neck", "LeftShoulder", "RightShoulder", "LeftHip", "RightHip")
+_CHAINS = (("Hips", "SpineBase", "Neck", "Head"), ("LeftHip", "LeftKnee", "LeftAnkle"),
+           ("RightHip", "RightKnee", "RightAnkle"), ("LeftShoulder", "LeftElbow", "LeftWrist"),
+           ("RightShoulder", "RightElbow", "RightWrist"))
+
+
+def _chain_length(joints: np.ndarray) -> float:
+    """Summed segment lengths of _CHAINS, median over frames.  (frame, joint, 3) -> m"""
+    index = {n: i for i, n in enumerate(JOINT_NAMES)}
+    total = sum(np.linalg.norm(joints[:, index[b]] - joints[:, index[a]], axis=-1)
+                for chain in _CHAINS for a, b in zip(chain, chain[1:]))
+    return float(np.median(total))
+
+
+def _sized(joints: np.ndarray, base: Phenotype) -> Phenotype:
+    """``base`` with the height whose rest joints' chain lengths match the joints'."""
+    rest = mesh_body(base)
+    ratio = _chain_length(joints) / _chain_length(rest.rest_heads[rest.joint_bones()][None])
+    lo, hi = (float(np.ptp(mesh_body(Phenotype(**{**asdict(base), "height": h})).vertices[:, 2])) for h in (0.0, 1.0))
+    return phenotype_for_height(float(np.clip(rest.height * ratio, lo + 1e-3, hi - 1e-3)), base)
+
+
+def fit_joints(joints: np.ndarray, config: FilePriorConfig):
+    """Anny's rig fitted to template joints: (MeshBody, SolverBody, BodyFit).  joints (frame, joint, 3), finite"""
+    import torch
+
+    from mocapflow.tasks.uuo.body_model import SolverBody
+    from mocapflow.tasks.uuo.fitting import BodyFit, Fit, minimize
+
+    body = mesh_body(_sized(joints, config.phenotype))
+    valid = np.ones(joints.shape[0], bool)
+    solver = SolverBody(body)
+    n = joints.shape[0]
+    trunk = [JOINT_NAMES.index(j) for j in _TRUNK]
+    rest_joints = body.rest_heads[body.joint_bones()]
+    local = np.broadcast_to(np.eye(3), (n, len(body.bone_names), 3, 3)).copy()
+    for f in range(n):  # the rest body turned onto each frame's trunk (Kabsch)
+        local[f, 0] = rigid_fit(rest_joints[trunk], joints[f, trunk])[0]
+    start = BodyFit(local, joints[:, JOINT_NAMES.index("Hips")].astype(np.float64),
+                    np.array([asdict(body.phenotype)[k] for k in PHENOTYPE_NAMES]))  # the root's head is Hips
+    fit = Fit(solver, start, start, valid)
+    target = torch.from_numpy(np.nan_to_num(joints.astype(np.float64)))
+    weight = torch.from_numpy(valid.astype(np.float64))[:, None]
+    bones = torch.from_numpy(body.joint_bones())
+    seen_names = np.array(body.bone_names)[solver.seen_bones]
+    follow = torch.from_numpy(np.array([name not in PRIOR_BONES for name in seen_names]))
+
+    def energy():
+        local_now, _, heads, _, _ = fit.pose()
+        d2 = ((heads[:, bones] - target) ** 2).sum(-1)  # (frame, joint)
+        e_joints = (d2 * weight).sum() / (weight.sum() * len(JOINT_NAMES)).clamp_min(1.0)
+        return (e_joints + config.pose_weight * fit.pose_prior(local_now)
+                + config.follow_weight * (fit.delta[:, follow] ** 2).sum(-1).mean() + config.shape_weight
+                * fit.shape_prior())
+
+    minimize(fit.parameters(), energy, config.iterations)
+    return body, solver, fit.result()
+
+
+def file_prior(markers: xr.Dataset, config: FilePriorConfig) -> xr.Dataset:
+    """Stage ``prior`` (file): a monocular estimate brought as template joints per frame (``prior_joints`` of the
+    markers, read from the take's prior file), Anny fitted to them; lost frames (NaN) hold the nearest kept."""
+    from mocapflow.tasks.uuo.fitting import posed_heads
+
+    if "prior_joints" not in markers:
+        raise PriorError("a file prior needs the take's prior file (the markers have no prior_joints); give the "
+                         "markers dataset a 'prior' folder with one file per take, or use prior: simulated or none")
+    joints = markers["prior_joints"].transpose("frame", "joint", "xyz").values.astype(np.float64)
+    if [str(j) for j in markers["joint"].values] != list(JOINT_NAMES):
+        raise PriorError(f"prior joints {list(markers['joint'].values)} are not the template's {list(JOINT_NAMES)}")
+    valid = np.isfinite(joints).all(axis=(1, 2))
+    if not valid.any():
+        raise PriorError("every frame of the prior is lost (NaN); a prior needs at least one estimated frame")
+    kept = np.flatnonzero(valid)
+    nearest = np.abs(np.arange(len(valid))[:, None] - kept[None]).argmin(axis=1)  # lost frames hold the nearest kept
+    body, solver, fitted = fit_joints(joints[kept], config)
+    out = posed_heads(solver, fitted)[nearest][:, body.joint_bones()]
+    local, root = fitted.local[nearest], fitted.root[nearest]
+    phenotype = Phenotype(**dict(zip(PHENOTYPE_NAMES, map(float, fitted.phenotype))))
+    error = np.linalg.norm(out[valid] - joints[valid], axis=-1).mean()
+    return prior_dataset(markers["frame"].values, body, world_rotations(local, body.bone_parents), root, out, valid,
+                         float(markers.attrs.get("fps", 0.0)), phenotype, "file", fit_error_mm=1000.0 * float(error))

@@ -1,0 +1,126 @@
+"""`mocapflow export` of UUO solves: a labelled C3D read back through ezc3d, a BVH of the solved rig whose
+forward kinematics give the solved bone heads, a report page; and the same through the CLI."""
+
+from __future__ import annotations
+
+import ezc3d
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from conftest import mocapflow, read_artifacts
+from mocapflow.pipeline import export_uuo
+from mocapflow.pipeline.export import read_bvh_joints
+from mocapflow.pipeline.marker_files import read_markers
+from mocapflow.tasks.shared.kinematics import local_rotations
+from mocapflow.tasks.shared.mesh_body import PHENOTYPE_NAMES
+from mocapflow.tasks.studio import uuo_takes as uuo
+from mocapflow.tasks.studio.bvh import parse_bvh
+from mocapflow.tasks.studio.synth import SequenceSpec, build_rig
+from mocapflow.tasks.uuo import solve
+from mocapflow.tasks.uuo.fitting import BodyFit
+
+
+@pytest.fixture(scope="module")
+def take():
+    rig = build_rig(SequenceSpec("side_reaches", frames=12, seed=35, body="mesh", views=1))
+    layout = uuo.layout(rig.body, np.random.default_rng(1), 15)
+    rec = uuo.capture(uuo.marker_paths(rig.body, layout, rig.take.posed.vertices[:12]),
+                      uuo.MarkerFaults(dropout=0.05, ghosts=2), np.random.default_rng(2))
+    markers = uuo.marker_dataset(rig.body, layout, rec, rig.take, 30.0, 0, 12)
+    body, solver = solve._bodies(markers.attrs["phenotype"])
+    world = Rotation.from_quat(markers.gt_bone_rotations.values.reshape(-1, 4)).as_matrix().reshape(12, -1, 3, 3)
+    fit = BodyFit(local_rotations(world, body.bone_parents), markers.gt_root.values,
+                  np.array([markers.attrs["phenotype"][k] for k in PHENOTYPE_NAMES]))
+    vertex = np.where(markers.gt_face.values >= 0, body.faces[np.maximum(markers.gt_face.values, 0), 0], -1)
+    solved = solve.body_dataset(markers, body, solver, fit, vertex, np.full(len(vertex), 0.0095), {},
+                                {"yaw_deg": 0.0, "chamfer": 0.0, "parts": ["body"]})
+    return markers, solved
+
+
+def test_the_labelled_c3d_carries_each_trajectorys_part_and_vertex(take, tmp_path):
+    markers, solved = take
+    export_uuo.write_uuo_c3d(solved, markers, tmp_path / "take.c3d")
+    c3d = ezc3d.c3d(str(tmp_path / "take.c3d"))
+    labels = [str(n) for n in c3d["parameters"]["POINT"]["LABELS"]["value"]]
+    ghosts = markers.gt_source.values < 0
+    assert ghosts.any() and all(label == str(m) for label, m in zip(np.array(labels)[ghosts], markers.marker.values[ghosts]))
+    real = [label for label, g in zip(labels, ghosts) if not g]
+    vertex, part = solved.vertex.values[~ghosts], solved.part.values[~ghosts]
+    assert real == [f"{p}_v{v:05d}" for p, v in zip(part, vertex)] and all(p for p in part)
+    assert list(c3d["parameters"]["POINT"]["DESCRIPTIONS"]["value"]) == list(markers.marker.values)
+    back = read_markers(tmp_path / "take.c3d", labels="use")  # the project's own reader: metres, Z up, NaN gaps
+    np.testing.assert_allclose(back.position.values, markers.position.values, atol=1e-5, equal_nan=True)
+    assert np.isnan(back.position.values).any() and back.attrs["fps"] == 30.0
+
+
+def test_the_bvh_of_the_solved_rig_parses_and_reproduces_the_bone_heads(take, tmp_path):
+    _, solved = take
+    export_uuo.write_uuo_bvh(solved, tmp_path / "take.bvh")
+    bvh = parse_bvh((tmp_path / "take.bvh").read_text())
+    assert len([n for n in bvh.names if not n.endswith("_End")]) == solved.sizes["bone"] and bvh.fps == pytest.approx(30)
+    joints, names, _ = read_bvh_joints(tmp_path / "take.bvh")
+    assert names[0] == "root" and "upperarm01_L" in names
+    np.testing.assert_allclose(joints, solved.bone_heads.values, atol=2e-4)  # 1e-5 cm text, float32 heads
+
+
+def test_the_report_page_shows_the_mesh_and_the_errors(take, tmp_path):
+    import cv2
+
+    markers, solved = take
+    truth = markers.gt_joints.values.astype(np.float64)
+    page = export_uuo.write_report(tmp_path / "take", "take", "body", solved, markers, truth, "the truth", [])
+    text = page.read_text()
+    for name in ("markers_on_mesh.png", "joint_errors.png", "error_over_time.png"):
+        assert name in text
+        img = cv2.imread(str(tmp_path / "take" / name))
+        assert img is not None and img.std() > 10  # drawn, not blank
+    mesh = cv2.imread(str(tmp_path / "take" / "markers_on_mesh.png"))
+    assert mesh.shape == (420, 840, 3) and (mesh[..., 0] > 100).mean() > 0.05  # the body covers part of both views
+    import re
+
+    value = re.search(r"MPJPE against the truth \(mm\)</td><td>([^<]+)<", text).group(1)
+    assert float(value) < 1e-6  # the truth scored against itself
+
+
+CATALOG = """\
+data_roots: [.]
+storage: {root: storage/, region_frames: 10}
+datasets:
+  uuo:
+    kind: studio_markers
+    defaults: {frames: 10, views: 1}
+    markers: {count: 20, ghosts: 1}
+    sequences:
+      reach: {motion: side_reaches, seed: 8}
+stages:
+  markers: {task: ingest_markers, dataset: uuo}
+  segments: {task: rigid_segments, inputs: [markers]}
+  prior:
+    task: simulated_prior
+    inputs: [markers]
+    params: {rotation_deg: 0.0, yaw_deg: 0.0, lost: 0.0, phenotype_noise: 0.0, drift_m: 0.0}
+  yaw0:
+    task: solve_hypothesis
+    inputs: [markers, segments, prior]
+    params: {matching: {frames: 6, iterations: 8}, pose_fit: {rounds: 2, iterations: 8}, ik: {iterations: 20}}
+  single: {task: single_hypothesis, inputs: {markers: markers, yaw0: yaw0}, params: {ik: {iterations: 20}}}
+"""
+
+
+def test_the_cli_exports_a_uuo_solve_as_c3d_bvh_and_a_report(tmp_path):
+    (tmp_path / "catalog.yaml").write_text(CATALOG)
+    out = tmp_path / "out"
+    for fmt in ("c3d", "bvh", "report"):
+        proc = mocapflow("export", "--format", fmt, "--out", str(out), "--workers", "1", "--threads", cwd=tmp_path)
+        assert "wrote" in proc.stdout
+    c3d = ezc3d.c3d(str(out / "reach.c3d"))
+    labels = [str(n) for n in c3d["parameters"]["POINT"]["LABELS"]["value"]]
+    stored = {pid: arrays for (pid, _), arrays in read_artifacts(tmp_path / "storage").items()}["single/reach"]
+    assert labels == [f"{p}_v{v:05d}" if v >= 0 else f"m{i:03d}"
+                      for i, (p, v) in enumerate(zip(stored["part"], stored["vertex"]))]
+    assert sum("_v" in label for label in labels) >= 5  # the solve labelled markers (10 frames, light settings)
+    assert len(parse_bvh((out / "reach.bvh").read_text()).names) > 100
+    assert "MPJPE against the studio" in (out / "reach" / "report.html").read_text()  # scored against its truth
+    proc = mocapflow("export", "--format", "trc", "--out", str(out), "--stage", "single", cwd=tmp_path, check=False)
+    assert proc.returncode != 0 and "trc exports smoothed_markers or markers3d" in proc.stderr
