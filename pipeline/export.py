@@ -284,7 +284,8 @@ def export_files(catalog, sequences: str | None, fmt: str, stage: str | None, ou
     if up is not None and fmt != "trc":
         raise InputError(f"--up {up} applies to TRC only ({fmt} has a fixed up axis: C3D Z, BVH Y); drop --up")
     if fmt == "ply" or (stage in catalog.stages and catalog.stages[stage].spec.output in SUIT_SCHEMAS["c3d"]) or \
-            (stage is None and fmt == "c3d" and not any(stage_writing(catalog, s) for s in SCHEMAS["c3d"])):
+            (stage is None and fmt == "c3d" and not any(stage_writing(catalog, s) for s in SCHEMAS["c3d"])
+             and any(stage_writing(catalog, s) for s in SUIT_SCHEMAS["c3d"])):
         return export_suit_files(catalog, sequences, fmt, stage, out_dir, workers, processes)
     writer = (lambda data, path: write_trc(data, path, up or "y")) if fmt == "trc" else WRITERS.get(fmt)
 
