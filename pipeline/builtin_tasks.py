@@ -285,7 +285,7 @@ register(TaskSpec(
     description="one root-yaw hypothesis, refined (the paper's '- MHT' ablation, Table 3)",
 ))
 register(TaskSpec(
-    name="file_prior", fn=prior.file_prior, version="1", params=prior.FilePriorConfig,
+    name="file_prior", fn=prior.file_prior, version="2", params=prior.FilePriorConfig,
     output="body_prior", partition="sequence", inputs={"markers": "raw_markers"},
     reads={"markers": ("position", "prior_joints")}, whole_sequence=True,
     description="a monocular estimate brought as template joints per frame (the take's prior file), Anny fitted "

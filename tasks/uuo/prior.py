@@ -16,7 +16,7 @@ single yaw offset). Implementations of the stage ``prior``:
 - ``file_prior``: a monocular estimate a user brings (any method), as the 20 template joints per frame
   (tasks/shared/body.py JOINT_NAMES, metres, Z up; NaN rows for lost frames), read by pipeline/prior_files.py.
   Anny's rig is fitted to them (``fit_joints``): the SMPL-like bones of PRIOR_BONES turn, the others follow
-  their parents, the phenotype's size follows the joints' lengths;
+  their parents; the phenotype's height is set from the joints' limb lengths;
 - ``reference_prior``: ``simulated_prior``'s degradation applied to a solved body (a recorded take's labelled
   reference) instead of the studio's truth.
 """
@@ -199,14 +199,13 @@ def prior_dataset(frames: np.ndarray, body: MeshBody, rotations: np.ndarray, roo
 
 @dataclass(frozen=True)
 class FilePriorConfig:
-    phenotype: Phenotype = Phenotype()  # the starting shape; its height is set from the joints' lengths
+    phenotype: Phenotype = Phenotype()  # the body's shape; its height is set from the joints' limb lengths
     iterations: int = 150  # L-BFGS iterations of the joint fit
     pose_weight: float = 1e-3  # E_Theta (Eq. 5) toward the rest pose: fixes the twists joints cannot tell
     follow_weight: float = 1.0  # on the rotation of bones outside PRIOR_BONES: they follow their parents
-    shape_weight: float = 1e-3  # E_beta (Eq. 2) toward the starting phenotype
 
     def __post_init__(self):
-        if self.iterations < 1 or min(self.pose_weight, self.follow_weight, self.shape_weight) < 0:
+        if self.iterations < 1 or min(self.pose_weight, self.follow_weight) < 0:
             raise PriorError(f"file prior settings out of range: iterations >= 1, weights >= 0 (got {self})")
 
 
@@ -259,15 +258,18 @@ def fit_joints(joints: np.ndarray, config: FilePriorConfig):
     seen_names = np.array(body.bone_names)[solver.seen_bones]
     follow = torch.from_numpy(np.array([name not in PRIOR_BONES for name in seen_names]))
 
+    with torch.no_grad():  # the shape stays the sized one: the rest skeleton once, only the pose is fitted
+        _, rest_heads = solver.rest(torch.from_numpy(start.phenotype))
+
     def energy():
-        local_now, _, heads, _, _ = fit.pose()
+        local_now = fit.local()
+        heads = solver.kinematics(local_now, fit.root, rest_heads)[1]
         d2 = ((heads[:, bones] - target) ** 2).sum(-1)  # (frame, joint)
         e_joints = (d2 * weight).sum() / (weight.sum() * len(JOINT_NAMES)).clamp_min(1.0)
         return (e_joints + config.pose_weight * fit.pose_prior(local_now)
-                + config.follow_weight * (fit.delta[:, follow] ** 2).sum(-1).mean() + config.shape_weight
-                * fit.shape_prior())
+                + config.follow_weight * (fit.delta[:, follow] ** 2).sum(-1).mean())
 
-    minimize(fit.parameters(), energy, config.iterations)
+    minimize(fit.parameters(shape=False), energy, config.iterations)
     return body, solver, fit.result()
 
 
