@@ -22,8 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import xarray as xr
 
-from mocapflow.tasks.deepmocap.refine2d import posed_reflectors
-from mocapflow.tasks.deepmocap.skeleton import patch_normals
+from mocapflow.tasks.deepmocap.refine2d import reflectors_on_poses
 from mocapflow.tasks.shared.cameras import camera_of
 
 KEPT, OUTSIDE_VOLUME, OFF_BODY = 0, 1, 2
@@ -89,13 +88,7 @@ def check_markers(markers: xr.Dataset, poses: xr.Dataset, skeleton: xr.Dataset, 
                   config: PlausibilityConfig) -> xr.Dataset:
     """`check_plausibility` stage: the smoothed markers with every implausible one removed (see the module)."""
     names = [str(n) for n in markers["reflector"].values]
-    skel = skeleton.sel(reflector=names)
-    pose = poses.sel(frame=markers["frame"].values)
-    expected, _ = posed_reflectors(
-        pose["rotation"].transpose("frame", "joint", "quat").values.astype(np.float64),
-        pose["position"].transpose("frame", "joint", "xyz").values.astype(np.float64),
-        skel["parent"].values.astype(int), skel["bone"].values.astype(int),
-        skel["reflector_offset"].values.astype(np.float64), patch_normals(names))  # (frame, R, 3)
+    expected, _ = reflectors_on_poses(poses, skeleton, names, markers["frame"].values)  # (frame, R, 3)
     cameras = [camera_of(frames, view) for view in frames["view"].values]
     frusta = [(c.world_to_cam, c.K, (c.width, c.height)) for c in cameras]
     position = markers["position"].transpose("frame", "reflector", "xyz").values.astype(np.float64)

@@ -78,6 +78,19 @@ def exchangeable_pairs(names: list[str], keep_m: float) -> list[tuple[int, int]]
     return pairs
 
 
+def reflectors_on_poses(poses: xr.Dataset, skeleton: xr.Dataset, names: list[str], frames) -> tuple[np.ndarray,
+                                                                                                     np.ndarray]:
+    """Where the solved poses of ``frames`` put the reflectors ``names`` on the calibrated skeleton, and their
+    normals.  -> (frame, reflector, 3) x2"""
+    skel = skeleton.sel(reflector=names)
+    pose = poses.sel(frame=frames)
+    return posed_reflectors(
+        pose["rotation"].transpose("frame", "joint", "quat").values.astype(np.float64),
+        pose["position"].transpose("frame", "joint", "xyz").values.astype(np.float64),
+        skel["parent"].values.astype(int), skel["bone"].values.astype(int),
+        skel["reflector_offset"].values.astype(np.float64), patch_normals(names))
+
+
 def posed_reflectors(rotation: np.ndarray, position: np.ndarray, parents: np.ndarray, bones: np.ndarray,
                      offsets: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """World positions and normals of the template's reflectors in the solved poses; NaN in unsolved frames.
@@ -174,13 +187,7 @@ def refine_reflectors(reflectors: xr.Dataset, poses: xr.Dataset, skeleton: xr.Da
     dims = ("view", "frame", "reflector")
     reflectors = reflectors.transpose(*dims, ...)
     names = [str(n) for n in reflectors["reflector"].values]
-    skel = skeleton.sel(reflector=names)
-    pose = poses.sel(frame=reflectors["frame"].values)
-    xyz, normal = posed_reflectors(
-        pose["rotation"].transpose("frame", "joint", "quat").values.astype(np.float64),
-        pose["position"].transpose("frame", "joint", "xyz").values.astype(np.float64),
-        skel["parent"].values.astype(int), skel["bone"].values.astype(int),
-        skel["reflector_offset"].values.astype(np.float64), patch_normals(names))  # (frame, R, 3) x2
+    xyz, normal = reflectors_on_poses(poses, skeleton, names, reflectors["frame"].values)  # (frame, R, 3) x2
     radius = np.array([nominal_radius(n) if KINDS[n] == "strap" else 0.0 for n in names])  # a strap: limb centre
     pairs = exchangeable_pairs(names, config.exchange_keep_m)
     est = {k: reflectors[k].values.copy() for k in ("x", "y", "confidence", "region_size")}  # (view, frame, R)
