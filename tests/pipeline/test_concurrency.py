@@ -12,15 +12,21 @@ from conftest import assert_same_artifacts, env_with_plugins, last_json, mocapfl
 
 
 def test_two_runs_on_one_root_refuse_each_others_partitions_naming_the_holder(toy_project, tmp_path_factory):
-    project = toy_project(sleep=0.8, frames=24, sequences=("seqA",))  # a wide window for the second run to start in
+    project = toy_project(frames=24, sequences=("seqA",))
+    hold = project / "hold"  # the first run's scale tasks wait while this file exists
+    hold.write_text("")
+    env = {**env_with_plugins(), "TOY_HOLD_WHILE": str(hold)}
     first = subprocess.Popen([sys.executable, "-m", "mocapflow.pipeline.cli", "run", "--json", "--keep-going"],
-                             cwd=project, env=env_with_plugins(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.time() + 60
+                             cwd=project, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
     while not list((project / "storage").glob("scaled/*/.lock")) and time.time() < deadline:
         time.sleep(0.05)
-    second = subprocess.run([sys.executable, "-m", "mocapflow.pipeline.cli", "run", "--json", "--keep-going"],
-                            cwd=project, env=env_with_plugins(), capture_output=True, text=True)
-    out, _ = first.communicate(timeout=120)
+    try:
+        second = subprocess.run([sys.executable, "-m", "mocapflow.pipeline.cli", "run", "--json", "--keep-going"],
+                                cwd=project, env=env_with_plugins(), capture_output=True, text=True, timeout=300)
+    finally:
+        hold.unlink()
+    out, _ = first.communicate(timeout=300)
     summaries = {first.pid: json.loads(out.strip().splitlines()[-1]), second: last_json(second)}
     refused = {pid: s["errors"] for pid, s in summaries.items() if s["errors"]}
     assert refused, "the runs overlapped, so at least one partition must have been refused"

@@ -1,6 +1,7 @@
 """Small test-only tasks that exercise the engine (registered when a catalog lists this plugin).
 
-- ``scale``: per-view, depth * factor (+ an optional per-region sleep to kill runs part-way)
+- ``scale``: per-view, depth * factor (+ an optional per-region sleep to kill runs part-way, and a hold:
+  while the file named in $TOY_HOLD_WHILE exists the task waits, so a test decides when a run ends)
 - ``diff``: per-view, depth[f] - depth[f-1] (halo of one frame before)
 - ``total``: per-sequence, sum over views
 - ``boom``: per-view, raises for one chosen view (tests --keep-going)
@@ -39,6 +40,9 @@ class ScaleParams:
 
 def scale(frames: xr.Dataset, config: ScaleParams) -> xr.Dataset:
     time.sleep(config.sleep)
+    hold = os.environ.get("TOY_HOLD_WHILE")  # not part of the cache key: concurrency tests
+    while hold and os.path.exists(hold):
+        time.sleep(0.05)
     value = frames["depth"].astype(np.float32) * np.float32(config.factor)
     return xr.Dataset({"value": value})
 
