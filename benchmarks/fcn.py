@@ -26,7 +26,7 @@ from mocapflow.pipeline.plan import build_plan  # noqa: E402
 from mocapflow.pipeline.storage import Store  # noqa: E402
 from mocapflow.schemas import get_schema  # noqa: E402
 from mocapflow.tasks.deepmocap.flow import DisConfig, dis  # noqa: E402
-from mocapflow.tasks.deepmocap.heatmaps import fcn_heatmaps  # noqa: E402
+from mocapflow.tasks.deepmocap.heatmaps import HeatmapConfig, fcn_heatmaps  # noqa: E402
 from mocapflow.tasks.deepmocap.masks import MaskConfig, masks  # noqa: E402
 from mocapflow.tasks.deepmocap.reflectors2d import GreedyConfig, greedy_reflectors  # noqa: E402
 from mocapflow.tasks.studio.synth import SequenceSpec, build_rig, synthesize  # noqa: E402
@@ -49,7 +49,7 @@ def time_per_view_frame(weights_file: Path, frames: int = 16) -> dict[str, float
             one_m, one_f = m.sel(view=[view]).isel(frame=[i]), f.sel(view=[view]).isel(frame=[i])
             for precision, times in heat_ms.items():
                 t = time.perf_counter()
-                h = fcn_heatmaps(one_m, one_f, weights=weights, batch=1, precision=precision)
+                h = fcn_heatmaps(one_m, one_f, HeatmapConfig(batch=1, precision=precision), weights)
                 times.append(1000 * (time.perf_counter() - t))
             t = time.perf_counter()
             greedy_reflectors(h, one_m, GreedyConfig())

@@ -67,7 +67,7 @@ TRAIN_STAGES = """  samples: {task: fcn_samples, inputs: {masks: masks, flow: fl
     params: {iterations: 6000, batch: 16, seed: 0}
 """
 
-VALIDATION_STAGES = """  heatmaps: {task: fcn_heatmaps, inputs: {masks: masks, flow: flow}, params: {precision: bfloat16}}
+VALIDATION_STAGES = """  heatmaps: {task: fcn_heatmaps, inputs: {masks: masks, flow: flow}, params: {precision: auto}}
   reflectors2d: {task: greedy_reflectors, inputs: {heatmaps: heatmaps, masks: masks}, params: {c_min: 0.0}}
   markers3d: {task: fuse_views, inputs: {reflectors: reflectors2d, masks: masks, frames: frames}}
   smoothed: {task: kalman, inputs: {markers: markers3d}}

@@ -114,4 +114,24 @@ def test_bfloat16_without_native_support_is_named_in_a_warning(monkeypatch, capl
         for _ in range(3):
             heatmaps.infer(model, crops, crops, 1, "bfloat16")
     assert len(caplog.records) == 1  # once per process, not once per region
-    assert "precision: float32" in caplog.text and "AVX512-BF16" in caplog.text
+    assert "precision: auto" in caplog.text and "AVX512-BF16" in caplog.text
+
+
+def test_auto_precision_is_bfloat16_only_with_amx(monkeypatch):
+    from mocapflow.tasks.deepmocap import heatmaps
+
+    monkeypatch.setattr(heatmaps, "amx_tiles", lambda: True)
+    assert heatmaps.resolve_precision("auto") == "bfloat16"
+    monkeypatch.setattr(heatmaps, "amx_tiles", lambda: False)
+    assert heatmaps.resolve_precision("auto") == "float32"
+    assert heatmaps.resolve_precision("bfloat16") == "bfloat16"  # asked for: kept, whatever the CPU
+    assert heatmaps.HeatmapConfig().precision == "auto"
+
+
+def test_half_rounds_like_numpy_below_the_normal_range():
+    from mocapflow.tasks.deepmocap.heatmaps import half
+
+    x = np.concatenate([np.geomspace(1e-9, 1.0, 5000), -np.geomspace(1e-9, 1.0, 5000), [0.0, 65504.0]])
+    x = x.astype(np.float32)
+    np.testing.assert_array_equal(half(x), x.astype(np.float16))  # subnormals included
+    assert half(x).dtype == np.float16
