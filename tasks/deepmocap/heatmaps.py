@@ -22,7 +22,7 @@ from mocapflow.tasks.deepmocap.training import CropConfig, sample_inputs
 log = logging.getLogger(__name__)
 
 PRECISIONS = ("auto", "float32", "bfloat16")
-_MODELS: BoundedCache[int, tuple] = BoundedCache(4)  # id(weights) -> (weights, model), see inference_model
+_MODELS: BoundedCache[tuple, tuple] = BoundedCache(4)  # (id(weights), stages) -> (weights, model), see inference_model
 
 
 @dataclass(frozen=True)
@@ -32,12 +32,15 @@ class HeatmapConfig:
     # "bfloat16": the network's convolutions in bfloat16 (torch autocast); "auto": bfloat16 where the CPU has AMX
     # tiles, float32 elsewhere (see resolve_precision). The maps differ by rounding only (same 2D mAP).
     precision: str = "auto"
+    stages: int = 0  # refinement stages run (the last one's maps kept): 0 all; fewer is faster, every stage was trained
 
     def __post_init__(self):
         if self.precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {self.precision!r}")
         if self.batch < 1:
             raise ValueError(f"batch must be >= 1 crops, got {self.batch}")
+        if self.stages < 0:
+            raise ValueError(f"stages must be >= 0 (0: all of the network's), got {self.stages}")
 
 
 def crop_to_image(m: np.ndarray, sample_scale: float) -> np.ndarray:
@@ -120,22 +123,29 @@ def infer(model, depth_images: np.ndarray, flow_images: np.ndarray, batch: int,
     return np.concatenate(s_out), np.concatenate(l_out)
 
 
-def inference_model(weights: dict):
-    """The network of ``weights`` prepared for inference (``fcn.for_inference``), built once per process and
-    weights: a worker's regions share it (the weights dicts themselves are cached per process, pipeline/models.py)."""
+def inference_model(weights: dict, stages: int = 0):
+    """The network of ``weights`` prepared for inference (``fcn.for_inference``), its first ``stages`` refinement
+    stages only if > 0, built once per process, weights and stages: a worker's regions share it (the weights dicts
+    themselves are cached per process, pipeline/models.py)."""
     from mocapflow.tasks.deepmocap.fcn import for_inference, unpack
 
-    kept = _MODELS.get(id(weights))
+    kept = _MODELS.get((id(weights), stages))
     if kept is None or kept[0] is not weights:
-        kept = (weights, for_inference(unpack(weights)))  # holding the dict keeps its id from being reused
-        _MODELS.put(id(weights), kept)
+        model = for_inference(unpack(weights))
+        if stages > len(model.stages):
+            raise ValueError(f"heatmaps: stages {stages} asked of a network with {len(model.stages)}; use 1 to "
+                             f"{len(model.stages)}, or 0 for all")
+        if stages:
+            model.stages = model.stages[:stages]
+        kept = (weights, model)  # holding the dict keeps its id from being reused
+        _MODELS.put((id(weights), stages), kept)
     return kept[1]
 
 
 def fcn_heatmaps(masks: xr.Dataset, flow: xr.Dataset, config: HeatmapConfig, weights: dict) -> xr.Dataset:
     """Confidence maps, OFFs and crop affines for every view and frame of ``masks``/``flow``; ``weights``: the
     tensors of the file ``config.weights`` names (the engine loads them)."""
-    model = inference_model(weights)
+    model = inference_model(weights, config.stages)
     crop = CropConfig(**weights.get("crop", {}))
     size = model.arch.input_size
     depth_crops, flow_crops, affines = [], [], []  # every view-frame of the region, views outer

@@ -24,19 +24,29 @@ def reflector_mask(ir: np.ndarray, *, threshold: int, open_px: int, close_px: in
     ir (y, x) uint16 -> mask (y, x) bool, labels (y, x) uint16 (0 = none, 1..K), areas (max_components,) int32
     Components are numbered by decreasing area; beyond ``max_components`` the smallest are dropped.
     """
-    mask = (ir >= threshold).astype(np.uint8)
+    bright = ir >= threshold
+    areas = np.zeros(max_components, np.int32)
+    labels = np.zeros(ir.shape, np.uint16)
+    rows, cols = np.flatnonzero(bright.any(axis=1)), np.flatnonzero(bright.any(axis=0))
+    if rows.size == 0:
+        return labels > 0, labels, areas
+    # Only the box around the bright pixels: the morphology reaches at most open + close pixels beyond them, so
+    # with this margin every pixel of the box sees what it would in the whole image (the box's own border, where
+    # OpenCV assumes other values than the image's zeros, stays out of every result).
+    grow = 2 * (open_px + close_px) + 2
+    box = (slice(max(0, rows[0] - grow), rows[-1] + grow + 1), slice(max(0, cols[0] - grow), cols[-1] + grow + 1))
+    mask = bright[box].astype(np.uint8)
     if open_px > 0:
         mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, _disk(open_px))
     if close_px > 0:
         mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, _disk(close_px))
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    count, inside, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)  # raster order, as whole
     area = stats[1:, cv2.CC_STAT_AREA]  # (count - 1,)
     keep = np.flatnonzero(area >= min_area)
     keep = keep[np.argsort(-area[keep], kind="stable")][:max_components]
     relabel = np.zeros(count, np.uint16)
     relabel[keep + 1] = np.arange(1, len(keep) + 1)
-    labels = relabel[labels]
-    areas = np.zeros(max_components, np.int32)
+    labels[box] = relabel[inside]
     areas[:len(keep)] = area[keep]
     return labels > 0, labels, areas
 

@@ -69,3 +69,38 @@ def test_stage_output_matches_its_schema():
     out = masks(frames, MaskConfig())
     get_schema("reflector_masks").validate(out)
     assert out.blob_area.values[1, 2, 0] == 16 and (out.colorized_depth.values[0, 0, 5, 5] == 0).all()
+
+
+def _whole_image_mask(ir, *, threshold, open_px, close_px, min_area, max_components):
+    """The whole-image form of reflector_mask (morphology and components over every pixel)."""
+    mask = (ir >= threshold).astype(np.uint8)
+    disk = lambda r: cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))  # noqa: E731
+    if open_px:
+        mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, disk(open_px))
+    if close_px:
+        mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, disk(close_px))
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    area = stats[1:, cv2.CC_STAT_AREA]
+    keep = np.flatnonzero(area >= min_area)
+    keep = keep[np.argsort(-area[keep], kind="stable")][:max_components]
+    relabel = np.zeros(count, np.uint16)
+    relabel[keep + 1] = np.arange(1, len(keep) + 1)
+    areas = np.zeros(max_components, np.int32)
+    areas[:len(keep)] = area[keep]
+    return relabel[labels] > 0, relabel[labels], areas
+
+
+def test_the_box_around_bright_pixels_gives_the_whole_images_masks_labels_and_areas():
+    rng = np.random.default_rng(4)
+    for trial in range(60):
+        ir = rng.integers(0, 29000, (48, 64)).astype(np.uint16)
+        for _ in range(rng.integers(0, 7)):  # blobs anywhere, borders and corners included
+            y, x = rng.integers(0, 48), rng.integers(0, 64)
+            h, w = rng.integers(1, 5, 2)
+            ir[y:y + h, x:x + w] = 65000
+        ir[rng.random(ir.shape) < 0.01] = 65000  # specks
+        kw = dict(threshold=30000, open_px=int(trial % 2), close_px=int(trial % 3), min_area=2, max_components=8)
+        for got, want in zip(reflector_mask(ir, **kw), _whole_image_mask(ir, **kw)):
+            np.testing.assert_array_equal(got, want)
+    empty = reflector_mask(np.zeros((8, 8), np.uint16), **KW)
+    assert not empty[0].any() and not empty[1].any() and not empty[2].any() and empty[1].dtype == np.uint16
