@@ -93,7 +93,7 @@ def test_subject_box_grows_the_bright_pixels_box_and_stays_inside_the_image():
 def test_flow_around_the_subject_only_matches_the_whole_image_there_and_is_empty_elsewhere():
     step = np.array([0.01, 0.0, 0.0])
     ds = plane_sequence([step], hole=(0.0, 0.0))  # the hole is a reflector: saturated IR
-    whole, around = dis(ds, DisConfig()), dis(ds, DisConfig(roi_ir=30000.0, roi_margin_px=24))
+    whole, around = dis(ds, DisConfig(roi_ir=0.0)), dis(ds, DisConfig(roi_ir=30000.0, roi_margin_px=24))
     get_schema("scene_flow").validate(around)
     rows, cols = subject_box(ds.ir.values[0, 1], ds.ir.values[0, 0], threshold=30000, margin_px=24)
     inside = np.zeros(ds.ir.shape[2:], bool)
@@ -108,6 +108,7 @@ def test_flow_around_the_subject_only_matches_the_whole_image_there_and_is_empty
     np.testing.assert_allclose(np.median(flow[ring], axis=0), np.median(whole.flow.values[0, 1][ring], axis=0), atol=5e-4)
     with pytest.raises(ValueError, match="roi_ir"):
         DisConfig(roi_ir=-1.0)
+    assert DisConfig().roi_ir == 30000.0  # around the subject unless a catalog asks for the whole image
 
 
 def test_ir_to_8bit_table_is_the_formula_for_every_16bit_count():
