@@ -2,7 +2,8 @@
 
 Figures: labelled 2D reflector estimates over each view's IR image (ground truth as white rings),
 the solved skeleton against the true one on a few frames (front and side views), the 3D PCK curve
-over 0-20 cm and the per-joint mean error (Table 8 joints).
+over 0-20 cm and the per-joint mean error (Table 8 joints); per sequence with ground-truth reflectors, the
+worst markers against the truth over time.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import xarray as xr
 
 from mocapflow.pipeline.errors import PlanError, StorageError
 from mocapflow.pipeline.report_viewer import VIEWER
+from mocapflow.tasks.deepmocap.evaluation import GROSS_MM, marker_errors, marker_tails, worst_markers
 from mocapflow.tasks.shared.body import JOINT_NAMES, PARENTS
 
 WHITE, GREY, BLACK = (255, 255, 255), (150, 150, 150), (0, 0, 0)
@@ -83,27 +85,40 @@ def skeleton_panel(est: np.ndarray, gt: np.ndarray, title: str, size: int = 260)
 
 
 def line_plot(x: np.ndarray, ys: dict[str, np.ndarray], *, title: str, xlabel: str, ylabel: str,
-              y_max: float = 1.0, size=(640, 420)) -> np.ndarray:
-    """A minimal line chart (white background, axes, ticks, legend)."""
+              y_max: float = 1.0, size=(640, 420), y_min: float = 0.0, log: bool = False,
+              marks: dict[str, float] | None = None) -> np.ndarray:
+    """A minimal line chart (white background, axes, ticks, legend); a NaN breaks its line. ``log``: a
+    logarithmic y axis from ``y_min`` (> 0) with a tick per decade, values clipped to the axes; ``marks``:
+    labelled horizontal reference lines."""
     w, h = size
     img = np.full((h, w, 3), 255, np.uint8)
     left, right, top, bottom = 60, w - 180, 40, h - 50  # the legend sits right of the axes, off the curves
+    lo, hi = (np.log10(y_min), np.log10(y_max)) if log else (y_min, y_max)
 
     def to_px(a, b):
+        v = np.log10(np.clip(b, y_min, y_max)) if log else b
         return (int(left + (a - x.min()) / (x.max() - x.min()) * (right - left)),
-                int(bottom - b / y_max * (bottom - top)))
+                int(bottom - (v - lo) / (hi - lo) * (bottom - top)))
 
     cv2.rectangle(img, (left, top), (right, bottom), BLACK, 1)
-    for k in range(6):
-        yv = y_max * k / 5
+    ticks = 10.0 ** np.arange(np.ceil(lo), np.floor(hi) + 1) if log else y_min + (y_max - y_min) * np.arange(6) / 5
+    for yv in ticks:
         cv2.putText(img, f"{yv:g}", (12, to_px(x.min(), yv)[1] + 4), FONT, 0.4, BLACK, 1, cv2.LINE_AA)
         cv2.line(img, (left, to_px(x.min(), yv)[1]), (right, to_px(x.min(), yv)[1]), (225, 225, 225), 1)
+    for label, yv in (marks or {}).items():
+        py = to_px(x.min(), yv)[1]
+        for a in range(left, right, 12):  # dashed
+            cv2.line(img, (a, py), (min(a + 6, right), py), GREY, 1)
+        cv2.putText(img, label, (right - 8 - 8 * len(label), py - 5), FONT, 0.4, GREY, 1, cv2.LINE_AA)
     for xv in np.linspace(x.min(), x.max(), 5):
-        cv2.putText(img, f"{xv:g}", (to_px(xv, 0)[0] - 8, bottom + 18), FONT, 0.4, BLACK, 1, cv2.LINE_AA)
+        cv2.putText(img, f"{xv:.3g}", (to_px(xv, y_max)[0] - 8, bottom + 18), FONT, 0.4, BLACK, 1, cv2.LINE_AA)
     for k, (label, y) in enumerate(ys.items()):
         colour = PALETTE[k % len(PALETTE)]
-        pts = np.array([to_px(a, b) for a, b in zip(x, y)], np.int32)
-        cv2.polylines(img, [pts], False, colour, 2, cv2.LINE_AA)
+        ok = np.flatnonzero(np.isfinite(y))
+        for run in np.split(ok, np.flatnonzero(np.diff(ok) > 1) + 1):
+            if run.size:  # a single point drawn as a dot
+                pts = np.array([to_px(x[i], y[i]) for i in run], np.int32)
+                cv2.polylines(img, [pts], False, colour, 2, cv2.LINE_AA)
         cv2.line(img, (right + 12, top + 10 + 18 * k), (right + 32, top + 10 + 18 * k), colour, 2, cv2.LINE_AA)
         cv2.putText(img, label[:20], (right + 38, top + 14 + 18 * k), FONT, 0.42, BLACK, 1, cv2.LINE_AA)
     cv2.putText(img, title, (left, 16), FONT, 0.55, BLACK, 1, cv2.LINE_AA)
@@ -207,6 +222,7 @@ class Take:
     joint_names: list[str] = field(default_factory=list)
     parents: list[int] = field(default_factory=list)
     gt_joints: np.ndarray | None = None  # (frame, joint, 3) m
+    gt_markers: np.ndarray | None = None  # (frame, marker, 3) m, the true position of each of ``names``
 
 
 def gaps(present: np.ndarray) -> list[tuple[int, int]]:
@@ -271,6 +287,36 @@ def trajectories_plot(take: Take, size=(980, 600)) -> np.ndarray:
         cv2.line(img, (legend_x, y - 4), (legend_x + 18, y - 4), PALETTE[m % len(PALETTE)], 2, cv2.LINE_AA)
         cv2.putText(img, name[:22], (legend_x + 24, y), FONT, min(0.4, row / 40), BLACK, 1, cv2.LINE_AA)
     return img
+
+
+WORST_K = 5  # markers shown in the worst-markers table and plot
+
+
+def worst_rows(take: Take, k: int = WORST_K) -> tuple[np.ndarray, list[dict]]:
+    """The ``k`` markers farthest from the ground truth (by p95, ties by the largest error): their error over
+    time (frame, k) mm and per marker the largest error and its frame, p95 and the frames more than 10 cm off
+    (count and share of the frames with a value)."""
+    errors = marker_errors(take.position, take.gt_markers)  # (frame, marker) mm, NaN where untracked
+    tails, worst = marker_tails(errors), worst_markers(errors, k)
+    rows = [{"marker": take.names[m], "max (mm)": round(float(tails["max_mm"][m]), 1),
+             "at frame": int(tails["max_frame"][m]) if tails["max_frame"][m] >= 0 else float("nan"),
+             "at (s)": round(float(tails["max_frame"][m]) / take.fps, 3) if tails["max_frame"][m] >= 0 else float("nan"),
+             "p95 (mm)": round(float(tails["p95_mm"][m]), 1),
+             f"> {GROSS_MM / 10:g} cm (frames)": int(tails["gross_frames"][m]),
+             f"> {GROSS_MM / 10:g} cm (%)": round(100.0 * float(tails["gross_share"][m]), 1)} for m in worst]
+    return errors[:, worst], rows
+
+
+def worst_markers_plot(take: Take, errors: np.ndarray, names: list[str], size=(980, 420)) -> np.ndarray:
+    """The worst markers' error against the ground truth over time (s), log scale, the 10 cm line dashed.
+    (frame, k) mm"""
+    t = np.arange(errors.shape[0]) / take.fps
+    top = float(np.nanmax(errors)) if np.isfinite(errors).any() else GROSS_MM
+    y_max = 10.0 ** np.ceil(np.log10(max(top, 2 * GROSS_MM)))  # a decade above the worst, the 10 cm line inside
+    return line_plot(t if t.size > 1 else np.array([0.0, 1.0]), dict(zip(names, errors.T)),
+                     title=f"{take.id}: the {len(names)} worst markers against ground truth ({take.stage})",
+                     xlabel="time (s)", ylabel="error (mm)", y_min=1.0, y_max=y_max, log=True,
+                     marks={f"{GROSS_MM / 10:g} cm": GROSS_MM}, size=size)
 
 
 def viewer_data(takes: list[Take]) -> dict:
@@ -352,7 +398,8 @@ def write_report(folder: Path, takes: list[Take], *, title: str, summary: dict, 
         sections.append(f"<h3 id='seq-{html.escape(take.id)}'>{heading}</h3><p>{take.position.shape[0]} frames at "
                         f"{take.fps:g} fps, {len(take.names)} markers from stage <code>{html.escape(take.stage)}</code>"
                         f"</p>{html_table(marker_rows(take))}<figure><img src='{html.escape(png.name)}'>"
-                        f"<figcaption>trajectories of {heading}; a gap breaks its line</figcaption></figure>")
+                        f"<figcaption>trajectories of {heading}; a gap breaks its line</figcaption></figure>"
+                        + (_worst_section(folder, take, heading) if take.gt_markers is not None else ""))
     rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(_fmt(v))}</td></tr>" for k, v in summary.items())
     imgs = "".join(f'<figure><img src="{html.escape(_link(i, folder))}">'
                    f"<figcaption>{html.escape(i.stem.replace('_', ' '))}</figcaption></figure>" for i in images)
@@ -376,10 +423,21 @@ def write_report(folder: Path, takes: list[Take], *, title: str, summary: dict, 
     return page
 
 
+def _worst_section(folder: Path, take: Take, heading: str) -> str:
+    """The worst markers against the ground truth: their table and ``worst_markers_{id}.png``."""
+    errors, rows = worst_rows(take)
+    png = folder / f"worst_markers_{take.id}.png"
+    write_png(png, worst_markers_plot(take, errors, [r["marker"] for r in rows]))
+    return (f"<h4>Worst markers against ground truth</h4><p>The {len(rows)} markers with the largest 95th-percentile "
+            f"error (ties: the largest error); frames more than {GROSS_MM / 10:g} cm off, in % of the frames the "
+            f"marker is tracked.</p>{html_table(rows)}<figure><img src='{html.escape(png.name)}'><figcaption>error of "
+            f"the worst markers of {heading} over time (log scale); a gap breaks its line</figcaption></figure>")
+
+
 def gather(catalog, plan, store) -> list[Take]:
     """Every sequence of ``plan`` as the report shows it, from the stored artifacts: the markers of the last
     stage writing one of ``MARKER_SCHEMAS``, the views and residuals of a markers3d stage, the solved poses and the
-    recording's ground-truth joints where there are."""
+    recording's ground-truth joints and reflectors (matched to the markers by name) where there are."""
     from mocapflow.pipeline.evaluate import final_stage, stage_writing
 
     stage = next((s for s in map(lambda schema: final_stage(catalog, schema), MARKER_SCHEMAS) if s), None)
@@ -409,6 +467,8 @@ def gather(catalog, plan, store) -> list[Take]:
             take.parents = [int(i) for i in PARENTS] if take.joint_names == list(JOINT_NAMES) else []
         if raw is not None and "gt_joints" in raw and take.joints is not None:
             take.gt_joints = raw["gt_joints"].values
+        if raw is not None and "gt_reflectors" in raw and set(take.names) <= set(raw["reflector"].values.tolist()):
+            take.gt_markers = raw["gt_reflectors"].sel(reflector=take.names).values.astype(np.float64)
         takes.append(take)
     return takes
 
@@ -440,7 +500,8 @@ def build_report(catalog, plan, store, folder: Path, *, title: str, summary: dic
     named = {"sequences": len(takes), "frames": sum(t.position.shape[0] for t in takes),
              **named_figures(figures_), **(summary or {})}
     page = write_report(folder, takes, title=title, summary=named, accuracy=accuracy, images=images, files=files)
-    return page, images + [folder / f"trajectories_{t.id}.png" for t in takes], figures_
+    return page, images + [folder / f"{kind}_{t.id}.png" for t in takes for kind in ("trajectories", "worst_markers")
+                           if kind == "trajectories" or t.gt_markers is not None], figures_
 
 
 def _accuracy_figures(folder: Path, catalog, plan, store, result: dict) -> list[Path]:

@@ -146,6 +146,30 @@ def summarize_markers(errors: np.ndarray, names, *, jitter_value: float = float(
             "per_reflector_median_mm": per}
 
 
+def marker_tails(errors: np.ndarray, gross_mm: float = GROSS_MM) -> dict[str, np.ndarray]:
+    """Per marker over time: the largest error (mm) and its frame (-1 where never seen), p95 (mm, linear
+    interpolation as ``tail``), the frames farther than ``gross_mm`` and their share of the frames with a value.
+    (frame, marker) mm, NaN where no estimate -> each (marker,)"""
+    seen = np.isfinite(errors)
+    counted = seen.sum(axis=0)
+    filled = np.where(seen, errors, -np.inf)
+    with np.errstate(invalid="ignore"):
+        gross = (np.where(seen, errors, 0.0) > gross_mm).sum(axis=0)
+        return {"max_mm": np.where(counted > 0, filled.max(axis=0), np.nan),
+                "max_frame": np.where(counted > 0, filled.argmax(axis=0), -1),
+                "p95_mm": np.array([np.percentile(errors[seen[:, m], m], 95) if counted[m] else np.nan
+                                    for m in range(errors.shape[1])]),
+                "gross_frames": gross, "gross_share": np.where(counted > 0, gross / np.maximum(counted, 1), np.nan)}
+
+
+def worst_markers(errors: np.ndarray, k: int = 5, gross_mm: float = GROSS_MM) -> np.ndarray:
+    """Indices of the ``k`` markers worst by p95, ties by the largest error, worst first; markers never seen
+    last.  (frame, marker) mm -> (min(k, marker),) int"""
+    t = marker_tails(errors, gross_mm)
+    order = np.lexsort((-np.nan_to_num(t["max_mm"], nan=-np.inf), -np.nan_to_num(t["p95_mm"], nan=-np.inf)))
+    return order[:k]
+
+
 # Motion capture (DeepMoCap §5.3, Tables 6-8, Fig. 14): 3D joint error on the 12 joints of Table 8.
 # An unsolved joint (NaN) counts as a miss in PCK and is left out of MAE and RMSE.
 

@@ -27,7 +27,7 @@ def test_demo_runs_everything_and_is_served_from_cache_the_second_time(tmp_path)
     assert joints.shape == (40, 20, 3) and names[0] == "Hips"
     xyz, labels, rate, _ = read_c3d(out / "export" / "jumping_jack_s1.c3d")
     assert xyz.shape == (40, 26, 3) and rate == 30.0
-    for png in ("reflectors", "skeleton", "pck", "joint_errors"):
+    for png in ("reflectors", "skeleton", "pck", "joint_errors", "worst_markers_jumping_jack_s1"):
         img = cv2.imread(str(out / "report" / f"{png}.png"))
         assert img is not None and img.std() > 5, png  # drawn, not blank
     page = (out / "report" / "report.html").read_text()
@@ -37,6 +37,7 @@ def test_demo_runs_everything_and_is_served_from_cache_the_second_time(tmp_path)
     assert "MAE cm" in page and "PCK@20cm" in page  # the accuracy tables, in units and %
     assert "<h3 id='seq-jumping_jack_s1'>jumping_jack_s1 (jumping_jack)</h3>" in page  # a named sequence
     assert "median residual (mm)" in page and "views (mean)" in page
+    assert "Worst markers against ground truth" in page and "worst_markers_jumping_jack_s1.png" in page
     dom = run_browser(out / "report" / "report.html", tmp_path, "--dump-dom")  # the 3D view with its skeletons
     assert dom.returncode == 0 and 'data-frames="40"' in dom.stdout, dom.stderr[-2000:]
     assert "solved skeleton" in dom.stdout and "ground-truth skeleton" in dom.stdout
