@@ -110,8 +110,10 @@ def line_plot(x: np.ndarray, ys: dict[str, np.ndarray], *, title: str, xlabel: s
         for a in range(left, right, 12):  # dashed
             cv2.line(img, (a, py), (min(a + 6, right), py), GREY, 1)
         cv2.putText(img, label, (right - 8 - 8 * len(label), py - 5), FONT, 0.4, GREY, 1, cv2.LINE_AA)
+    digits = max(0, 2 - int(np.floor(np.log10(max(x.max() - x.min(), 1e-9)))))  # 3 significant over the span
     for xv in np.linspace(x.min(), x.max(), 5):
-        cv2.putText(img, f"{xv:.3g}", (to_px(xv, y_max)[0] - 8, bottom + 18), FONT, 0.4, BLACK, 1, cv2.LINE_AA)
+        cv2.putText(img, f"{round(float(xv), digits):g}", (to_px(xv, y_max)[0] - 8, bottom + 18), FONT, 0.4, BLACK,
+                    1, cv2.LINE_AA)
     for k, (label, y) in enumerate(ys.items()):
         colour = PALETTE[k % len(PALETTE)]
         ok = np.flatnonzero(np.isfinite(y))
