@@ -39,7 +39,7 @@ def stage_sizes(storage: Path, view_frames: int) -> dict[str, dict]:
         out[stage_dir.name] = {
             "kb": round(tree_bytes(stage_dir) / view_frames / 1024, 2),
             "variables_kb": {k: round(v / view_frames / 1024, 2)
-                             for k, v in sorted(variables.items(), key=lambda kv: -kv[1]) if v >= 0.01 * 1024 * view_frames},
+                             for k, v in sorted(variables.items(), key=lambda kv: -kv[1]) if v >= 0.1 * 1024 * view_frames},
         }
     return out
 
