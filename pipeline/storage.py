@@ -438,11 +438,11 @@ def _codec(var: xr.DataArray | xr.Variable) -> dict:
     whole run 5 % longer for 2 % less disk), chosen by dtype and layout (``python benchmarks/cache_size.py``):
 
     - integers of 2 bytes or more (the sensors' depth and IR, blob ids): Blosc's bit shuffle before zstd; the high
-      bits of neighbouring counts agree, and IR takes 23 %, depth 40 % less disk at the same write time;
+      bits of neighbouring counts agree, and IR takes 23 %, depth 40 % less disk in about the same write time;
     - float images with a channel after (y, x) (the 3D flow): the channels stored as planes (zarr's transpose
       codec), 8 % less disk for 1 ms more per view-frame to write;
     - the rest, 8-bit colour images included: zstd alone. Shuffles made heatmaps larger, and planes save the
-      colorized flow 7 % for 40 % more time to read it, on the heatmaps' path.
+      colorized flow 7 % for three times the time to read it, on the heatmaps' path.
 
     Only how chunks are encoded changes: readers see the same arrays, and stores written before stay readable
     (zarr reads every array's codecs from its metadata).
