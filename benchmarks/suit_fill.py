@@ -195,7 +195,7 @@ def main() -> None:
     import torch
 
     from mocapflow.tasks.shared import mesh_body as mb
-    from mocapflow.tasks.uuo.body_model import SolverBody
+    from mocapflow.tasks.shared.solver_body import SolverBody
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=150)

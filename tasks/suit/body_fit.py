@@ -1,7 +1,7 @@
 """The body model under the suit's corners (Chen, Park, Macit, Kavan 2021, §5): a skinned body fitted to the
 observed corners, for hole filling (tasks/suit/fill) to unpose them into the rest pose and repose the filled ones.
 
-The paper fits STAR, refined per actor; here the body is Anny through UUO's rig (tasks/uuo/body_model:
+The paper fits STAR, refined per actor; here the body is Anny through the solvers' rig (tasks/shared/solver_body:
 ``SolverBody``'s rest shape of a phenotype, forward kinematics, skinning weights; the result a ``BodyFit``), fitted
 as UUO's inverse kinematics fits markers with known vertices (tasks/uuo/ik, Milef et al. 2024 Eq. 7-8 with zero
 marker offset): every corner's place on the rest body is known, a point (face, barycentric) of ``MeshBody.faces``,
@@ -46,8 +46,7 @@ from scipy.spatial.transform import Rotation
 
 from mocapflow.tasks.shared.kinematics import rigid_fit
 from mocapflow.tasks.shared.mesh_body import PHENOTYPE_NAMES, Phenotype, anny_model, part_of_bone
-from mocapflow.tasks.uuo.body_model import SolverBody, torch_rodrigues
-from mocapflow.tasks.uuo.fitting import BodyFit
+from mocapflow.tasks.shared.solver_body import BodyFit, SolverBody, torch_rodrigues
 
 SHAPE_STEP = 1e-3  # finite-difference step of the rest shape's phenotype Jacobian
 SHAPE_REFRESH = 0.05  # the phenotype Jacobian is taken again once the phenotype moved this far

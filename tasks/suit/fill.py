@@ -39,7 +39,7 @@ from scipy.sparse.linalg import splu
 from mocapflow.tasks.shared.cache import BoundedCache
 from mocapflow.tasks.shared.mesh_body import PHENOTYPE_NAMES, Phenotype, mesh_body
 from mocapflow.tasks.suit.body_fit import BodyFitConfig, fit_body
-from mocapflow.tasks.uuo.body_model import SolverBody
+from mocapflow.tasks.shared.solver_body import SolverBody
 
 _BODIES: BoundedCache[str, SolverBody] = BoundedCache(1)  # the reference rig, once per process
 

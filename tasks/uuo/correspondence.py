@@ -12,8 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocapflow.tasks.uuo.body_model import SolverBody
-from mocapflow.tasks.uuo.fitting import BodyFit, posed_vertices
+from mocapflow.tasks.shared.solver_body import BodyFit, SolverBody, posed_vertices
 
 
 class CorrespondenceError(ValueError):

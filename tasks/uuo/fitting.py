@@ -1,30 +1,21 @@
 """What UUO's solver stages optimize (Milef et al. 2024, §3.5): a body over a whole take, relative to a reference.
 
-A ``BodyFit`` is a body over a take: each bone's local rotation and the root's head per frame, one phenotype.
-``Fit`` makes one differentiable around a start: per frame a rotation vector for every bone a marker can tell
-about (applied after the start's local rotation), the take's extra rotation of the root (the yaw offset b of
-§3.5.1), the root's head per frame and the phenotype (Anny's shape, for SMPL's beta). Its regularizers are the
-paper's, against an anchor body (the prior, or the previous stage's result in the refinement): E_Theta (Eq. 5),
-the mean squared rotation of each bone from the anchor's (2 (1 - cos angle) per bone, the squared angle for
-small ones, over its three parameters), zero on frames the prior lost, and E_beta (Eq. 2), the mean squared
-departure from the anchor's phenotype. ``minimize`` runs L-BFGS with strong
-Wolfe line search (§3.6) on any energy of it.
+A ``BodyFit`` (tasks/shared/solver_body) is a body over a take: each bone's local rotation and the root's head
+per frame, one phenotype. ``Fit`` makes one differentiable around a start: per frame a rotation vector for every
+bone a marker can tell about (applied after the start's local rotation), the take's extra rotation of the root
+(the yaw offset b of §3.5.1), the root's head per frame and the phenotype (Anny's shape, for SMPL's beta). Its
+regularizers are the paper's, against an anchor body (the prior, or the previous stage's result in the
+refinement): E_Theta (Eq. 5), the mean squared rotation of each bone from the anchor's (2 (1 - cos angle) per
+bone, the squared angle for small ones, over its three parameters), zero on frames the prior lost, and E_beta
+(Eq. 2), the mean squared departure from the anchor's phenotype. ``minimize`` runs L-BFGS with strong Wolfe line
+search (§3.6) on any energy of it.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from mocapflow.tasks.uuo.body_model import SolverBody, torch_rodrigues
-
-
-@dataclass(frozen=True)
-class BodyFit:
-    local: np.ndarray  # (frame, bone, 3, 3) local rotations (root: world)
-    root: np.ndarray  # (frame, 3) root head, metres
-    phenotype: np.ndarray  # (6,) Anny's phenotype, mesh_body.PHENOTYPE_NAMES order
+from mocapflow.tasks.shared.solver_body import BodyFit, SolverBody, torch_rodrigues
 
 
 class Fit:
@@ -94,27 +85,3 @@ def minimize(parameters: list, energy, iterations: int) -> float:
         return value
 
     return float(opt.step(closure).detach())
-
-
-def posed_vertices(body: SolverBody, fit: BodyFit, vertices: np.ndarray, chunk: int = 64) -> np.ndarray:
-    """Skinned positions of chosen vertices over the take.  -> (frame, n, 3)"""
-    import torch
-
-    with torch.no_grad():
-        rest_vertices, rest_heads = body.rest(torch.from_numpy(np.asarray(fit.phenotype, np.float64)))
-        out = []
-        index = torch.from_numpy(np.asarray(vertices, np.int64))
-        for s in range(0, fit.root.shape[0], chunk):
-            rots, heads = body.kinematics(torch.from_numpy(fit.local[s:s + chunk]),
-                                          torch.from_numpy(fit.root[s:s + chunk]), rest_heads)
-            out.append(body.skin(rots, heads, rest_vertices, rest_heads, index).numpy())
-    return np.concatenate(out)
-
-
-def posed_heads(body: SolverBody, fit: BodyFit) -> np.ndarray:
-    """Every bone's head over the take.  -> (frame, bone, 3)"""
-    import torch
-
-    with torch.no_grad():
-        _, rest_heads = body.rest(torch.from_numpy(np.asarray(fit.phenotype, np.float64)))
-        return body.kinematics(torch.from_numpy(fit.local), torch.from_numpy(fit.root), rest_heads)[1].numpy()

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocapflow.tasks.uuo.body_model import SolverBody
-from mocapflow.tasks.uuo.fitting import BodyFit, Fit, minimize
+from mocapflow.tasks.shared.solver_body import BodyFit, SolverBody
+from mocapflow.tasks.uuo.fitting import Fit, minimize
 
 
 class IKError(ValueError):

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocapflow.tasks.uuo.body_model import SolverBody
-from mocapflow.tasks.uuo.fitting import BodyFit, Fit, minimize, posed_vertices
+from mocapflow.tasks.shared.solver_body import BodyFit, SolverBody, posed_vertices
+from mocapflow.tasks.uuo.fitting import Fit, minimize
 from mocapflow.tasks.uuo.matching import closest, evenly, part_vertices
 
 

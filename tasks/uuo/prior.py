@@ -237,8 +237,8 @@ def fit_joints(joints: np.ndarray, config: FilePriorConfig):
     """Anny's rig fitted to template joints: (MeshBody, SolverBody, BodyFit).  joints (frame, joint, 3), finite"""
     import torch
 
-    from mocapflow.tasks.uuo.body_model import SolverBody
-    from mocapflow.tasks.uuo.fitting import BodyFit, Fit, minimize
+    from mocapflow.tasks.shared.solver_body import BodyFit, SolverBody
+    from mocapflow.tasks.uuo.fitting import Fit, minimize
 
     body = mesh_body(_sized(joints, config.phenotype))
     valid = np.ones(joints.shape[0], bool)
@@ -276,7 +276,7 @@ def fit_joints(joints: np.ndarray, config: FilePriorConfig):
 def file_prior(markers: xr.Dataset, config: FilePriorConfig) -> xr.Dataset:
     """Stage ``prior`` (file): a monocular estimate brought as template joints per frame (``prior_joints`` of the
     markers, read from the take's prior file), Anny fitted to them; lost frames (NaN) hold the nearest kept."""
-    from mocapflow.tasks.uuo.fitting import posed_heads
+    from mocapflow.tasks.shared.solver_body import posed_heads
 
     if "prior_joints" not in markers:
         raise PriorError("a file prior needs the take's prior file (the markers have no prior_joints); give the "

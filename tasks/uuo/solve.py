@@ -22,9 +22,9 @@ from mocapflow.tasks.shared.body import JOINT_NAMES
 from mocapflow.tasks.shared.cache import BoundedCache
 from mocapflow.tasks.shared.mesh_body import PHENOTYPE_NAMES, MeshBody, Phenotype, mesh_body, part_of_bone
 from mocapflow.tasks.shared.kinematics import local_rotations
-from mocapflow.tasks.uuo.body_model import SolverBody
+from mocapflow.tasks.shared.solver_body import SolverBody
 from mocapflow.tasks.uuo.correspondence import CorrespondenceConfig, correspond
-from mocapflow.tasks.uuo.fitting import BodyFit, posed_heads, posed_vertices
+from mocapflow.tasks.shared.solver_body import BodyFit, posed_heads, posed_vertices
 from mocapflow.tasks.uuo.ik import IKConfig, inverse_kinematics
 from mocapflow.tasks.uuo.matching import MatchConfig, closest, evenly, match_parts, part_vertices
 from mocapflow.tasks.uuo.pose_fit import PoseFitConfig, fit_pose

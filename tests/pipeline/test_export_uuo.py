@@ -18,7 +18,7 @@ from mocapflow.tasks.studio import uuo_takes as uuo
 from mocapflow.tasks.studio.bvh import parse_bvh
 from mocapflow.tasks.studio.synth import SequenceSpec, build_rig
 from mocapflow.tasks.uuo import solve
-from mocapflow.tasks.uuo.fitting import BodyFit
+from mocapflow.tasks.shared.solver_body import BodyFit
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ from mocapflow.tasks.shared import mesh_body as mb
 from mocapflow.tasks.shared.kinematics import rodrigues, world_rotations
 from mocapflow.tasks.suit.body_fit import BodyFitConfig, BodyFitError, corner_weights, fit_body
 from mocapflow.tasks.suit.fill import repose, skinning_transforms, unpose
-from mocapflow.tasks.uuo.body_model import SolverBody
+from mocapflow.tasks.shared.solver_body import SolverBody
 
 FRAMES = 5
 

@@ -1,6 +1,9 @@
-"""The solver's body: Anny's rig as a differentiable function of pose and shape, evaluated where it is needed.
+"""The solvers' body: Anny's rig as a differentiable function of pose and shape, evaluated where it is needed.
 
-UUO fits a parametric body to markers (Milef et al. 2024, §3.5); here the body is Anny (tasks/shared/mesh_body).
+UUO fits a parametric body to markers (Milef et al. 2024, §3.5) and the checkerboard suit fills its holes on
+one (Chen et al. 2021); here the body is Anny (tasks/shared/mesh_body). ``BodyFit`` is a body over a take
+(each bone's local rotation and the root's head per frame, one phenotype); ``posed_vertices`` and
+``posed_heads`` evaluate one.
 Anny poses all 13,718 vertices per call; the solver needs a few dozen per frame (the vertex each marker sample
 is assigned to) over a whole take, and its gradient. ``SolverBody`` holds the rig in torch tensors and evaluates
 the same skinning as ``mesh_body.pose_mesh`` (tests check it to 1e-9 m) on any subset of vertices:
@@ -14,6 +17,8 @@ the same skinning as ``mesh_body.pose_mesh`` (tests check it to 1e-9 m) on any s
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -100,3 +105,34 @@ class SolverBody:
             m, h = rots[f, idx], heads[f, idx]
         moved = (m @ local[..., None])[..., 0] + h  # (frame, n, 9, 3)
         return (w[..., None] * moved).sum(-2)  # Eq. of linear blend skinning, as Anny's kernel
+
+
+@dataclass(frozen=True)
+class BodyFit:
+    local: np.ndarray  # (frame, bone, 3, 3) local rotations (root: world)
+    root: np.ndarray  # (frame, 3) root head, metres
+    phenotype: np.ndarray  # (6,) Anny's phenotype, mesh_body.PHENOTYPE_NAMES order
+
+
+def posed_vertices(body: SolverBody, fit: BodyFit, vertices: np.ndarray, chunk: int = 64) -> np.ndarray:
+    """Skinned positions of chosen vertices over the take.  -> (frame, n, 3)"""
+    import torch
+
+    with torch.no_grad():
+        rest_vertices, rest_heads = body.rest(torch.from_numpy(np.asarray(fit.phenotype, np.float64)))
+        out = []
+        index = torch.from_numpy(np.asarray(vertices, np.int64))
+        for s in range(0, fit.root.shape[0], chunk):
+            rots, heads = body.kinematics(torch.from_numpy(fit.local[s:s + chunk]),
+                                          torch.from_numpy(fit.root[s:s + chunk]), rest_heads)
+            out.append(body.skin(rots, heads, rest_vertices, rest_heads, index).numpy())
+    return np.concatenate(out)
+
+
+def posed_heads(body: SolverBody, fit: BodyFit) -> np.ndarray:
+    """Every bone's head over the take.  -> (frame, bone, 3)"""
+    import torch
+
+    with torch.no_grad():
+        _, rest_heads = body.rest(torch.from_numpy(np.asarray(fit.phenotype, np.float64)))
+        return body.kinematics(torch.from_numpy(fit.local), torch.from_numpy(fit.root), rest_heads)[1].numpy()
