@@ -27,12 +27,11 @@ for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from mocapflow.tasks.deepmocap import targets  # noqa: E402
 from mocapflow.tasks.deepmocap.fcn import N_REFLECTORS, to_input  # noqa: E402
 from mocapflow.tasks.deepmocap.flow import DisConfig, dis  # noqa: E402
-from mocapflow.tasks.deepmocap.heatmaps import inference_model  # noqa: E402
+from mocapflow.tasks.deepmocap.heatmaps import inference_model, network_inputs  # noqa: E402
 from mocapflow.tasks.deepmocap.masks import MaskConfig, masks  # noqa: E402
-from mocapflow.tasks.deepmocap.training import CropConfig, sample_inputs  # noqa: E402
+from mocapflow.tasks.deepmocap.training import CropConfig  # noqa: E402
 from mocapflow.tasks.studio.synth import SequenceSpec, build_rig, synthesize  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,18 +44,8 @@ def crops(spec: SequenceSpec, weights: dict, bvh_text: str | None = None) -> tup
     """The `heatmaps` stage's network inputs for every view-frame of a studio take.  -> (n, s, s, 3) uint8 x2"""
     raw = synthesize(build_rig(spec, bvh_text), 0, spec.frames)
     m, f = masks(raw[["depth", "ir"]], MaskConfig()), dis(raw, DisConfig())
-    crop, size = CropConfig(**weights.get("crop", {})), weights["architecture"]["input_size"]
-    depth_crops, flow_crops = [], []
-    for v in range(m.sizes["view"]):
-        for i in range(m.sizes["frame"]):
-            depth_s, flow_s, box = sample_inputs(
-                m["colorized_depth"].values[v, i], f["colorized_flow"].values[v, i], m["blob_id"].values[v, i],
-                m["blob_area"].values[v, i], sample_scale=crop.sample_scale, box_min_area=crop.box_min_area)
-            a = targets.crop_affine(box, size=size, margin=crop.margin, min_side=crop.min_side,
-                                    jitter=targets.CropJitter(scale=crop.scale))
-            depth_crops.append(targets.warp_depth(depth_s, a, size))
-            flow_crops.append(targets.warp_flow(flow_s, a, size))
-    return np.stack(depth_crops), np.stack(flow_crops)
+    depth, flow, _ = network_inputs(m, f, CropConfig(**weights.get("crop", {})), weights["architecture"]["input_size"])
+    return depth, flow
 
 
 class _LastStage(torch.nn.Module):

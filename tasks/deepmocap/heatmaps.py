@@ -142,13 +142,10 @@ def inference_model(weights: dict, stages: int = 0):
     return kept[1]
 
 
-def fcn_heatmaps(masks: xr.Dataset, flow: xr.Dataset, config: HeatmapConfig, weights: dict) -> xr.Dataset:
-    """Confidence maps, OFFs and crop affines for every view and frame of ``masks``/``flow``; ``weights``: the
-    tensors of the file ``config.weights`` names (the engine loads them)."""
-    model = inference_model(weights, config.stages)
-    crop = CropConfig(**weights.get("crop", {}))
-    size = model.arch.input_size
-    depth_crops, flow_crops, affines = [], [], []  # every view-frame of the region, views outer
+def network_inputs(masks: xr.Dataset, flow: xr.Dataset, crop: CropConfig, size: int):
+    """Both streams cropped around the subject for every view-frame, views outer, and each crop's affine back to
+    the image.  -> (view * frame, size, size, 3) uint8 x2, (view * frame, 6)"""
+    depth_crops, flow_crops, affines = [], [], []
     for view in masks["view"].values:
         m, f = masks.sel(view=view), flow.sel(view=view)
         for i in range(m.sizes["frame"]):
@@ -160,15 +157,24 @@ def fcn_heatmaps(masks: xr.Dataset, flow: xr.Dataset, config: HeatmapConfig, wei
             depth_crops.append(targets.warp_depth(depth_s, a, size))
             flow_crops.append(targets.warp_flow(flow_s, a, size))
             affines.append(crop_to_image(a, crop.sample_scale).ravel())
+    return np.stack(depth_crops), np.stack(flow_crops), np.stack(affines)
+
+
+def fcn_heatmaps(masks: xr.Dataset, flow: xr.Dataset, config: HeatmapConfig, weights: dict) -> xr.Dataset:
+    """Confidence maps, OFFs and crop affines for every view and frame of ``masks``/``flow``; ``weights``: the
+    tensors of the file ``config.weights`` names (the engine loads them)."""
+    model = inference_model(weights, config.stages)
+    depth_crops, flow_crops, affines = network_inputs(masks, flow, CropConfig(**weights.get("crop", {})),
+                                                      model.arch.input_size)
     # one network call per `batch` crops across views and frames
-    s, fields = infer(model, np.stack(depth_crops), np.stack(flow_crops), config.batch, config.precision)
+    s, fields = infer(model, depth_crops, flow_crops, config.batch, config.precision)
     shape = (masks.sizes["view"], masks.sizes["frame"])
     confidence, off = s.reshape(shape + s.shape[1:]), fields.reshape(shape + fields.shape[1:])
     dims = ("view", "frame", "reflector", "hy", "hx")
     return xr.Dataset(
         {"confidence": (dims, half(confidence)),
          "off": (dims + ("uv",), half(off)),
-         "crop": (("view", "frame", "affine"), np.stack(affines).reshape(shape + (6,)))},
+         "crop": (("view", "frame", "affine"), affines.reshape(shape + (6,)))},
         coords={"view": masks["view"].values, "frame": masks["frame"].values, "reflector": list(REFLECTOR_NAMES)},
         attrs={"stride": int(model.arch.stride), "precision": resolve_precision(config.precision)},
     )
