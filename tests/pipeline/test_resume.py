@@ -18,19 +18,33 @@ def committed_regions(root):
 def test_kill_dash_nine_then_resume_finishes_only_unfinished_work(toy_project, tmp_path_factory):
     # 2 sequences x 2 views x 10 regions of 4 frames, 0.25 s per region: about 5 s of work on 2 threads.
     project = toy_project(sleep=0.25, frames=40)
+    hold = project / "hold"  # created part-way: every region started after it waits, holding its lock
+    env = {**env_with_plugins(), "TOY_HOLD_WHILE": str(hold)}
     proc = subprocess.Popen([sys.executable, "-m", "mocapflow.pipeline.cli", "run", "--json", "--workers", "2"],
-                            cwd=project, env=env_with_plugins(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            cwd=project, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             start_new_session=True)
+    storage = project / "storage"
     deadline = time.time() + 60
-    while len(committed_regions(project / "storage")) < 6 and time.time() < deadline:
+    while len(committed_regions(storage)) < 6 and time.time() < deadline:
         time.sleep(0.05)
+    hold.write_text("")
+    # kill while both workers sit inside a region under its lock, never in the gap between two regions: two
+    # locks held and nothing committed for a second (a region past the hold check when the file appeared commits)
+    seen = (-1, 0)
+    while time.time() < deadline:
+        time.sleep(1.0)
+        now = (len(committed_regions(storage)), len(list(storage.glob("scaled/*/.lock"))))
+        if now == seen and now[1] == 2:
+            break
+        seen = now
     # the whole run at once, its worker processes too (as a crash or the OOM killer takes it): a worker left
     # running would finish its region and release its lock, which is a different test
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()
-    done_before = len(committed_regions(project / "storage"))
+    hold.unlink()
+    done_before = len(committed_regions(storage))
     assert 6 <= done_before < 40, "the run must be killed part-way through the scaled stage"
-    assert list((project / "storage").glob("scaled/*/.lock")), "the killed run left its locks behind"
+    assert len(list(storage.glob("scaled/*/.lock"))) == 2, "the killed run left its locks behind"
 
     resumed = last_json(mocapflow("run", "--json", cwd=project))
     assert resumed["failed"] == []
