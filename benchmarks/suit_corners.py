@@ -43,6 +43,7 @@ from mocapflow.tasks.studio import synth  # noqa: E402
 from mocapflow.tasks.studio.mesh_render import (NO_HIT, MeshScene, cast_view, interpolate,  # noqa: E402
                                                  surface_points, visibility)
 from mocapflow.tasks.suit import corners as co  # noqa: E402
+from mocapflow.tasks.suit import networks  # noqa: E402
 from mocapflow.tasks.suit import pattern as pt  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -302,7 +303,7 @@ def trained(args: argparse.Namespace) -> tuple[torch.nn.Module, dict]:
     """The network (trained here, or loaded) and how it was trained."""
     train = co.TrainConfig(iterations=args.iterations, batch=args.batch, learning_rate=args.learning_rate)
     if args.load:
-        net = co.CornerdetNet(train.net)
+        net = networks.CornerdetNet(train.net)
         net.load_state_dict(torch.load(args.load, weights_only=True))
         return net.eval(), {"weights": str(args.load), "widths": train.net.widths, "hidden": train.net.hidden}
     t0 = time.perf_counter()

@@ -285,6 +285,14 @@ register(TaskSpec(
     description="one root-yaw hypothesis, refined (the paper's '- MHT' ablation, Table 3)",
 ))
 register(TaskSpec(
+    name="rigid_prior", fn=solve.rigid_prior, version="1", params=solve.RigidPriorConfig,
+    output="uuo_body", partition="sequence", whole_sequence=True,
+    inputs={"markers": "raw_markers", "segments": "marker_segments", "prior": "body_prior"},
+    reads={"markers": ("position",)},
+    description="baseline: the prior placed on the markers by part matching from each root yaw, the placement "
+                "of least chamfer kept, no pose solved (the paper's HMR2.0+RR)",
+))
+register(TaskSpec(
     name="file_prior", fn=prior.file_prior, version="2", params=prior.FilePriorConfig,
     output="body_prior", partition="sequence", inputs={"markers": "raw_markers"},
     reads={"markers": ("position", "prior_joints")}, whole_sequence=True,

@@ -58,8 +58,10 @@ def evaluate(catalog, plan: Plan, store: Store, *, flow: bool = True) -> dict:
     stages_3d = {(kind, schema): stage_writing(catalog, schema, refined=refined)
                  for kind, schema, refined in MARKER_KINDS}
     stage_poses = stage_writing(catalog, "poses")
+    read = {up for s in catalog.stages.values() for up in s.inputs.values()}
+    # the bodies a UUO catalog ends with: those choosing among hypotheses, and baselines no stage reads on
     uuo_stages = [s.name for s in catalog.stages.values() if s.spec.output == "uuo_body"
-                  and "uuo_body" in s.spec.inputs.values()]
+                  and ("uuo_body" in s.spec.inputs.values() or s.name not in read)]
     from mocapflow.pipeline.evaluate_suit import evaluate_suit, suit_stages
 
     suit = suit_stages(catalog)

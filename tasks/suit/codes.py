@@ -22,17 +22,20 @@ augmentation.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
-import torch
-from torch import nn
-from torch.nn import functional as F
 
 from mocapflow.tasks.suit.corners import Augment, adam_cosine, augment_crops, seeded
 from mocapflow.tasks.suit.metrics import quad_truth
 from mocapflow.tasks.suit.pattern import ALPHABET, BLACK, WHITE, level, print_code
 from mocapflow.tasks.suit.quads import CROP, warp_quads
+
+if TYPE_CHECKING:
+    import torch
+
+    from mocapflow.tasks.suit.networks import RecogNet, RejectorNet
 
 N_CHARS = len(ALPHABET)
 
@@ -67,51 +70,6 @@ class CodeNetConfig:
                             f"{self.widths}, {self.hidden}, {self.pool}")
 
 
-class _Trunk(nn.Module):
-    """(n, 1, 104, 104) grey in [0, 1] -> (n, hidden) features."""
-
-    def __init__(self, config: CodeNetConfig):
-        super().__init__()
-        layers: list[nn.Module] = [nn.AvgPool2d(config.pool)]  # 104 -> 26
-        c_in, side = 1, CROP // config.pool
-        for width in config.widths:
-            layers += [nn.Conv2d(c_in, width, 3, padding=1, bias=False), nn.BatchNorm2d(width), nn.ReLU(),
-                       nn.MaxPool2d(2)]
-            c_in, side = width, side // 2
-        self.features = nn.Sequential(*layers)
-        self.hidden = nn.Sequential(nn.Flatten(), nn.Linear(c_in * side * side, config.hidden), nn.ReLU())
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.hidden(self.features(x))
-
-
-class RejectorNet(nn.Module):
-    """(n, 1, 104, 104) -> (n,) logit: a coded white square of the suit (§3.2)."""
-
-    def __init__(self, config: CodeNetConfig = CodeNetConfig()):
-        super().__init__()
-        self.config = config
-        self.trunk = _Trunk(config)
-        self.out = nn.Linear(config.hidden, 1)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.out(self.trunk(x))[:, 0]
-
-
-class RecogNet(nn.Module):
-    """(n, 1, 104, 104) -> rotation logits (n, 4), first and second character logits (n, 25) each (§3.2)."""
-
-    def __init__(self, config: CodeNetConfig = CodeNetConfig(widths=(24, 48, 64, 96), hidden=192, pool=2)):
-        super().__init__()
-        self.config = config
-        self.trunk = _Trunk(config)
-        self.out = nn.Linear(config.hidden, 4 + 2 * N_CHARS)
-
-    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        y = self.out(self.trunk(x))
-        return y[:, :4], y[:, 4:4 + N_CHARS], y[:, 4 + N_CHARS:]
-
-
 def net_config(architecture: dict) -> CodeNetConfig:
     return CodeNetConfig(widths=tuple(architecture["widths"]), hidden=int(architecture["hidden"]),
                          pool=int(architecture["pool"]))
@@ -119,6 +77,8 @@ def net_config(architecture: dict) -> CodeNetConfig:
 
 def to_input(crops: np.ndarray) -> torch.Tensor:
     """(n, 104, 104) uint8 -> (n, 1, 104, 104) float in [0, 1]."""
+    import torch
+
     return torch.from_numpy(np.ascontiguousarray(crops)).float().div_(255.0)[:, None]
 
 
@@ -139,29 +99,32 @@ class Readings:
     confidence: np.ndarray  # (q,) float32
 
 
-@torch.no_grad()
 def read_crops(crops: np.ndarray, rejector: RejectorNet, recog: RecogNet, config: ReadConfig = ReadConfig()) -> Readings:
     """RejectorNet then RecogNet on the accepted crops.  crops (q, 104, 104) uint8"""
+    import torch
+    from torch.nn import functional as F
+
     q = len(crops)
     accepted = np.zeros(q, bool)
     rotation, code = np.full(q, -1, np.int8), np.full(q, -1, np.int16)
     confidence = np.zeros(q, np.float32)
-    for lo in range(0, q, config.batch):
-        x = to_input(crops[lo:lo + config.batch])
-        keep = (rejector(x) >= config.accept).numpy()
-        if not keep.any():
-            continue
-        rot, first, second = recog(x[torch.from_numpy(keep)])
-        p_rot, r = F.softmax(rot, 1).max(1)
-        p_a, a = F.softmax(first, 1).max(1)
-        p_b, b = F.softmax(second, 1).max(1)
-        p = (p_rot * p_a * p_b).numpy()
-        idx = lo + np.flatnonzero(keep)
-        good = p >= config.min_confidence
-        accepted[idx[good]] = True
-        rotation[idx[good]] = r.numpy()[good]
-        code[idx[good]] = (a * N_CHARS + b).numpy()[good]
-        confidence[idx] = p
+    with torch.no_grad():
+        for lo in range(0, q, config.batch):
+            x = to_input(crops[lo:lo + config.batch])
+            keep = (rejector(x) >= config.accept).numpy()
+            if not keep.any():
+                continue
+            rot, first, second = recog(x[torch.from_numpy(keep)])
+            p_rot, r = F.softmax(rot, 1).max(1)
+            p_a, a = F.softmax(first, 1).max(1)
+            p_b, b = F.softmax(second, 1).max(1)
+            p = (p_rot * p_a * p_b).numpy()
+            idx = lo + np.flatnonzero(keep)
+            good = p >= config.min_confidence
+            accepted[idx[good]] = True
+            rotation[idx[good]] = r.numpy()[good]
+            code[idx[good]] = (a * N_CHARS + b).numpy()[good]
+            confidence[idx] = p
     return Readings(accepted, rotation, code, confidence)
 
 
@@ -307,6 +270,9 @@ class CodeTrainConfig:
 
 def _jitter(x: torch.Tensor, amount: float, gen: torch.Generator) -> torch.Tensor:
     """A small random affine map per crop (the detected corners' own error), border replicated."""
+    import torch
+    from torch.nn import functional as F
+
     n = len(x)
     u = (torch.rand(n, 5, generator=gen) * 2 - 1) * amount
     c, s = torch.cos(u[:, 0]), torch.sin(u[:, 0])
@@ -321,6 +287,10 @@ def train_code_nets(samples: QuadSamples, config: CodeTrainConfig = CodeTrainCon
                     ) -> tuple[RejectorNet, RecogNet, list[float]]:
     """RejectorNet on every crop, RecogNet on the valid ones, jointly per iteration (Adam, cosine decay), each
     batch augmented.  -> the two networks (eval mode) and the loss per iteration"""
+    import torch
+    from torch.nn import functional as F
+    from mocapflow.tasks.suit.networks import RecogNet, RejectorNet
+
     if len(samples) < config.batch or samples.valid.all() or not samples.valid.any():
         raise CodeError(f"training needs at least one batch ({config.batch}) of crops with valid and invalid ones; "
                         f"got {len(samples)}, {int(samples.valid.sum())} valid")
@@ -369,6 +339,8 @@ class ReadCodesConfig:
 def nets_from_weights(weights: dict) -> tuple[RejectorNet, RecogNet]:
     """Both networks of a weights file ({"architecture": {"rejector", "recog"}, "state"}; the state's names
     prefixed ``rejector.`` and ``recog.``), in eval mode."""
+    from mocapflow.tasks.suit.networks import RecogNet, RejectorNet
+
     arch, state = weights["architecture"], weights["state"]
     rejector, recog = RejectorNet(net_config(arch["rejector"])), RecogNet(net_config(arch["recog"]))
     for name, net in (("rejector", rejector), ("recog", recog)):
@@ -387,6 +359,8 @@ def pack_state(rejector: RejectorNet, recog: RecogNet) -> tuple[dict, dict]:
 
 def read_codes(images, corners, quads, config: ReadCodesConfig, weights: dict):
     """Task: suit_codes of every candidate quad of every view and frame (§3.2)."""
+    import torch
+
     import xarray as xr
 
     rejector, recog = nets_from_weights(weights)

@@ -24,13 +24,17 @@ contrast, brightness, gamma, noise and blur (§4.2).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
-import torch
 from scipy.spatial import cKDTree
-from torch import nn
-from torch.nn import functional as F
+
+if TYPE_CHECKING:
+    import torch
+    from torch import nn
+
+    from mocapflow.tasks.suit.networks import CornerdetNet
 
 CELL = 8  # §3.1, Chen et al. 2021: cells of 8 x 8 pixels
 MARGIN = 6  # each side of a cell, so a crop is 20 x 20
@@ -59,31 +63,11 @@ class CornerNetConfig:
                               f"widths={self.widths}, hidden={self.hidden}")
 
 
-class CornerdetNet(nn.Module):
-    """Fig. 5c, Chen et al. 2021, fully convolutional: (n, 1, 8h + 12, 8w + 12) grey in [0, 1] -> (n, 3, h, w) with
-    output (i, j) a function of input rows [8i, 8i + 20) and columns [8j, 8j + 20) only: channel 0 the presence
-    logit, 1-2 the corner's (x, y) in the cell normalised to [0, 1]. (Batch normalisation, once trained, is a
-    per-channel affine map and keeps this.)"""
-
-    def __init__(self, config: CornerNetConfig = CornerNetConfig()):
-        super().__init__()
-        w1, w2, w3, w4 = config.widths
-        self.config = config
-        shapes = ((1, w1, 4, 2), (w1, w2, 3, 2), (w2, w3, 2, 2), (w3, w4, 2, 1), (w4, config.hidden, 1, 1))
-        # receptive fields 4, 8, 12, 20, 20 at strides 2, 4, 8, 8, 8: one output per 8 x 8 cell with 6-px margins
-        layers: list[nn.Module] = []
-        for c_in, c_out, k, s in shapes:
-            layers.append(nn.Conv2d(c_in, c_out, k, stride=s, bias=not config.batch_norm))
-            layers += [nn.BatchNorm2d(c_out), nn.ReLU()] if config.batch_norm else [nn.ReLU()]
-        self.layers = nn.Sequential(*layers, nn.Conv2d(config.hidden, 3, 1))
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.layers(x - 0.5)
-
-
 def check_net(net: nn.Module) -> None:
     """A network in evaluation mode, else a CornerError: in training mode batch normalisation would use each batch's
     statistics and a cell's output would depend on the other cells run with it."""
+    from torch import nn
+
     if not isinstance(net, nn.Module):
         raise CornerError(f"net must be a torch module (CornerdetNet), got {type(net).__name__}")
     if net.training:
@@ -92,6 +76,8 @@ def check_net(net: nn.Module) -> None:
 
 def crop_outputs(net: nn.Module, crops: np.ndarray, batch: int = 1024) -> np.ndarray:
     """The network on single crops, in batches.  crops (n, 20, 20) uint8 -> (n, 3) float32 (logit, u, v)"""
+    import torch
+
     check_net(net)
     out = np.zeros((len(crops), 3), np.float32)
     with torch.inference_mode():
@@ -159,6 +145,8 @@ def check_image(image: np.ndarray, name: str = "image") -> None:
 def cell_outputs(image: np.ndarray, net: nn.Module, config: DetectConfig = DetectConfig()) -> CellOutputs:
     """The network on every cell whose crop has contrast, as one fully convolutional pass per tile of cells.
     image (y, x) uint8 -> CellOutputs with (ceil(y / 8), ceil(x / 8)) cells."""
+    import torch
+
     check_image(image)
     check_net(net)
     t = config.tile_cells
@@ -493,6 +481,8 @@ class TrainConfig:
 def cornerdet_loss(out: torch.Tensor, present: torch.Tensor, position: torch.Tensor, weight: float) -> torch.Tensor:
     """§3.1, Chen et al. 2021: cross entropy on presence + λ c ||p* - p||^2 on the cells with a corner.
     out (n, 3) (logit, u, v), present (n,) float 0/1, position (n, 2) -> scalar"""
+    from torch.nn import functional as F
+
     ce = F.binary_cross_entropy_with_logits(out[:, 0], present, reduction="none")
     sq = ((out[:, 1:] - position) ** 2).sum(dim=1)
     return (ce + weight * present * sq).mean()
@@ -501,6 +491,9 @@ def cornerdet_loss(out: torch.Tensor, present: torch.Tensor, position: torch.Ten
 def train_cornerdet(samples: CornerSamples, config: TrainConfig = TrainConfig(), seed: int = 0) -> CornerdetNet:
     """CornerdetNet trained with Adam on ``samples``, batches drawn and augmented from ``seed`` (deterministic for a
     seed and a torch thread count)."""
+    import torch
+    from mocapflow.tasks.suit.networks import CornerdetNet
+
     if len(samples) < config.batch or not samples.present.any() or samples.present.all():
         raise CornerError(f"training needs at least one batch ({config.batch}) of crops with both positives and "
                           f"negatives; got {len(samples)} crops, {int(samples.present.sum())} positive")
@@ -527,6 +520,8 @@ def train_cornerdet(samples: CornerSamples, config: TrainConfig = TrainConfig(),
 def seeded(seed: int, stream: int) -> tuple[torch.Generator, np.random.Generator, str]:
     """A training's randomness from its seed (torch's global one too) and the device it runs on: the GPU when
     present (batches are still drawn on the CPU)."""
+    import torch
+
     torch.manual_seed(seed)
     return (torch.Generator().manual_seed(seed), np.random.default_rng([seed, stream]),
             "cuda" if torch.cuda.is_available() else "cpu")
@@ -534,6 +529,8 @@ def seeded(seed: int, stream: int) -> tuple[torch.Generator, np.random.Generator
 
 def adam_cosine(params: list, learning_rate: float, iterations: int):
     """Adam with a cosine decay to 1 % of the learning rate over the iterations.  -> optimizer, scheduler"""
+    import torch
+
     opt = torch.optim.Adam(params, lr=learning_rate)
     return opt, torch.optim.lr_scheduler.CosineAnnealingLR(opt, iterations, eta_min=0.01 * learning_rate)
 
@@ -541,6 +538,8 @@ def adam_cosine(params: list, learning_rate: float, iterations: int):
 def dihedral(x: torch.Tensor, position: torch.Tensor, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
     """A random one of the 8 exact quarter turns and flips per crop, its target turned with it (the cell is
     central, so (u, v) -> (v, u) on a transpose and u -> 1 - u on a flip of x).  (n, 1, 20, 20), (n, 2)"""
+    import torch
+
     n = len(x)
     t, fx, fy = (torch.rand(n, generator=gen) < 0.5 for _ in range(3))
     x = torch.where(t[:, None, None, None], x.transpose(-1, -2), x)
@@ -555,6 +554,8 @@ def dihedral(x: torch.Tensor, position: torch.Tensor, gen: torch.Generator) -> t
 def augment_crops(x: torch.Tensor, aug: Augment, gen: torch.Generator) -> torch.Tensor:
     """§4.2, Chen et al. 2021: blur, contrast, brightness, gamma and noise per crop, then 8-bit levels.
     (n, 1, 20, 20) in [0, 1] -> same"""
+    import torch
+
     n = len(x)
 
     def draw(lo: float, hi: float) -> torch.Tensor:  # drawn on the CPU (the generator's), used where x is
@@ -571,6 +572,9 @@ def augment_crops(x: torch.Tensor, aug: Augment, gen: torch.Generator) -> torch.
 
 def _gaussian_blur(x: torch.Tensor, sigma: torch.Tensor, radius: int = 3) -> torch.Tensor:
     """Per-crop separable Gaussian blur (sigma 0: unchanged), replicated borders.  (n, 1, y, x), (n,) -> same"""
+    import torch
+    from torch.nn import functional as F
+
     t = torch.arange(-radius, radius + 1, dtype=x.dtype, device=x.device)
     k = torch.exp(-0.5 * (t[None] / sigma.clamp(min=1e-3)[:, None]) ** 2)  # (n, 2r + 1)
     k = k / k.sum(dim=1, keepdim=True)
@@ -592,6 +596,8 @@ class FindCornersConfig:
 
 def cornerdet_from_weights(weights: dict) -> CornerdetNet:
     """The network a weights file holds ({"architecture", "state"}, tasks/shared/weights.py), in eval mode."""
+    from mocapflow.tasks.suit.networks import CornerdetNet
+
     arch = weights["architecture"]
     net = CornerdetNet(CornerNetConfig(widths=tuple(arch["widths"]), hidden=int(arch["hidden"]),
                                        batch_norm=bool(arch.get("batch_norm", True))))
@@ -601,6 +607,8 @@ def cornerdet_from_weights(weights: dict) -> CornerdetNet:
 
 def find_corners(images, config: FindCornersConfig, weights: dict):
     """Task: suit_corners of every view and frame of suit_images (§3.1)."""
+    import torch
+
     import xarray as xr
 
     net = cornerdet_from_weights(weights)

@@ -6,8 +6,9 @@ part matching (§3.4.2) from the yaw y, pose fitting (stage 2), marker-vertex co
 inverse kinematics (stage 4); its result carries the one-directional chamfer distance of Eq. (3).
 ``best_hypothesis`` keeps the hypothesis of least chamfer (Eq. 3, stage 1) and refines it (stage 5: stages 3
 and 4 again, anchored to stage 4's result); ``single_hypothesis`` is the same on one hypothesis (the paper's
-"- MHT" ablation). Every result is a body over the take (bone rotations, root, phenotype, joints) and a vertex
-and body part per marker trajectory.
+"- MHT" ablation); ``rigid_prior`` is the baseline without a solve, the prior placed by part matching. Every
+result is a body over the take (bone rotations, root, phenotype, joints) and a vertex and body part per marker
+trajectory.
 """
 
 from __future__ import annotations
@@ -87,10 +88,9 @@ def chamfer(body: SolverBody, markers: np.ndarray, fit: BodyFit, chain: np.ndarr
     return float(np.minimum(d2[seen], cap_m ** 2).mean())
 
 
-def solve_hypothesis(markers: xr.Dataset, segments: xr.Dataset, prior: xr.Dataset,
-                     config: HypothesisConfig) -> xr.Dataset:
-    """Stage ``uuo_yaw*``: part matching and solver stages 2-4 from one root-yaw hypothesis."""
-    m = _marker_positions(markers)
+def _placed_prior(m: np.ndarray, segments: xr.Dataset, prior: xr.Dataset, yaw_deg: float, matching: MatchConfig):
+    """§3.4: part matching from the root yaw ``yaw_deg`` and the prior placed on the markers by it.
+    m (frame, marker, 3) -> (body, solver, match, the placed prior's BodyFit, the prior's valid frames)"""
     if prior.sizes["frame"] != m.shape[0]:
         raise SolveError(f"the prior has {prior.sizes['frame']} frames and the markers {m.shape[0]}; a prior must "
                          "give a body for every frame of the take")
@@ -99,11 +99,19 @@ def solve_hypothesis(markers: xr.Dataset, segments: xr.Dataset, prior: xr.Datase
     valid = prior["valid"].values.astype(bool)
     match = match_parts(m, segments["segment"].values, body,
                         lambda frames, index: posed_vertices(solver, _subset(prior_fit, frames), index),
-                        np.radians(config.yaw_deg), config.matching)
+                        np.radians(yaw_deg), matching)
     local = prior_fit.local.copy()
     local[:, 0] = match.rotation @ local[:, 0]
     start = BodyFit(local, np.einsum("fij,fj->fi", match.rotation, prior_fit.root) + match.translation,
-                    prior_fit.phenotype)  # §3.4: the prior placed on the markers
+                    prior_fit.phenotype)  # one rotation for the take, a translation per frame
+    return body, solver, match, start, valid
+
+
+def solve_hypothesis(markers: xr.Dataset, segments: xr.Dataset, prior: xr.Dataset,
+                     config: HypothesisConfig) -> xr.Dataset:
+    """Stage ``uuo_yaw*``: part matching and solver stages 2-4 from one root-yaw hypothesis."""
+    m = _marker_positions(markers)
+    body, solver, match, start, valid = _placed_prior(m, segments, prior, config.yaw_deg, config.matching)
     chain = part_vertices(body, match.parts)
     fitted = fit_pose(solver, m, start, start, valid, chain, config.pose_fit)  # stage 2
     vertex, distance = correspond(solver, m, fitted, chain, config.correspondence)  # stage 3
@@ -114,6 +122,36 @@ def solve_hypothesis(markers: xr.Dataset, segments: xr.Dataset, prior: xr.Datase
                     for name, f in (("matching", start), ("pose_fit", fitted), ("ik", solved))}
     return body_dataset(markers, body, solver, solved, vertex, distance, stage_joints,
                         {"yaw_deg": float(config.yaw_deg), "chamfer": score, "parts": list(match.parts),
+                         "matched_yaw_deg": float(np.degrees(match.yaw)), "candidates": match.candidates})
+
+
+@dataclass(frozen=True)
+class RigidPriorConfig:
+    yaws_deg: tuple[float, ...] = (0.0, 90.0, 180.0, 270.0)  # the same hypotheses as the solver's
+    matching: MatchConfig = field(default_factory=MatchConfig)
+    correspondence: CorrespondenceConfig = field(default_factory=CorrespondenceConfig)
+    outlier_m: float = 0.1
+
+
+def rigid_prior(markers: xr.Dataset, segments: xr.Dataset, prior: xr.Dataset, config: RigidPriorConfig) -> xr.Dataset:
+    """Stage ``uuo_rigid_prior``: the baseline "prior only + rigid registration" (the paper's HMR2.0+RR, aligned
+    by its part localization, Table 2): the prior placed on the markers by part matching from each yaw, the
+    placement of least chamfer (Eq. 3) kept, no pose solved; each trajectory's vertex on it by Eq. (6)."""
+    if not config.yaws_deg:
+        raise SolveError("rigid_prior: yaws_deg is empty; give at least one root yaw, e.g. [0, 90, 180, 270]")
+    m = _marker_positions(markers)
+    best = None
+    for yaw in config.yaws_deg:
+        body, solver, match, start, _ = _placed_prior(m, segments, prior, yaw, config.matching)
+        chain = part_vertices(body, match.parts)
+        score = chamfer(solver, m, start, chain, config.outlier_m)  # Eq. (3)
+        if best is None or score < best[0]:
+            best = (score, yaw, body, solver, match, start, chain)
+    score, yaw, body, solver, match, start, chain = best
+    vertex, distance = correspond(solver, m, start, chain, config.correspondence)  # Eq. (6)
+    return body_dataset(markers, body, solver, start, vertex, distance,
+                        {"matching": posed_heads(solver, start)[:, body.joint_bones()]},
+                        {"yaw_deg": float(yaw), "chamfer": score, "parts": list(match.parts),
                          "matched_yaw_deg": float(np.degrees(match.yaw)), "candidates": match.candidates})
 
 

@@ -102,3 +102,15 @@ def test_build_params_coerces_and_names_the_bad_key():
 def test_an_unknown_task_suggests_the_nearest():
     with pytest.raises(CatalogError, match=r"unknown task 'kalmann' \(did you mean 'kalman'\?\)"):
         registry.get("kalmann")
+
+
+def test_planning_imports_no_torch():
+    # every CLI call and every worker process plans: torch (2 s to import) waits until a task that needs it runs
+    import subprocess
+    import sys
+
+    code = ("import sys; from mocapflow.pipeline import cli, registry; registry.import_plugins(()); "
+            "print(sorted(m for m in ('torch', 'anny') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+    assert registry.get("read_codes").fn.resolve()  # the stage itself still imports

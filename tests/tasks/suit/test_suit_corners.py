@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from mocapflow.tasks.suit import corners as co
+from mocapflow.tasks.suit import networks
 
 HI = 64  # px per square of the high-resolution board
 
@@ -39,9 +40,9 @@ def board(rng: np.random.Generator, size=(160, 200), squares=(6, 7), square_px=2
     return img, cv2.perspectiveTransform(grid[None], warp)[0]
 
 
-def small_net(seed=0) -> co.CornerdetNet:
+def small_net(seed=0) -> networks.CornerdetNet:
     torch.manual_seed(seed)
-    return co.CornerdetNet(co.CornerNetConfig((8, 16, 32, 32), 32)).eval()
+    return networks.CornerdetNet(co.CornerNetConfig((8, 16, 32, 32), 32)).eval()
 
 
 def test_whole_image_pass_equals_the_network_on_each_cells_crop():
@@ -193,7 +194,7 @@ def test_training_is_deterministic_for_a_seed():
     a, b = (co.train_cornerdet(samples, config, seed=7).state_dict() for _ in range(2))
     c = co.train_cornerdet(samples, config, seed=8).state_dict()
     assert all(torch.equal(a[k], b[k]) for k in a) and not all(torch.equal(a[k], c[k]) for k in a)
-    rebuilt = co.CornerdetNet(config.net)
+    rebuilt = networks.CornerdetNet(config.net)
     rebuilt.load_state_dict(a)  # rebuilt from the config alone
 
 

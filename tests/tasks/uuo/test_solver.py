@@ -84,15 +84,21 @@ FAST = solve.HypothesisConfig(
     ik=dataclasses.replace(solve.IKConfig(), iterations=40))
 
 
-def test_a_take_with_a_turned_prior_is_solved_back_and_four_hypotheses_beat_one(take):
+def _turned_prior(take):
+    """The take's exact prior turned half round about the vertical and shifted: what MHT is for."""
     exact = prior.SimulatedPriorConfig(rotation_deg=0.0, yaw_deg=0.0, scale_range=(1.0, 1.0), translation_m=0.4,
                                        lost=0.0, phenotype_noise=0.0, drift_m=0.0, seed=2)
     body_prior = prior.simulated_prior(take, exact)
-    turned = body_prior.copy()  # the prior turned half round about the vertical: what MHT is for
+    turned = body_prior.copy()
     half = Rotation.from_euler("z", 180, degrees=True)
     turned["bone_rotation"].values[:] = (half * Rotation.from_quat(
         body_prior["bone_rotation"].values.reshape(-1, 4))).as_quat().reshape(turned["bone_rotation"].shape)
     turned["root"].values[:] = half.apply(body_prior["root"].values)
+    return turned
+
+
+def test_a_take_with_a_turned_prior_is_solved_back_and_four_hypotheses_beat_one(take):
+    turned = _turned_prior(take)
     segments = segmentation.rigid_segments(take, segmentation.SegmentConfig())
     hyps = {f"yaw{y}": solve.solve_hypothesis(take, segments, turned, dataclasses.replace(FAST, yaw_deg=float(y)))
             for y in (0, 90, 180, 270)}
@@ -110,3 +116,23 @@ def test_a_take_with_a_turned_prior_is_solved_back_and_four_hypotheses_beat_one(
     assert labelled[real].mean() > 0.9  # the markers labelled (a ghost far off stays out: the test above)
     seen = best["stage_joints"].sel(stage="refined").values
     np.testing.assert_allclose(seen, best["joints"].values)
+
+
+def test_the_rigid_prior_baseline_places_the_prior_from_the_best_yaw_and_solves_nothing(take):
+    turned = _turned_prior(take)
+    segments = segmentation.rigid_segments(take, segmentation.SegmentConfig())
+    config = solve.RigidPriorConfig(matching=FAST.matching)
+    placed = solve.rigid_prior(take, segments, turned, config)
+    truth = take["gt_joints"].values
+    mpjpe = np.linalg.norm(placed["joints"].values - truth, axis=-1).mean()
+    assert mpjpe < 0.05, mpjpe  # an exact pose turned and shifted: the placement alone brings it back
+    assert abs(abs(placed.attrs["matched_yaw_deg"]) - 180.0) < 10.0
+    stages = placed["stage_joints"]
+    np.testing.assert_allclose(stages.sel(stage="matching").values, placed["joints"].values, atol=1e-6)
+    assert np.isnan(stages.sel(stage="refined").values).all()  # no solver stage ran
+    real = take["gt_source"].values >= 0
+    assert (placed["vertex"].values[real] >= 0).mean() > 0.8
+    one_way = solve.rigid_prior(take, segments, turned, dataclasses.replace(config, yaws_deg=(0.0,)))
+    assert np.linalg.norm(one_way["joints"].values - truth, axis=-1).mean() > 3 * mpjpe
+    with pytest.raises(solve.SolveError, match="yaws_deg is empty"):
+        solve.rigid_prior(take, segments, turned, dataclasses.replace(config, yaws_deg=()))
