@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import shutil
 
-import pytest
-
 from conftest import assert_same_artifacts, last_json, mocapflow, read_artifacts
 
 DAMAGE = ["deleted", "truncated", "bit-flipped", "copied over"]
@@ -36,61 +34,76 @@ def damage(version, how: str) -> str:
     return "value/c/0/1/0/0"
 
 
-def scaled_version(project, view: str = "cam0"):
+def scaled_version(project, view: str = "cam0", sequence: str = "seqA"):
     for version in (project / "storage" / "scaled").iterdir():
-        if f'"scaled/seqA/{view}"' in (version / "lineage.json").read_text():
+        if f'"scaled/{sequence}/{view}"' in (version / "lineage.json").read_text():
             return version
-    raise AssertionError(f"no scaled version of seqA/{view}")
+    raise AssertionError(f"no scaled version of {sequence}/{view}")
 
 
-@pytest.mark.parametrize("how", DAMAGE)
-def test_verify_finds_the_damage_status_shows_it_and_a_run_rewrites_only_that_region(toy_project, tmp_path_factory,
-                                                                                     how):
-    project = toy_project(sequences=("seqA",))
+# one kind of damage per partition of `scaled`, so one store shows every kind
+DAMAGED = dict(zip(DAMAGE, [("seqA", "cam0"), ("seqA", "cam1"), ("seqB", "cam0"), ("seqB", "cam1")]))
+
+
+def damage_every_kind(project) -> dict:
+    """Damage frames 4-7 of each `scaled` partition, a different way each; partition id -> (version, chunk key)."""
+    out = {}
+    for how, (seq, view) in DAMAGED.items():
+        version = scaled_version(project, view, seq)
+        out[f"scaled/{seq}/{view}"] = (version, damage(version, how), how)
+    return out
+
+
+def test_verify_finds_every_kind_of_damage_status_shows_it_and_a_run_rewrites_only_those_regions(toy_project,
+                                                                                                  tmp_path_factory):
+    project = toy_project()
     clean = clean_run(project, tmp_path_factory)
     mocapflow("run", "--json", cwd=project)
-    chunk = damage(scaled_version(project), how)
+    damaged = damage_every_kind(project)
 
     found = mocapflow("verify", cwd=project, check=False)
     assert found.returncode == 1
-    assert f"DAMAGED scaled/seqA/cam0 (scaled/{scaled_version(project).name}): 1 chunk(s), in 00000004-00000008" \
-        in found.stdout
-    assert chunk in found.stdout and ("is missing" if how == "deleted" else "has digest") in found.stdout
-    assert "5 intact, 1 damaged, 0 unverified" in found.stdout and "mocapflow run" in found.stderr
+    lines = found.stdout.splitlines()
+    for pid, (version, chunk, how) in damaged.items():
+        line = next((line for line in lines if line.startswith(f"DAMAGED {pid} ")), None)
+        assert line == f"DAMAGED {pid} (scaled/{version.name}): 1 chunk(s), in 00000004-00000008", (how, lines)
+        detail = lines[lines.index(line) + 1]
+        assert chunk in detail and ("is missing" if how == "deleted" else "has digest") in detail, (how, detail)
+    assert "8 intact, 4 damaged, 0 unverified" in found.stdout and "mocapflow run" in found.stderr
 
     status = mocapflow("status", cwd=project).stdout
-    assert "1 damaged" in status and "5 fresh" in status
-    assert [line.split() for line in status.splitlines() if line.startswith("scaled")] == [["scaled", "damaged", "fresh"]]
+    assert "4 damaged" in status and "8 fresh" in status
+    assert [line.split()[:2] for line in status.splitlines() if line.startswith("scaled")] == [["scaled", "damaged"]]
 
     rerun = last_json(mocapflow("run", "--json", cwd=project))
-    assert rerun["executed"] == ["scaled/seqA/cam0"] and rerun["regions"] == {"scaled/seqA/cam0": 1}
+    assert sorted(rerun["executed"]) == sorted(damaged) and rerun["regions"] == {pid: 1 for pid in damaged}
     assert_same_artifacts(read_artifacts(project / "storage"), clean)
-    assert "6 intact, 0 damaged" in mocapflow("verify", cwd=project).stdout
-    assert "6 fresh" in mocapflow("status", cwd=project).stdout
+    assert "12 intact, 0 damaged" in mocapflow("verify", cwd=project).stdout
+    assert "12 fresh" in mocapflow("status", cwd=project).stdout
 
 
-@pytest.mark.parametrize("how", DAMAGE)
-def test_a_stage_reading_a_damaged_chunk_fails_naming_it_and_the_fix(toy_project, tmp_path_factory, how):
-    project = toy_project(sequences=("seqA",))
+def test_a_stage_reading_a_damaged_chunk_fails_naming_it_and_the_fix(toy_project, tmp_path_factory):
+    project = toy_project()
     clean = clean_run(project, tmp_path_factory)
     mocapflow("run", "--json", "--until", "scaled", cwd=project)
-    version = scaled_version(project)
-    chunk = damage(version, how)
+    damaged = damage_every_kind(project)
 
     proc = mocapflow("run", "--json", "--keep-going", cwd=project, check=False)
     summary = last_json(proc)
     assert proc.returncode == 1
-    assert set(summary["failed"]) == {"diffed/seqA/cam0", "summed/seqA"}  # the readers of scaled/seqA/cam0
-    for message in summary["errors"].values():
-        assert f"artifact scaled/{version.name} (partition scaled/seqA/cam0)" in message
+    readers = {pid.replace("scaled/", "diffed/") for pid in damaged} | {"summed/seqA", "summed/seqB"}
+    assert set(summary["failed"]) == readers
+    for pid, (version, chunk, how) in damaged.items():
+        message = summary["errors"][pid.replace("scaled/", "diffed/")]
+        assert f"artifact scaled/{version.name} (partition {pid})" in message, (how, message)
         assert f"chunk {chunk} of array 'value'" in message
         assert "run `mocapflow verify scaled`" in message and "then `mocapflow run`" in message
         assert "zstd" not in message.lower()
 
     assert mocapflow("verify", "scaled", cwd=project, check=False).returncode == 1
     rerun = last_json(mocapflow("run", "--json", cwd=project))
-    assert set(rerun["executed"]) == {"scaled/seqA/cam0", "diffed/seqA/cam0", "summed/seqA"}
-    assert rerun["regions"]["scaled/seqA/cam0"] == 1
+    assert set(rerun["executed"]) == set(damaged) | readers
+    assert all(rerun["regions"][pid] == 1 for pid in damaged)
     assert_same_artifacts(read_artifacts(project / "storage"), clean)
 
 
