@@ -14,8 +14,10 @@ confidence-weighted mean over views (Eq. 10), after rejecting a view farther tha
 the others' median. A strap is seen from all sides, each view on the surface facing it: the limb
 centre is where the surface normals meet, i.e. the closest points between the normal lines of each
 pair of views (Eq. A1), averaged; a strap seen by one view only is pushed along its normal by the
-limb radius. The total confidence C_f is the mean of the views' confidences. Each view's own centre guess
-and confidence are kept beside the fused point, so that a later stage can use a view that fusion outvoted.
+limb radius. The total confidence C_f is the mean of the views' confidences. Beyond the paper, a view's
+lifted point below the floor or above the ceiling is dropped before fusion (a label read on the background's
+depth never reaches 3D). Each view's own centre guess and confidence are kept beside the fused point, so that
+a later stage can use a view that fusion outvoted.
 """
 
 from __future__ import annotations
@@ -48,6 +50,14 @@ class Markers3DConfig:
     strap_tolerance_m: float = 0.08
     min_confidence: float = 0.0  # 2D estimates below this are not lifted
     lift_recovered: bool = False  # True: a recovered 2D estimate (reflectors2d) is lifted where no view has a plain one
+    # a view's lifted point below the floor or above the ceiling (world z, m) is no reflector on a person (a region
+    # read on the background's depth, a label on a speck): it is dropped before fusion, never averaged in
+    floor_m: float = -0.10
+    ceiling_m: float = 2.80
+
+    def __post_init__(self):
+        if not self.ceiling_m > self.floor_m:
+            raise ValueError(f"ceiling_m must exceed floor_m (e.g. 2.8 > -0.1), got {self.ceiling_m} <= {self.floor_m}")
 
 
 def region_depths(xy: np.ndarray, region_of: np.ndarray, blob_id: np.ndarray, depth: np.ndarray, *,
@@ -258,6 +268,10 @@ def markers3d(reflectors: xr.Dataset, masks: xr.Dataset, frames: xr.Dataset, con
             points[v, i], rays[v, i] = lift_view(
                 x[i], y[i], confidence[v, i], blob_id[i], depth[i], camera, contour_px=config.contour_px,
                 max_depth_spread_mm=config.max_depth_spread_mm, min_confidence=config.min_confidence)
+    height = points[..., 2]  # (view, frame, reflector)
+    with np.errstate(invalid="ignore"):
+        outside = np.isfinite(height) & ((height < config.floor_m) | (height > config.ceiling_m))
+    points[outside], rays[outside] = np.nan, np.nan
     fused = [fuse_frame(points[:, i], rays[:, i], confidence[:, i], names, patch_tolerance_m=config.patch_tolerance_m,
                         strap_tolerance_m=config.strap_tolerance_m) for i in range(n_frames)]
     xyz, conf, used, residual = (np.stack(column) for column in zip(*fused))
@@ -272,5 +286,6 @@ def markers3d(reflectors: xr.Dataset, masks: xr.Dataset, frames: xr.Dataset, con
          "view_confidence": (("frame", "reflector", "view"), own_conf.transpose(1, 2, 0).astype(np.float32))},
         coords={"frame": reflectors["frame"].values, "reflector": names, "view": np.array(views, dtype=object),
                 "xyz": ["x", "y", "z"]},
-        attrs={"length_unit": "m", "up_axis": "Z", "fps": float(frames.attrs["fps"])},
+        attrs={"length_unit": "m", "up_axis": "Z", "fps": float(frames.attrs["fps"]),
+               "rejected_view_estimates": int(outside.sum())},  # lifted outside the floor-ceiling band
     )

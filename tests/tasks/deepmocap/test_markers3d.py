@@ -193,3 +193,33 @@ def test_recovered_estimates_are_not_lifted_unless_asked_and_then_only_as_a_last
     np.testing.assert_array_equal(last["views"].values[:, 0], [1, 1])  # frame 1 from view b's recovered estimate
     np.testing.assert_allclose(last["position"].values[:, 0], [world, world], atol=0.01)
     assert np.isnan(last["residual"].sel(view="b").values[0]).all()  # frame 0: view a's plain estimate alone
+
+
+def test_a_view_lifted_below_the_floor_is_dropped_before_fusion():
+    """View b reads the reflector on a depth eight times too far: its point lands under the floor and is not fused."""
+    world = np.array([0.1, 0.05, 1.2])
+    cams = [_camera([2.5, -1.0, 1.2]), _camera([-2.0, -2.0, 1.4])]
+    depth, blob, xy = map(list, zip(*[_view_frame(c, world) for c in cams]))
+    depth[1] = np.where(depth[1] > 0, depth[1] * 8, 0).astype(np.uint16)  # the background behind, far below the floor
+    coords = {"view": ["a", "b"], "frame": [0]}
+    per = ("view", "frame", "reflector")
+    reflectors = xr.Dataset({"x": (per, np.array([[[xy[0][0]]], [[xy[1][0]]]], np.float32)),
+                             "y": (per, np.array([[[xy[0][1]]], [[xy[1][1]]]], np.float32)),
+                             "confidence": (per, np.full((2, 1, 1), 0.9, np.float32))},
+                            coords={**coords, "reflector": ["F_SPINEMID"]})
+    masks = xr.Dataset({"blob_id": (("view", "frame", "y", "x"), np.stack([b[None] for b in blob]))}, coords=coords)
+    frames = xr.Dataset({"depth": (("view", "frame", "y", "x"), np.stack([d[None] for d in depth])),
+                         **{k: (("view",), [float(c.K[i]) for c in cams])
+                            for k, i in (("fx", (0, 0)), ("fy", (1, 1)), ("cx", (0, 2)), ("cy", (1, 2)))},
+                         "dist": (("view", "dist_coef"), np.stack([np.asarray(c.dist, float) for c in cams])),
+                         "cam_to_world": (("view", "row", "col"), np.stack([c.cam_to_world for c in cams]))},
+                        coords=coords, attrs={"fps": 30.0})
+    out = m3d.markers3d(reflectors, masks, frames, m3d.Markers3DConfig())
+    np.testing.assert_allclose(out["position"].values[0, 0], world, atol=0.01)  # view a's point alone
+    assert out["views"].values[0, 0] == 1 and out.attrs["rejected_view_estimates"] == 1
+    assert np.isnan(out["view_position"].sel(view="b").values).all()
+    kept = m3d.markers3d(reflectors, masks, frames, m3d.Markers3DConfig(floor_m=-100.0))
+    assert kept.attrs["rejected_view_estimates"] == 0
+    assert kept["view_position"].sel(view="b", reflector="F_SPINEMID").values[0, 2] < -0.1  # where it would have gone
+    with pytest.raises(ValueError, match="ceiling_m must exceed floor_m"):
+        m3d.Markers3DConfig(floor_m=3.0)
