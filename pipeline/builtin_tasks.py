@@ -176,7 +176,7 @@ register(TaskSpec(
     inputs={"samples": "fcn_samples"}, description="train the two-stream multi-stage FCN (seeded; GPU if present)",
 ))
 register(TaskSpec(
-    name="fcn_heatmaps", fn=Lazy("mocapflow.tasks.deepmocap.heatmaps", "fcn_heatmaps"), version="2",
+    name="fcn_heatmaps", fn=Lazy("mocapflow.tasks.deepmocap.heatmaps", "fcn_heatmaps"), version="3",
     params=HeatmapConfig, output="heatmaps", partition="view",
     inputs={"masks": "reflector_masks", "flow": "scene_flow"},
     reads={"masks": ("colorized_depth", "blob_id", "blob_area"), "flow": ("colorized_flow",)},

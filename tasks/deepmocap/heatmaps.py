@@ -151,7 +151,7 @@ def network_inputs(masks: xr.Dataset, flow: xr.Dataset, crop: CropConfig, size: 
         for i in range(m.sizes["frame"]):
             depth_s, flow_s, box = sample_inputs(
                 m["colorized_depth"].values[i], f["colorized_flow"].values[i], m["blob_id"].values[i],
-                m["blob_area"].values[i], sample_scale=crop.sample_scale, box_min_area=crop.box_min_area)
+                m["blob_area"].values[i], sample_scale=crop.sample_scale, box=crop.box_rule())
             a = targets.crop_affine(box, size=size, margin=crop.margin, min_side=crop.min_side,
                                     jitter=targets.CropJitter(scale=crop.scale))
             depth_crops.append(targets.warp_depth(depth_s, a, size))

@@ -36,14 +36,52 @@ def draw_jitter(rng: np.random.Generator, *, scale=(0.6, 1.1), rotation_deg=40.0
                       flip=bool(rng.random() < 0.5), shift=tuple(float(v) for v in rng.uniform(-shift, shift, 2)))
 
 
-def subject_box(blob_id: np.ndarray, blob_area: np.ndarray, *, min_area: int = 3) -> np.ndarray:
-    """(x0, y0, x1, y1) around the reflector regions of at least ``min_area`` pixels; the whole image if none."""
+@dataclass(frozen=True)
+class BoxRule:
+    """Which reflector regions define the subject box (see subject_box)."""
+
+    min_area: int = 3
+    speck_area: int = 0
+    link_px: float = 0.0
+
+
+def subject_box(blob_id: np.ndarray, blob_area: np.ndarray, *, min_area: int = 3, speck_area: int = 0,
+                link_px: float = 0.0) -> np.ndarray:
+    """(x0, y0, x1, y1) around the reflector regions of at least ``min_area`` pixels; the whole image if none.
+
+    A speck, a region under ``speck_area`` pixels whose centre lies farther than ``link_px`` from every other
+    region's (a reflective object in the room, sensor glare), is left out: it would stretch the box over the
+    image. A reflector on the body has a neighbour within reach; a large isolated region stays in."""
     h, w = blob_id.shape  # (y, x)
     keep = np.concatenate([[False], np.asarray(blob_area) >= min_area])  # index 0: no blob
-    ys, xs = np.nonzero(keep[blob_id])
-    if len(xs) == 0:
+    ys, xs = np.nonzero(blob_id)
+    labels = blob_id[ys, xs]
+    if speck_area > 0 and link_px > 0 and keep.sum() > 1:
+        small = np.concatenate([[0], np.asarray(blob_area)]) < speck_area
+        keep &= ~_specks(xs, ys, labels, keep, small, link_px)
+    inside = keep[labels]
+    if not inside.any():
         return np.array([0.0, 0.0, w - 1.0, h - 1.0], np.float32)
+    xs, ys = xs[inside], ys[inside]
     return np.array([xs.min(), ys.min(), xs.max(), ys.max()], np.float32)
+
+
+def _specks(xs: np.ndarray, ys: np.ndarray, labels: np.ndarray, keep: np.ndarray, small: np.ndarray,
+            link_px: float) -> np.ndarray:
+    """(blob,) bool: the kept regions that are ``small`` and whose nearest other kept region's centre is farther
+    than ``link_px``.  xs, ys, labels (pixel,): every region pixel and its region"""
+    from scipy.spatial import cKDTree
+
+    pixels = np.bincount(labels, minlength=len(keep)).astype(np.float64)
+    ids = np.flatnonzero(keep & (pixels > 0))
+    out = np.zeros_like(keep)
+    if len(ids) < 2:
+        return out
+    centre = np.stack([np.bincount(labels, xs, len(keep))[ids], np.bincount(labels, ys, len(keep))[ids]], 1) \
+        / pixels[ids, None]  # (region, 2) x, y
+    nearest, _ = cKDTree(centre).query(centre, k=2)  # itself, then its nearest neighbour
+    out[ids] = small[ids] & (nearest[:, 1] > link_px)
+    return out
 
 
 def crop_affine(box: np.ndarray, *, size: int, margin: float, min_side: float,

@@ -30,6 +30,11 @@ log = logging.getLogger(__name__)
 class SampleConfig:
     sample_scale: float = 0.5  # the network's inputs are cropped from images resized by this factor
     box_min_area: int = 3  # reflector regions (pixels, full resolution) that define the subject box
+    box_speck_area: int = 20  # a region under this many pixels with no other within box_link_px is a speck, not
+    box_link_px: float = 120.0  # in the subject box (targets.subject_box); 120 px: about 1 m at 3 m from a Kinect v2
+
+    def box_rule(self) -> targets.BoxRule:
+        return targets.BoxRule(self.box_min_area, self.box_speck_area, self.box_link_px)
 
 
 @dataclass(frozen=True)
@@ -40,7 +45,12 @@ class CropConfig:
     margin: float = 1.3  # crop side = box long side x margin at scale 1
     min_side: float = 50.0  # sample pixels, so a lone reflector still gives a body-sized crop
     box_min_area: int = 3
+    box_speck_area: int = 20  # see SampleConfig; 0: every region counts
+    box_link_px: float = 120.0
     scale: float = 0.85  # inference crop scale, inside the training range
+
+    def box_rule(self) -> targets.BoxRule:
+        return targets.BoxRule(self.box_min_area, self.box_speck_area, self.box_link_px)
 
 
 @dataclass(frozen=True)
@@ -93,21 +103,21 @@ def to_sample_scale(points: np.ndarray, sample_scale: float) -> np.ndarray:
     return ((points + 0.5) * sample_scale - 0.5).astype(np.float32)
 
 
-def sample_inputs(depth_image, flow_image, blob_id, blob_area, *, sample_scale: float, box_min_area: int):
+def sample_inputs(depth_image, flow_image, blob_id, blob_area, *, sample_scale: float, box: targets.BoxRule):
     """Both streams at the sample scale and the subject box in its pixels (training and inference alike).
     (y, x, 3) x2, (y, x), (blob,) -> (y', x', 3) x2, (4,)"""
     h, w = depth_image.shape[:2]
     size = (int(round(w * sample_scale)), int(round(h * sample_scale)))
-    box = targets.subject_box(blob_id, blob_area, min_area=box_min_area)
+    subject = targets.subject_box(blob_id, blob_area, min_area=box.min_area, speck_area=box.speck_area,
+                                  link_px=box.link_px)
     return (cv2.resize(depth_image, size, interpolation=cv2.INTER_AREA),
-            cv2.resize(flow_image, size, interpolation=cv2.INTER_AREA), to_sample_scale(box, sample_scale))
+            cv2.resize(flow_image, size, interpolation=cv2.INTER_AREA), to_sample_scale(subject, sample_scale))
 
 
 def sample_view(depth_image, flow_image, blob_id, blob_area, uv, uv_prev, pixels, *, sample_scale: float,
-                box_min_area: int):
+                box: targets.BoxRule):
     """One view-frame's training sample: :func:`sample_inputs` and the 2D ground truth at f and f-1."""
-    return (*sample_inputs(depth_image, flow_image, blob_id, blob_area, sample_scale=sample_scale,
-                           box_min_area=box_min_area),
+    return (*sample_inputs(depth_image, flow_image, blob_id, blob_area, sample_scale=sample_scale, box=box),
             to_sample_scale(uv, sample_scale), to_sample_scale(uv_prev, sample_scale), pixels.astype(np.int32))
 
 
@@ -125,7 +135,7 @@ def fcn_samples(masks: xr.Dataset, flow: xr.Dataset, frames: xr.Dataset, config:
                                  m["blob_id"].values, m["blob_area"].values, uv_all.sel(view=view, frame=frame).values,
                                  uv_all.sel(view=view, frame=prev).values,
                                  frames["gt_pixels"].sel(view=view, frame=frame).values,
-                                 sample_scale=config.sample_scale, box_min_area=config.box_min_area)
+                                 sample_scale=config.sample_scale, box=config.box_rule())
             for key, value in zip(per_view, sample):
                 per_view[key].append(value)
         for key in out:
