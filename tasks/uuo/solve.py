@@ -134,9 +134,9 @@ class RigidPriorConfig:
 
 
 def rigid_prior(markers: xr.Dataset, segments: xr.Dataset, prior: xr.Dataset, config: RigidPriorConfig) -> xr.Dataset:
-    """Stage ``uuo_rigid_prior``: the baseline "prior only + rigid registration" (the paper's HMR2.0+RR, aligned
-    by its part localization, Table 2): the prior placed on the markers by part matching from each yaw, the
-    placement of least chamfer (Eq. 3) kept, no pose solved; each trajectory's vertex on it by Eq. (6)."""
+    """Stage ``rigid_prior``: the baseline "prior only + rigid registration" (the paper's HMR2.0+RR of Tables 1
+    and 2, aligned by its part localization, Fig. 7): the prior placed on the markers by part matching from each
+    yaw, the placement of least chamfer (Eq. 3) kept, no pose solved; each trajectory's vertex on it by Eq. (6)."""
     if not config.yaws_deg:
         raise SolveError("rigid_prior: yaws_deg is empty; give at least one root yaw, e.g. [0, 90, 180, 270]")
     m = _marker_positions(markers)
