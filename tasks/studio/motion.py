@@ -1,4 +1,5 @@
-"""Procedural library of DMC3D's 15 exercises (DeepMoCap §4, Table 1) on the template body.
+"""Procedural library of DMC3D's 15 exercises (DeepMoCap §4, Table 1) on the template body, and of motions
+its exercises lack (``ATHLETIC``: kicks, hops, jumps, turns, crossing legs, dance, a sprint's limb speeds).
 
 Each exercise is a set of joint-angle curves over a phase ``phi`` (one repetition = 2*pi), with
 speed (repetitions per second), amplitude (a factor on the nominal angles) and repetitions as
@@ -215,6 +216,74 @@ def _kick_box(p, phi, a):
     p.spine(flex=-np.radians(8) * np.abs(np.sin(phi)) * a)
 
 
+# ---- beyond DMC3D: motions of kinds its exercises lack (fast limbs, flight, turns, crossing legs) -------------
+
+def _front_kick(p, phi, a):
+    for side, sign in (("Right", 1), ("Left", -1)):
+        kick = _pos(sign * np.sin(phi)) ** 2 * a  # a snap up and back, one leg per half repetition
+        p.hip(side, flex=np.radians(105) * kick).knee(side, np.radians(70) * np.sin(np.clip(kick * np.pi, 0, np.pi)))
+        p.arm_forward(side, -np.radians(35) * kick * sign)
+    p.arms_down(np.radians(25), np.radians(25)).elbow("Right", np.radians(70)).elbow("Left", np.radians(70))
+    p.spine(flex=-np.radians(12) * np.abs(np.sin(phi)) * a)
+
+
+def _hop_on_one_leg(p, phi, a):
+    flight = _pos(np.sin(phi))
+    p.hip("Left", flex=np.radians(35)).knee("Left", np.radians(85))  # the free leg held up behind
+    p.hip("Right", flex=np.radians(20) * (1 - flight)).knee("Right", np.radians(35) * (1 - flight))
+    p.ankle("Right", -np.radians(20) * flight)
+    p.arms_down(np.radians(35) * flight + np.radians(15), np.radians(35) * flight + np.radians(15))
+    p.air[:] = a * 0.14 * flight
+
+
+def _tuck_jump(p, phi, a):
+    flight = _pos(np.sin(phi)) ** 1.5 * a
+    crouch = _pos(-np.sin(phi)) * a  # the take-off and the landing
+    for side in ("Right", "Left"):
+        p.hip(side, flex=np.radians(95) * flight + np.radians(45) * crouch)
+        p.knee(side, np.radians(120) * flight + np.radians(80) * crouch)
+        p.arm_forward(side, np.radians(110) * flight - np.radians(30) * crouch)
+    p.arms_down()
+    p.spine(flex=np.radians(20) * crouch + np.radians(10) * flight)
+    p.air[:] = 0.4 * flight
+
+
+def _turn_around(p, phi, a):
+    p.turn("Hips", "z", a * phi)  # a whole turn per repetition, stepping round
+    _walk(p, 4 * phi, 0.6 * a)
+
+
+def _crossing_legs(p, phi, a):
+    p.root[:, 0] = a * 0.45 * np.sin(phi / 2)  # the grapevine travels sideways and back
+    for side, sign in (("Right", 1), ("Left", -1)):
+        cross = _pos(sign * np.sin(phi)) * a
+        p.hip(side, abduct=-np.radians(22) * cross, flex=np.radians(18) * cross).knee(side, np.radians(30) * cross)
+    p.spine(twist=np.radians(15) * np.sin(phi) * a)
+    p.arms_down(np.radians(30), np.radians(30))
+
+
+def _dance_swing(p, phi, a):
+    swing = np.sin(phi)
+    p.root[:, 0] = a * 0.12 * swing
+    p.spine(twist=np.radians(30) * swing * a, side_bend=np.radians(12) * swing * a)
+    p.arms_down(np.radians(60) + np.radians(60) * _pos(swing) * a, np.radians(60) + np.radians(60) * _pos(-swing) * a)
+    p.turn("RightShoulder", "z", np.radians(50) * swing * a).turn("LeftShoulder", "z", np.radians(50) * swing * a)
+    for side in ("Right", "Left"):
+        p.knee(side, np.radians(25) * np.abs(np.sin(2 * phi)) * a)
+    p.elbow("Right", np.radians(40)).elbow("Left", np.radians(40))
+
+
+def _sprint_in_place(p, phi, a):
+    s = np.sin(phi)
+    for side, sign in (("Right", 1), ("Left", -1)):
+        lift = _pos(sign * s)
+        p.hip(side, flex=a * np.radians(90) * lift).knee(side, a * np.radians(115) * lift)
+        p.arm_forward(side, -sign * a * np.radians(60) * s)
+    p.arms_down(np.radians(10), np.radians(10)).elbow("Right", np.radians(90)).elbow("Left", np.radians(90))
+    p.spine(flex=np.radians(8))
+    p.air[:] = 0.05 * np.abs(s) * a
+
+
 # (joint helper, keyword or axis, amplitude in degrees at variation 1, one-sided): the overlay of ``vary``.
 # One-sided curves only bend a hinge further (elbows, knees), never past straight.
 VARIATION = (
@@ -285,6 +354,16 @@ EXERCISES: dict[str, tuple[Callable, float]] = {  # name: (curves, nominal repet
     "alternate_side_reaches": (_alternate_side_reaches, 0.35),
     "kick_box_kicking": (_kick_box, 0.6),
 }
+ATHLETIC: dict[str, tuple[Callable, float]] = {  # beyond DMC3D: kicks, hops, jumps, turns, crossing legs, dance
+    "front_kick": (_front_kick, 0.8),
+    "hop_on_one_leg": (_hop_on_one_leg, 1.6),
+    "tuck_jump": (_tuck_jump, 0.7),
+    "turn_around": (_turn_around, 0.25),
+    "crossing_legs": (_crossing_legs, 0.5),
+    "dance_swing": (_dance_swing, 0.7),
+    "sprint_in_place": (_sprint_in_place, 2.2),  # a sprint's cadence: limbs at a sprint's speeds
+}
+EXERCISES.update(ATHLETIC)
 
 
 def exercise(name: str, subject: Subject, *, n_frames: int, fps: float = 30.0, speed: float = 1.0,

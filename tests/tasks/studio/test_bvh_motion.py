@@ -81,6 +81,49 @@ def test_every_exercise_is_planted_and_moves(name):
     assert np.ptp(pos, axis=0).max() > 0.1, "the exercise must move some joint by 10 cm"
 
 
+# largest rotation of each joint from its rest orientation (degrees): a person's range, generously
+JOINT_LIMITS_DEG = {"SpineBase": 60, "Neck": 45, "Head": 60, "LeftShoulder": 180, "RightShoulder": 180,
+                    "LeftElbow": 150, "RightElbow": 150, "LeftWrist": 80, "RightWrist": 80, "LeftHip": 130,
+                    "RightHip": 130, "LeftKnee": 150, "RightKnee": 150, "LeftAnkle": 50, "RightAnkle": 50}
+
+
+@pytest.mark.parametrize("name", sorted(motion.ATHLETIC))
+def test_athletic_motions_stay_within_joint_limits_and_knees_and_elbows_never_overextend(name):
+    from scipy.spatial.transform import Rotation
+
+    m = motion.exercise(name, body.Subject(1.75), n_frames=120)
+    for joint, limit in JOINT_LIMITS_DEG.items():
+        rot = Rotation.from_matrix(m.local_rot[:, body.JOINT_INDEX[joint]])
+        assert np.degrees(rot.magnitude()).max() <= limit, joint
+    rotvec = lambda j: Rotation.from_matrix(m.local_rot[:, body.JOINT_INDEX[j]]).as_rotvec()  # noqa: E731
+    assert (rotvec("LeftKnee")[:, 0] <= 1e-9).all() and (rotvec("RightKnee")[:, 0] <= 1e-9).all()  # flexion only
+    assert (rotvec("RightElbow")[:, 2] >= -1e-9).all() and (rotvec("LeftElbow")[:, 2] <= 1e-9).all()
+
+
+def test_athletic_motions_reach_a_sprints_limb_speeds_flight_and_a_whole_turn():
+    subject = body.Subject(1.75)
+
+    def run(name):
+        m = motion.exercise(name, subject, n_frames=120)
+        return m, joints(m, subject)
+
+    def peak_speed(pos, joint):
+        return (np.linalg.norm(np.diff(pos[:, body.JOINT_INDEX[joint]], axis=0), axis=-1) * 30.0).max()
+
+    _, sprint = run("sprint_in_place")
+    assert peak_speed(sprint, "RightKnee") > 8.0 and peak_speed(sprint, "RightHand") > 5.0  # m/s
+    _, kick = run("front_kick")
+    assert 8.0 < peak_speed(kick, "RightFoot") < 25.0
+    jump, _ = run("tuck_jump")
+    assert motion.lowest_foot_point(jump.local_rot, jump.root_pos, subject).max() > 0.3  # both feet 30 cm up
+    turn, pos = run("turn_around")  # 0.25 turns a second: half a turn in 60 frames, a whole one in 120
+    hips, left, right = (body.JOINT_INDEX[j] for j in ("Hips", "LeftHip", "RightHip"))
+    across = pos[:, left, :2] - pos[:, right, :2]
+    heading = np.unwrap(np.arctan2(across[:, 1], across[:, 0]))
+    assert np.degrees(np.ptp(heading)) > 300
+    assert np.isfinite(pos[:, hips]).all()
+
+
 def test_exercise_parameters_and_errors():
     subject = body.Subject()
     slow = motion.exercise("elbow_flexion", subject, n_frames=90, repetitions=1)
