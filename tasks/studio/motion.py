@@ -86,12 +86,18 @@ def _pos(x):
     return np.maximum(x, 0.0)
 
 
-def _walk(p, phi, a):
+def _strides(p, phi, a, hip_deg: float, knee_deg: float, arm_deg: float):
+    """Alternating knee lifts with opposite arm swings (walking, running in place); -> sin(phi)."""
     s = np.sin(phi)
     for side, sign in (("Right", 1), ("Left", -1)):
         lift = _pos(sign * s)
-        p.hip(side, flex=a * np.radians(45) * lift).knee(side, a * np.radians(70) * lift)
-        p.arm_forward(side, -sign * a * np.radians(20) * s)
+        p.hip(side, flex=a * np.radians(hip_deg) * lift).knee(side, a * np.radians(knee_deg) * lift)
+        p.arm_forward(side, -sign * a * np.radians(arm_deg) * s)
+    return s
+
+
+def _walk(p, phi, a):
+    _strides(p, phi, a, 45, 70, 20)
     p.arms_down().elbow("Right", np.radians(15)).elbow("Left", np.radians(15))
 
 
@@ -274,11 +280,7 @@ def _dance_swing(p, phi, a):
 
 
 def _sprint_in_place(p, phi, a):
-    s = np.sin(phi)
-    for side, sign in (("Right", 1), ("Left", -1)):
-        lift = _pos(sign * s)
-        p.hip(side, flex=a * np.radians(90) * lift).knee(side, a * np.radians(115) * lift)
-        p.arm_forward(side, -sign * a * np.radians(60) * s)
+    s = _strides(p, phi, a, 90, 115, 60)
     p.arms_down(np.radians(10), np.radians(10)).elbow("Right", np.radians(90)).elbow("Left", np.radians(90))
     p.spine(flex=np.radians(8))
     p.air[:] = 0.05 * np.abs(s) * a
