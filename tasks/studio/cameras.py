@@ -73,7 +73,8 @@ def layout(spec: Mapping[str, Any] | None = None, *, views: int = 3, rng: np.ran
     """Cameras from a layout mapping (see below) or the default DMC ring with ``views`` sensors.
 
     Layout mapping: ``target: [x, y, z]`` (optional) and either
-    ``ring: {count, radius, height, start_deg, spacing_deg}`` or
+    ``ring: {count, radius, height, start_deg, spacing_deg, roll_deg?}`` (``roll_deg``: one roll for every sensor, or
+    one per sensor) or
     ``sensors: [{name, position: [x, y, z], target?, roll_deg?, fx?, fy?, cx?, cy?, dist?}, ...]``, a sensor's
     orientation given instead by ``rotation`` (3x3 camera-to-world) or ``quaternion`` ([w, x, y, z]) where a
     real rig's is known whole (see sensor_pose).
@@ -85,12 +86,25 @@ def layout(spec: Mapping[str, Any] | None = None, *, views: int = 3, rng: np.ran
     else:
         ring = dict(spec.get("ring", {}))
         ring.setdefault("count", views)
-        cams = [kinect_v2(f"kinect{i}", look_at(p, target), rng) for i, p in enumerate(ring_positions(**ring))]
+        rolls = np.broadcast_to(np.asarray(ring.pop("roll_deg", 0.0), float), (int(ring["count"]),))
+        cams = [kinect_v2(f"kinect{i}", _rolled(look_at(p, target), r), rng)
+                for i, (p, r) in enumerate(zip(ring_positions(**ring), rolls))]
     if not cams:
         raise LayoutError("the camera layout has no sensors")
     for cam in cams:
         check_sees(cam, target)
     return cams
+
+
+def _rolled(pose: np.ndarray, degrees: float) -> np.ndarray:
+    out = pose.copy()
+    out[:3, :3] = out[:3, :3] @ roll(float(degrees))
+    return out
+
+
+def random_rolls(rng: np.random.Generator, views: int, max_deg: float) -> list[float]:
+    """Each sensor's roll about its viewing axis, uniform in ±``max_deg`` (a real rig's sensors sit 1-3° off level)."""
+    return [float(r) for r in rng.uniform(-max_deg, max_deg, views)]
 
 
 def random_ring(rng: np.random.Generator, views: int = 3) -> dict:

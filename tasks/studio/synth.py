@@ -42,6 +42,7 @@ class SequenceSpec:
     heading_deg: float = 0.0
     variation: float = 0.0  # random posture, heading and drift on an exercise (motion.vary, motion.wander)
     random_layout: bool = False
+    camera_roll_deg: float = 0.0  # with random_layout: each sensor rolled by up to this many degrees either way
     layout: Mapping[str, Any] | None = None
     label: str = ""  # the motion's name in the ground truth (defaults to ``motion``)
     body: str = "capsule"  # the subject: "capsule" (the template's primitives) or "mesh" (Anny, tasks/studio/mesh_synth.py)
@@ -52,6 +53,9 @@ class SequenceSpec:
             raise ValueError(f"frames must be positive, got {self.frames}")
         if self.fps <= 0 or self.views <= 0 or self.noise < 0:
             raise ValueError(f"fps ({self.fps}) and views ({self.views}) must be positive, noise ({self.noise}) >= 0")
+        if not 0 <= self.camera_roll_deg <= 45:
+            raise ValueError(f"camera_roll_deg must be within 0-45 degrees (a real rig's sensors sit 1-3 off level), "
+                             f"got {self.camera_roll_deg}")
         if self.variation < 0:
             raise ValueError(f"variation must be >= 0 (0 = the textbook exercise), got {self.variation}")
         if self.body not in BODIES:
@@ -92,6 +96,9 @@ def build_rig(spec: SequenceSpec, bvh_text: str | None = None) -> Rig | mesh_syn
     prims = body.surface(subject)
     placements = reflectors.place(prims, rng, spec.jitter)
     layout_spec = spec.layout or (cameras.random_ring(rng, spec.views) if spec.random_layout else None)
+    if spec.camera_roll_deg and spec.random_layout and not spec.layout:  # its own stream: the draws above stay
+        layout_spec["ring"]["roll_deg"] = cameras.random_rolls(np.random.default_rng([spec.seed, 2]), spec.views,
+                                                               spec.camera_roll_deg)
     cams = cameras.layout(layout_spec, views=spec.views, rng=rng if spec.random_layout else None)
     if spec.motion == "bvh":
         if bvh_text is None:

@@ -92,3 +92,34 @@ def test_a_sensor_given_its_whole_rotation_or_quaternion_is_the_rolled_one():
 def test_a_sensor_orientation_that_is_not_a_rotation_is_a_clear_error(change, message):
     with pytest.raises(cameras.LayoutError, match=f"sensor 'front': {message}"):
         cameras.layout({"sensors": [{**FRONT, **change}]})
+
+
+def test_a_ring_rolls_each_sensor_about_its_own_viewing_axis():
+    ring = {"ring": {"count": 3, "radius": 2.5, "height": 0.8}}
+    level = cameras.layout(ring)
+    rolled = cameras.layout({"ring": {**ring["ring"], "roll_deg": [0.0, 2.0, -3.0]}})
+    for cam, ref, deg in zip(rolled, level, [0.0, 2.0, -3.0]):
+        np.testing.assert_allclose(cam.cam_to_world[:3, 3], ref.cam_to_world[:3, 3])
+        np.testing.assert_allclose(cam.cam_to_world[:3, 2], ref.cam_to_world[:3, 2], atol=1e-12)  # same viewing axis
+        turn = np.degrees(np.arctan2(ref.cam_to_world[:3, 1] @ cam.cam_to_world[:3, 0],
+                                     ref.cam_to_world[:3, 0] @ cam.cam_to_world[:3, 0]))
+        assert turn == pytest.approx(deg, abs=1e-9)  # image x turned toward image y by the roll
+    one = cameras.layout({"ring": {**ring["ring"], "roll_deg": 2.0}})  # one roll for every sensor
+    assert all(np.allclose(a.cam_to_world, b.cam_to_world) for a, b in zip(one, cameras.layout(
+        {"ring": {**ring["ring"], "roll_deg": [2.0] * 3}})))
+
+
+def test_a_studio_sequence_rolls_its_random_ring_and_keeps_every_other_draw():
+    from mocapflow.tasks.studio.synth import SequenceSpec, build_rig
+
+    plain = build_rig(SequenceSpec("elbow_flexion", frames=2, seed=7, random_layout=True))
+    rolled = build_rig(SequenceSpec("elbow_flexion", frames=2, seed=7, random_layout=True, camera_roll_deg=3.0))
+    np.testing.assert_array_equal(plain.joint_pos, rolled.joint_pos)
+    turns = []
+    for a, b in zip(plain.views, rolled.views):
+        np.testing.assert_allclose(a.cam.cam_to_world[:3, 3], b.cam.cam_to_world[:3, 3])
+        assert (a.cam.fx, a.cam.cx) == (b.cam.fx, b.cam.cx)
+        turns.append(np.degrees(np.arccos(np.clip(a.cam.cam_to_world[:3, 0] @ b.cam.cam_to_world[:3, 0], -1, 1))))
+    assert 0 < max(turns) <= 3.0 + 1e-9 and len(set(np.round(turns, 6))) == len(turns)  # each its own roll
+    with pytest.raises(ValueError, match="camera_roll_deg"):
+        SequenceSpec("elbow_flexion", camera_roll_deg=-1.0)
