@@ -192,7 +192,7 @@ register(TaskSpec(
 
 # 3D optical data (DeepMoCap §3.4): 2D -> 3D and fusion, then temporal filtering.
 register(TaskSpec(
-    name="fuse_views", fn=markers3d.markers3d, version="3", params=markers3d.Markers3DConfig, output="markers3d",
+    name="fuse_views", fn=markers3d.markers3d, version="4", params=markers3d.Markers3DConfig, output="markers3d",
     partition="sequence", inputs={"reflectors": "reflectors2d", "masks": "reflector_masks", "frames": "raw_sequence"},
     reads={"reflectors": ("x", "y", "confidence", "recovered"), "masks": ("blob_id",), "frames": ("depth",) + CALIBRATION},
     description="region-contour depth, back-projection, patch mean / strap normal-line fusion (Eq. 10, A1)",

@@ -16,7 +16,8 @@ centre is where the surface normals meet, i.e. the closest points between the no
 pair of views (Eq. A1), averaged; a strap seen by one view only is pushed along its normal by the
 limb radius. The total confidence C_f is the mean of the views' confidences. Beyond the paper, a view's
 lifted point below the floor or above the ceiling is dropped before fusion (a label read on the background's
-depth never reaches 3D). Each view's own centre guess and confidence are kept beside the fused point, so that
+depth never reaches 3D), and so is one farther across the floor from the frame's body (the median of every view's
+lifted points, the trunk) than a tall adult's reach. Each view's own centre guess and confidence are kept beside the fused point, so that
 a later stage can use a view that fusion outvoted.
 """
 
@@ -54,10 +55,15 @@ class Markers3DConfig:
     # read on the background's depth, a label on a speck): it is dropped before fusion, never averaged in
     floor_m: float = -0.10
     ceiling_m: float = 2.80
+    # a view's lifted point farther than this across the floor (m) from the frame's body, the median of every view's
+    # lifted points, is no reflector on that body: half the arm span of a 2.2 m adult is 1.1 m (0: no reach test)
+    body_reach_m: float = 1.2
 
     def __post_init__(self):
         if not self.ceiling_m > self.floor_m:
             raise ValueError(f"ceiling_m must exceed floor_m (e.g. 2.8 > -0.1), got {self.ceiling_m} <= {self.floor_m}")
+        if self.body_reach_m < 0:
+            raise ValueError(f"body_reach_m must be >= 0 metres (0: off; e.g. 1.2), got {self.body_reach_m}")
 
 
 def region_depths(xy: np.ndarray, region_of: np.ndarray, blob_id: np.ndarray, depth: np.ndarray, *,
@@ -247,6 +253,20 @@ def last_resort(found: np.ndarray, recovered: np.ndarray) -> np.ndarray:
     return plain | (found & ~plain.any(axis=0, keepdims=True))
 
 
+def beyond_reach(points: np.ndarray, reach_m: float) -> np.ndarray:
+    """Which lifted points lie farther across the floor than ``reach_m`` from their frame's body, the median of the
+    frame's lifted points over every view and reflector (the trunk, as most reflectors are near it).
+    (view, frame, reflector, 3) -> (view, frame, reflector) bool"""
+    n_views, n_frames, n_refl, _ = points.shape
+    per_frame = points.transpose(1, 0, 2, 3).reshape(n_frames, n_views * n_refl, 3)
+    seen = np.isfinite(per_frame[..., 0]).any(axis=1)  # (frame,)
+    centre = np.full((n_frames, 3), np.nan)
+    centre[seen] = np.nanmedian(per_frame[seen], axis=1)
+    distance = np.linalg.norm((points - centre[None, :, None])[..., :2], axis=-1)  # horizontal
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(distance) & (distance > reach_m)
+
+
 def markers3d(reflectors: xr.Dataset, masks: xr.Dataset, frames: xr.Dataset, config: Markers3DConfig) -> xr.Dataset:
     """Labelled 3D reflectors of a sequence from every view's 2D estimates, region masks, depth and calibration."""
     views, names = list(reflectors["view"].values), [str(n) for n in reflectors["reflector"].values]
@@ -272,6 +292,8 @@ def markers3d(reflectors: xr.Dataset, masks: xr.Dataset, frames: xr.Dataset, con
     with np.errstate(invalid="ignore"):
         outside = np.isfinite(height) & ((height < config.floor_m) | (height > config.ceiling_m))
     points[outside], rays[outside] = np.nan, np.nan
+    far = beyond_reach(points, config.body_reach_m) if config.body_reach_m else np.zeros(outside.shape, bool)
+    points[far], rays[far] = np.nan, np.nan
     fused = [fuse_frame(points[:, i], rays[:, i], confidence[:, i], names, patch_tolerance_m=config.patch_tolerance_m,
                         strap_tolerance_m=config.strap_tolerance_m) for i in range(n_frames)]
     xyz, conf, used, residual = (np.stack(column) for column in zip(*fused))
@@ -287,5 +309,6 @@ def markers3d(reflectors: xr.Dataset, masks: xr.Dataset, frames: xr.Dataset, con
         coords={"frame": reflectors["frame"].values, "reflector": names, "view": np.array(views, dtype=object),
                 "xyz": ["x", "y", "z"]},
         attrs={"length_unit": "m", "up_axis": "Z", "fps": float(frames.attrs["fps"]),
-               "rejected_view_estimates": int(outside.sum())},  # lifted outside the floor-ceiling band
+               "rejected_view_estimates": int(outside.sum()),  # lifted outside the floor-ceiling band
+               "beyond_reach_view_estimates": int(far.sum())},  # lifted beyond the body's reach
     )

@@ -1,6 +1,8 @@
 """2D -> 3D and fusion (DeepMoCap §3.4): back-projection round trip, shared regions split by depth,
 the Appendix A construction on a cylinder, patch fusion with a disagreeing view, bad calibration."""
 
+import warnings
+
 import numpy as np
 import pytest
 import xarray as xr
@@ -218,8 +220,27 @@ def test_a_view_lifted_below_the_floor_is_dropped_before_fusion():
     np.testing.assert_allclose(out["position"].values[0, 0], world, atol=0.01)  # view a's point alone
     assert out["views"].values[0, 0] == 1 and out.attrs["rejected_view_estimates"] == 1
     assert np.isnan(out["view_position"].sel(view="b").values).all()
-    kept = m3d.markers3d(reflectors, masks, frames, m3d.Markers3DConfig(floor_m=-100.0))
+    kept = m3d.markers3d(reflectors, masks, frames, m3d.Markers3DConfig(floor_m=-100.0, body_reach_m=0.0))
     assert kept.attrs["rejected_view_estimates"] == 0
     assert kept["view_position"].sel(view="b", reflector="F_SPINEMID").values[0, 2] < -0.1  # where it would have gone
     with pytest.raises(ValueError, match="ceiling_m must exceed floor_m"):
         m3d.Markers3DConfig(floor_m=3.0)
+
+
+def test_a_view_point_beyond_the_bodys_reach_is_dropped_and_an_outstretched_hand_is_not():
+    """Frame 0: a trunk of reflectors seen by two views, a hand 0.95 m out to the side (a T-pose) and, in view b, a
+    label lifted 2 m away across the floor (a region of the background at the body's height); frame 1: nothing seen."""
+    rng = np.random.default_rng(3)
+    trunk = np.array([0.0, 0.0, 1.0]) + rng.uniform(-0.25, 0.25, (12, 3))
+    hand, stray = np.array([0.95, 0.1, 1.4]), np.array([-1.4, 1.5, 1.2])
+    points = np.full((2, 2, 14, 3), np.nan)  # (view, frame, reflector, xyz)
+    points[:, 0, :12] = trunk
+    points[0, 0, 12] = hand
+    points[1, 0, 13] = stray
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # an empty frame raises no all-NaN warning
+        far = m3d.beyond_reach(points, 1.2)
+    assert far.shape == (2, 2, 14) and far.sum() == 1 and far[1, 0, 13]
+    assert not m3d.beyond_reach(points, 3.0).any()  # the stray point is 2.05 m out
+    with pytest.raises(ValueError, match="body_reach_m must be >= 0"):
+        m3d.Markers3DConfig(body_reach_m=-1.0)
