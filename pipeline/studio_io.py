@@ -206,7 +206,7 @@ def view_names(spec: SequenceSpec) -> tuple[str, ...]:
 
 # Spec fields added after a studio version enter the fingerprint only when set, so caches of sequences
 # that leave them at their default stay valid.
-LATER_FIELDS = ("variation", "body", "motion_map", "camera_roll_deg")
+LATER_FIELDS = ("variation", "body", "motion_map", "camera_roll_deg", "ir_bloom_px")
 
 
 def fingerprint(spec: SequenceSpec, bvh_text: str | None) -> str:

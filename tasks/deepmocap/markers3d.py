@@ -17,8 +17,8 @@ pair of views (Eq. A1), averaged; a strap seen by one view only is pushed along 
 limb radius. The total confidence C_f is the mean of the views' confidences. Beyond the paper, a view's
 lifted point below the floor or above the ceiling is dropped before fusion (a label read on the background's
 depth never reaches 3D), and so is one farther across the floor from the frame's body (the median of every view's
-lifted points, the trunk) than a tall adult's reach. Each view's own centre guess and confidence are kept beside the fused point, so that
-a later stage can use a view that fusion outvoted.
+lifted points, the trunk) than a tall adult's reach. Each view's own centre guess and confidence are kept
+beside the fused point, so that a later stage can use a view that fusion outvoted.
 """
 
 from __future__ import annotations

@@ -131,8 +131,10 @@ class FrameStack:
 
 
 def render(view: View, prims: tuple[Primitive, ...], placements: tuple[Placement, ...],
-           pose: Pose, prev: Pose, nxt: Pose, rng: np.random.Generator, noise: float = 1.0) -> Frame:
-    """Render one view at one frame; ``prev``/``nxt`` are the poses one frame before and after."""
+           pose: Pose, prev: Pose, nxt: Pose, rng: np.random.Generator, noise: float = 1.0, *,
+           bloom_px: float = 0.0) -> Frame:
+    """Render one view at one frame; ``prev``/``nxt`` are the poses one frame before and after. ``bloom_px``: the
+    sensor's saturation spreads this many pixels round each reflector (IR saturated, no depth there)."""
     rot, pos = pose.rot, pose.pos
     h, w = view.bg_t.shape
     t_buf = view.bg_t.copy()
@@ -161,7 +163,8 @@ def render(view: View, prims: tuple[Primitive, ...], placements: tuple[Placement
         prim_buf[yy, xx] = k
         normal_buf[yy, xx] = n[idx]
         local_buf[yy, xx] = (d[idx] * t[idx, None] - cam_pos) @ cam_rot  # hit point in the joint frame
-    return _sensor(view, prims, placements, t_buf, prim_buf, normal_buf, local_buf, pose, prev, nxt, rng, noise)
+    return _sensor(view, prims, placements, t_buf, prim_buf, normal_buf, local_buf, pose, prev, nxt, rng, noise,
+                   bloom_px)
 
 
 def _bounds(view, prims, rot, pos):
@@ -257,7 +260,19 @@ def _ellipsoid(C, Q, radii, d):
     return t, normal
 
 
-def _sensor(view, prims, placements, t_buf, prim_buf, normal_buf, local_buf, pose, prev, nxt, rng, noise) -> Frame:
+def saturated(reflector: np.ndarray, bloom_px: float) -> np.ndarray:
+    """The pixels a time-of-flight sensor saturates: the retro-reflectors' own and, with ``bloom_px`` > 0, a disc of that
+    radius round them (a real Kinect v2's reflector regions measure 100-400 px, the tape alone a few dozen).
+    (y, x) bool -> (y, x) bool"""
+    if bloom_px <= 0:
+        return reflector
+    r = int(round(bloom_px))
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    return cv2.dilate(reflector.astype(np.uint8), disc) > 0
+
+
+def _sensor(view, prims, placements, t_buf, prim_buf, normal_buf, local_buf, pose, prev, nxt, rng, noise,
+            bloom_px=0.0) -> Frame:
     body = prim_buf >= 0
     rid = np.full(prim_buf.shape, -1, dtype=np.int8)
     for k, prim in enumerate(prims):
@@ -269,10 +284,11 @@ def _sensor(view, prims, placements, t_buf, prim_buf, normal_buf, local_buf, pos
     z = t_buf * view.rays[..., 2]
     flow = _scene_flow(view, prims, prim_buf, local_buf, pose, nxt)
     flow_prev = -_scene_flow(view, prims, prim_buf, local_buf, pose, prev)
-    depth = kinect_depth(z, cos, reflector, rng, noise)
+    hot = saturated(reflector, bloom_px)
+    depth = kinect_depth(z, cos, hot, rng, noise)
     albedo = view.bg_albedo.copy()
     albedo[body] = ALBEDO["body"] * cloth_texture(prim_buf[body], local_buf[body])
-    ir = kinect_ir(t_buf, cos, albedo, reflector, rng, noise)
+    ir = kinect_ir(t_buf, cos, albedo, hot, rng, noise)
     pixels = np.bincount(rid[reflector].astype(np.int64), minlength=len(placements)).astype(np.int32)
     return Frame(depth, ir, rid, body, flow, flow_prev, pixels)
 

@@ -43,6 +43,7 @@ class SequenceSpec:
     variation: float = 0.0  # random posture, heading and drift on an exercise (motion.vary, motion.wander)
     random_layout: bool = False
     camera_roll_deg: float = 0.0  # with random_layout: each sensor rolled by up to this many degrees either way
+    ir_bloom_px: float = 0.0  # the sensor's saturation spreads this many pixels round each reflector (render.saturated)
     layout: Mapping[str, Any] | None = None
     label: str = ""  # the motion's name in the ground truth (defaults to ``motion``)
     body: str = "capsule"  # the subject: "capsule" (the template's primitives) or "mesh" (Anny, tasks/studio/mesh_synth.py)
@@ -56,6 +57,12 @@ class SequenceSpec:
         if not 0 <= self.camera_roll_deg <= 45:
             raise ValueError(f"camera_roll_deg must be within 0-45 degrees (a real rig's sensors sit 1-3 off level), "
                              f"got {self.camera_roll_deg}")
+        if not 0 <= self.ir_bloom_px <= 20:
+            raise ValueError(f"ir_bloom_px must be within 0-20 pixels (a real Kinect v2's reflector regions need about 3), "
+                             f"got {self.ir_bloom_px}")
+        if self.ir_bloom_px and self.body != "capsule":
+            raise ValueError(f"ir_bloom_px ({self.ir_bloom_px}) is a setting of the capsule body's renderer; the mesh "
+                             "body's sensor model has its own, so leave ir_bloom_px out")
         if self.variation < 0:
             raise ValueError(f"variation must be >= 0 (0 = the textbook exercise), got {self.variation}")
         if self.body not in BODIES:
@@ -130,7 +137,8 @@ def synthesize(rig: Rig | mesh_synth.MeshRig, start: int, stop: int) -> xr.Datas
     for v, view in enumerate(rig.views):
         for i, f in enumerate(range(start, stop)):
             stack.put(v, i, render.render(view, rig.prims, rig.placements, rig.pose(f), rig.pose(max(f - 1, 0)),
-                                          rig.pose(f + 1), np.random.default_rng([rig.spec.seed, v, f]), rig.spec.noise))
+                                          rig.pose(f + 1), np.random.default_rng([rig.spec.seed, v, f]), rig.spec.noise,
+                                          bloom_px=rig.spec.ir_bloom_px))
     quats = Rotation.from_matrix(rig.motion.local_rot[start:stop].reshape(-1, 3, 3)).as_quat().reshape(n, -1, 4)
     ds = stack.dataset(rig.views, rig.spec.fps, start, refl3d, rig.joint_pos[start:stop], quats)
     ds.attrs.update(exercise=rig.motion.label, subject=asdict(rig.subject), studio_version=STUDIO_VERSION,

@@ -170,3 +170,31 @@ def test_any_region_renders_the_same_bytes(clean_rig):
     part = synthesize(clean_rig, 5, 8)
     for var in ("depth", "ir", "gt_reflector_id", "gt_scene_flow", "gt_reflectors2d"):
         np.testing.assert_array_equal(whole[var].sel(frame=slice(5, 7)).values, part[var].values)
+
+
+def test_ir_bloom_widens_the_saturated_regions_to_a_real_kinects_and_keeps_the_truth():
+    """With ir_bloom_px 3 the regions the sensor saturates (no depth, IR at the reflector level) grow round each
+    reflector to the 100-400 px of a real Kinect v2's, while the ground truth (which pixels are which reflector,
+    and everything else drawn from the seed) stays as it was."""
+    from scipy import ndimage
+
+    plain = synthesize(build_rig(SequenceSpec("elbow_flexion", frames=2, seed=1, noise=0.0)), 0, 1)
+    bloomed = synthesize(build_rig(SequenceSpec("elbow_flexion", frames=2, seed=1, noise=0.0, ir_bloom_px=3.0)), 0, 1)
+    np.testing.assert_array_equal(plain.gt_reflector_id.values, bloomed.gt_reflector_id.values)
+    np.testing.assert_array_equal(plain.gt_pixels.values, bloomed.gt_pixels.values)
+
+    def areas(ds):
+        hot = ds.ir.values[0, 0] >= render.IR_REFLECTOR  # saturated
+        labels, n = ndimage.label(hot)
+        return np.bincount(labels.ravel())[1:]
+
+    before, after = areas(plain), areas(bloomed)
+    assert np.median(before) < 100 <= np.median(after) <= 400
+    rid = bloomed.gt_reflector_id.values[0, 0] >= 0
+    ring = render.saturated(rid, 3.0) & ~rid
+    assert ring.any() and (bloomed.depth.values[0, 0][ring] == 0).all()  # no depth in the bloom
+    assert (plain.depth.values[0, 0][ring] > 0).mean() > 0.5  # where the plain sensor read the body or the room
+    with pytest.raises(ValueError, match="ir_bloom_px must be within"):
+        SequenceSpec("elbow_flexion", ir_bloom_px=-1.0)
+    with pytest.raises(ValueError, match="capsule body's renderer"):
+        SequenceSpec("elbow_flexion", ir_bloom_px=3.0, body="mesh")
