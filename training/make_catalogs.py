@@ -10,7 +10,9 @@ not learn the textbook exercises by heart; the shipped weights were trained on t
 (training/catalog.yaml). training/catalog_athletic.yaml adds two more: the athletic motions DMC3D's
 exercises lack (kicks, hops, jumps, turns, crossing legs, dance, a sprint's limb speeds; motion.ATHLETIC),
 and the exercises again, both filmed by rings whose sensors are rolled up to 3 degrees off level, as a
-real rig's are (the random rings' heights, 0.5-1 m, already span a real DMC rig's 0.56-0.73 m). Their subjects (seeds 300+)
+real rig's are (the random rings' heights, 0.5-1 m, already span a real DMC rig's 0.56-0.73 m), and with
+each reflector's saturation spread 0-4 px round it (``ir_bloom_px``: real Kinect v2 regions are 100-400 px,
+the studio's own 2-90 px). Their subjects (seeds 300+)
 are neither validation's nor the benchmarks' (8000+). The validation split has both kinds too: six textbook
 sequences and six varied ones (crossing, spreading and lifted legs are where labels swap).
 Regenerate with ``python training/make_catalogs.py``.
@@ -27,21 +29,24 @@ from mocapflow.tasks.studio.motion import ATHLETIC, EXERCISES
 VALIDATION_EXERCISES = ("alternate_side_reaches", "side_step_knee_elbow")
 TRAIN_EXERCISES = tuple(e for e in EXERCISES if e not in VALIDATION_EXERCISES and e not in ATHLETIC)
 ROLL_DEG = 3.0  # a real rig's sensors sit 1-3 degrees off level
+BLOOM_PX = (0.0, 4.0)  # saturation round each reflector: 3 px gives a real Kinect v2's 100-400 px regions
 HERE = Path(__file__).parent
 
 
 def sequences(exercises, count: int, first_seed: int, rng: np.random.Generator,
               variation: tuple[float, float] | None = None, *, speed=(0.7, 1.4), amplitude=(0.7, 1.15),
-              roll_deg: float = 0.0) -> list[str]:
+              roll_deg: float = 0.0, bloom_px: tuple[float, float] | None = None) -> list[str]:
     lines = []
     for i in range(count):
         motion, seed = exercises[i % len(exercises)], first_seed + i
         varied = f", variation: {rng.uniform(*variation):.2f}" if variation else ""
         rolled = f", camera_roll_deg: {roll_deg:g}" if roll_deg else ""
-        lines.append(f"      {motion[:12]}_{seed}: {{motion: {motion}, seed: {seed}, "
-                     f"subject_height: {rng.uniform(1.5, 2.0):.2f}, heading_deg: {rng.uniform(-180, 180):.0f}, "
-                     f"speed: {rng.uniform(*speed):.2f}, amplitude: {rng.uniform(*amplitude):.2f}, "
-                     f"start_s: {rng.uniform(0.0, 2.0):.2f}{varied}{rolled}}}")
+        head = (f"      {motion[:12]}_{seed}: {{motion: {motion}, seed: {seed}, "
+                f"subject_height: {rng.uniform(1.5, 2.0):.2f}, heading_deg: {rng.uniform(-180, 180):.0f}, "
+                f"speed: {rng.uniform(*speed):.2f}, amplitude: {rng.uniform(*amplitude):.2f}, "
+                f"start_s: {rng.uniform(0.0, 2.0):.2f}{varied}{rolled}")
+        bloomed = f", ir_bloom_px: {rng.uniform(*bloom_px):.1f}" if bloom_px else ""
+        lines.append(head + bloomed + "}")
     return lines
 
 
@@ -101,10 +106,12 @@ def main() -> None:
     (HERE / "catalog.yaml").write_text(train + shipped + STAGES.format(name="train") + TRAIN_STAGES)
     athletic = np.random.default_rng(2036)  # their own streams: the groups above stay as they were
     broad = "\n".join(sequences(tuple(ATHLETIC), 56, 300, athletic, speed=(0.8, 1.2), amplitude=(0.85, 1.05),
-                                roll_deg=ROLL_DEG)) + "\n"
+                                roll_deg=ROLL_DEG, bloom_px=BLOOM_PX)) + "\n"
     rolled = np.random.default_rng(2037)
-    broad += "\n".join(sequences(TRAIN_EXERCISES, 26, 356, rolled, variation=(0.0, 1.0), roll_deg=ROLL_DEG)) + "\n"
-    title = ("Training set of the next two-stream FCN: the shipped set, the athletic motions and rolled rings\n"
+    broad += "\n".join(sequences(TRAIN_EXERCISES, 90, 356, rolled, variation=(0.0, 1.0), roll_deg=ROLL_DEG,
+                                 bloom_px=BLOOM_PX)) + "\n"
+    title = ("Training set of the next two-stream FCN: the shipped set, the athletic motions, rolled rings and\n"
+             "# reflector regions the size of a real Kinect v2's\n"
              "# (the shipped weights were trained on training/catalog.yaml)")
     train = HEADER.format(title=title, name="train", frames=32,
                           usage="mocapflow train --catalog training/catalog_athletic.yaml --out FILE")
