@@ -1,5 +1,5 @@
 """Render the gallery under docs/: the studio (docs/studio/: colorized depth with reflectors black, IR and
-reflector ids for three views of a few exercises and a retargeted CMU clip) and the input stages
+reflector ids for three views of a few exercises, one of them also with ir_bloom_px 3, and a retargeted CMU clip) and the input stages
 (docs/stages/: the FCN's inputs I_CD and I_F for three views, as in DeepMoCap's Figure 4).
 
     python docs/make_gallery.py
@@ -73,7 +73,9 @@ def main() -> None:
     OUT.mkdir(parents=True, exist_ok=True)
     shots = [("jumping_jack", SequenceSpec("jumping_jack", frames=16, seed=2, subject_height=1.8), None, 12),
              ("kick_box_kicking", SequenceSpec("kick_box_kicking", frames=24, seed=3, subject_height=1.74), None, 20),
-             ("classic_squat", SequenceSpec("classic_squat", frames=40, seed=4, subject_height=1.62), None, 28)]
+             ("classic_squat", SequenceSpec("classic_squat", frames=40, seed=4, subject_height=1.62), None, 28),
+             ("kick_box_kicking_bloom3",  # the same frame with regions the size of a real Kinect v2's
+              SequenceSpec("kick_box_kicking", frames=24, seed=3, subject_height=1.74, ir_bloom_px=3.0), None, 20)]
     clip = SHARED / "cmu_14_14_jumping_jacks.bvh"
     if clip.exists():
         shots.append(("cmu_jumping_jacks", SequenceSpec("bvh", frames=40, seed=7, random_layout=True),
