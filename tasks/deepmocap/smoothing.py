@@ -6,11 +6,16 @@ tracks"). Three swappable implementations of the `smoothed` stage:
   reflector that jumps to the other side's track and back takes that side's label, and a label that
   joins another reflector's track, far from its own, is dropped); then per
   reflector, a filterpy Kalman filter with a constant-velocity (order 1) or constant-acceleration
-  (order 2) model; measurement noise grows as the fused confidence falls;
+  (order 2) model; measurement noise grows as the fused confidence falls; with ``fast_process_noise`` > 0
+  (off by default) an interacting-multiple-model filter (filterpy ``IMMEstimator``) of two such models, a slow and a
+  fast process noise, so that the noise follows the motion (a foot in a kick or a sprint) instead of one
+  value serving slow and fast limbs alike;
   a track starts only on a measurement that the next ones confirm (reachable at a top speed);
-  Mahalanobis gating rejects outliers; gaps of up to ``max_gap`` frames inside a track are bridged, a
+  Mahalanobis gating rejects outliers (against the IMM's mixed prediction, or either model's right after an
+  accepted measurement); gaps of up to ``max_gap`` frames inside a track are bridged, a
   track ends at its last accepted measurement (past it a reflector is reported missing rather than
-  extrapolated); optional Rauch-Tung-Striebel smoothing for offline runs.
+  extrapolated); optional Rauch-Tung-Striebel smoothing for offline runs (with the IMM, over a process
+  noise that is each frame's mix of the models' noises by the forward pass's model probabilities).
 - ``butterworth``: zero-phase low-pass (scipy ``filtfilt``) over each run of observed frames.
 - ``none``: the fused markers as they are.
 """
@@ -26,7 +31,7 @@ import xarray as xr
 from mocapflow.tasks.deepmocap import tracks
 
 if TYPE_CHECKING:
-    from filterpy.kalman import KalmanFilter
+    from filterpy.kalman import IMMEstimator, KalmanFilter
 
 
 @dataclass(frozen=True)
@@ -45,8 +50,20 @@ class KalmanConfig:
     duplicate_m: float = 0.05  # > 0: a limb pair this close that was apart has one limb under both labels (labels.py)
     duplicate_reach: int = 15  # frames a side's last position is kept when judging which label is the impostor
     shared_m: float = 0.05  # > 0: two labels the body keeps apart, this close after being apart: one is dropped (labels.py)
+    # > 0: an interacting-multiple-model filter of a slow (process_noise) and a fast (this) model; 0: one filter.
+    # 8000 (20x) is the value chosen on the training splits; off by default, as it costs the slow held-out clips
+    # accuracy (docs/deepmocap.md, "Motions the training lacks")
+    fast_process_noise: float = 0.0
+    switch_probability: float = 0.05  # IMM: probability per frame that a reflector changes model (slow <-> fast)
 
     def __post_init__(self):
+        if not self.process_noise > 0:
+            raise ValueError(f"process_noise must be > 0 (e.g. 400.0), got {self.process_noise}")
+        if self.fast_process_noise != 0 and not self.fast_process_noise > self.process_noise:
+            raise ValueError(f"fast_process_noise must be 0 (off) or > process_noise ({self.process_noise}, "
+                             f"e.g. {20 * self.process_noise}), got {self.fast_process_noise}")
+        if not 0 < self.switch_probability < 0.5:
+            raise ValueError(f"switch_probability must be in (0, 0.5) per frame (e.g. 0.05), got {self.switch_probability}")
         if not self.swap_penalty_m > 0:
             raise ValueError(f"swap_penalty_m must be > 0 metres (e.g. 0.03), got {self.swap_penalty_m}")
         if self.duplicate_m < 0:
@@ -107,49 +124,107 @@ def confirmed(z: np.ndarray, i: int, *, count: int, within: int, **reach) -> boo
     return all(b - a <= within and follows(z, a, b, **reach) for a, b in zip(chain, chain[1:]))
 
 
-def _start(z0: np.ndarray, *, order: int, dt: float, process_noise: float, measurement_noise_m: float) -> KalmanFilter:
-    kf = _filter(order, dt, process_noise)
-    kf.x = np.zeros(kf.dim_x)
-    kf.x[::order + 1] = z0
-    kf.P = np.kron(np.eye(3), np.diag([measurement_noise_m**2] + [1.0] * order))
-    return kf
+def _start(z0: np.ndarray, *, order: int, dt: float, process_noises: tuple[float, ...], switch: float,
+           measurement_noise_m: float) -> KalmanFilter | IMMEstimator:
+    """A track's filter at its first measurement z0 (3,): one Kalman filter per process noise; two or more are
+    mixed by an interacting-multiple-model estimator (Blom & Bar-Shalom 1988, "The interacting multiple model
+    algorithm for systems with Markovian switching coefficients", IEEE TAC 33(8)) that changes model with
+    probability ``switch`` per frame; the first process noise is the slow model's."""
+    filters = []
+    for q in process_noises:
+        kf = _filter(order, dt, q)
+        kf.x = np.zeros(kf.dim_x)
+        kf.x[::order + 1] = z0
+        kf.P = np.kron(np.eye(3), np.diag([measurement_noise_m**2] + [1.0] * order))
+        filters.append(kf)
+    if len(filters) == 1:
+        return filters[0]
+    from filterpy.kalman import IMMEstimator
+
+    m = len(filters)
+    M = np.full((m, m), switch / (m - 1))  # (model, model) Markov transition probabilities
+    np.fill_diagonal(M, 1.0 - switch)
+    mu = np.full(m, switch / (m - 1))  # (model,) a track starts in the slow model until its measurements say otherwise
+    mu[0] = 1.0 - switch
+    return IMMEstimator(filters, mu=mu, M=M)
 
 
-def _gated_update(kf: KalmanFilter, z: np.ndarray, confidence: float, *, measurement_noise_m: float,
-                  gate: float) -> bool:
-    """Update with z unless its squared Mahalanobis distance exceeds the gate; whether it was used."""
-    R = np.eye(3) * (measurement_noise_m / max(confidence, 0.05)) ** 2
-    residual = z - kf.H @ kf.x
-    S = kf.H @ kf.P @ kf.H.T + R
-    if residual @ np.linalg.solve(S, residual) > gate:
+def _prior(tracker: KalmanFilter | IMMEstimator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The predicted state (dim_x,), its covariance (dim_x, dim_x) and the models' prior probabilities (model,).
+
+    For the IMM, the moment-matched mix of the models' predictions weighted by the prior model probabilities
+    (``cbar``; filterpy's own ``x_prior`` weights them by the previous posterior ones).
+    """
+    if not hasattr(tracker, "filters"):
+        return tracker.x, tracker.P, np.ones(1)
+    w = tracker.cbar  # (model,)
+    xs = np.array([f.x for f in tracker.filters])  # (model, dim_x)
+    x = w @ xs  # (dim_x,)
+    d = xs - x  # (model, dim_x)
+    P = np.einsum("m,mij->ij", w, np.array([f.P for f in tracker.filters]) + d[:, :, None] * d[:, None, :])
+    return x, P, w.copy()
+
+
+def _gated_update(tracker: KalmanFilter | IMMEstimator, z: np.ndarray, confidence: float, *,
+                  measurement_noise_m: float, gate: float, union: bool = False) -> bool:
+    """Update with z unless its squared Mahalanobis distance to the prediction exceeds the gate; whether it was
+    used. An IMM's prediction is its models' mix (``_prior``); with ``union``, z is also kept when any one
+    model predicts it (the union of the models' validation regions): against the mix alone, the slow model's
+    weight would reject the first frames of a fast move, the very measurements that should switch the models."""
+    R = np.eye(3) * (measurement_noise_m / max(confidence, 0.05)) ** 2  # (3, 3)
+    x, P, _ = _prior(tracker)  # (dim_x,), (dim_x, dim_x)
+    H = tracker.filters[0].H if hasattr(tracker, "filters") else tracker.H  # (3, dim_x)
+    predictions = [(x, P)] + ([(f.x, f.P) for f in tracker.filters] if union and hasattr(tracker, "filters") else [])
+    for x, P in predictions:
+        residual = z - H @ x  # (3,)
+        if residual @ np.linalg.solve(H @ P @ H.T + R, residual) <= gate:
+            break
+    else:
         return False
-    kf.update(z, R=R)
+    if hasattr(tracker, "filters"):
+        for f in tracker.filters:  # IMMEstimator.update takes no R: each model's is set
+            f.R = R
+        tracker.update(z)
+    else:
+        tracker.update(z, R=R)
     return True
 
 
 def _follow(z: np.ndarray, seen: np.ndarray, confidence: np.ndarray, first: int, *, max_gap: int, gate: float,
-            order: int, dt: float, process_noise: float, measurement_noise_m: float) -> tuple[list, int]:
+            order: int, dt: float, process_noises: tuple[float, ...], switch: float,
+            measurement_noise_m: float) -> tuple[list, int]:
     """One track from a confirmed measurement until more than ``max_gap`` frames pass without one it accepts.
 
-    Returns its (frame, x, P, accepted) entries up to its last accepted measurement, and the frame where
+    Returns its (frame, x, P, accepted, mu) entries up to its last accepted measurement (mu: the model
+    probabilities (model,), posterior where a measurement was accepted, prior elsewhere), and the frame where
     the search for the next track resumes. ``seen`` (frame,) marks the frames with a measurement.
     """
-    kf = _start(z[first], order=order, dt=dt, process_noise=process_noise, measurement_noise_m=measurement_noise_m)
-    segment, gap = [(first, kf.x.copy(), kf.P.copy(), True)], 0
+    tracker = _start(z[first], order=order, dt=dt, process_noises=process_noises, switch=switch,
+                     measurement_noise_m=measurement_noise_m)
+    mixed = hasattr(tracker, "filters")
+    mu0 = tracker.mu.copy() if mixed else np.ones(1)
+    segment, gap = [(first, tracker.x.copy(), tracker.P.copy(), True, mu0)], 0
     for i in range(first + 1, len(z)):
-        kf.predict()
-        accepted = bool(seen[i]) and _gated_update(kf, z[i], float(confidence[i]),
-                                                  measurement_noise_m=measurement_noise_m, gate=gate)
+        tracker.predict()
+        # a model alone may take a measurement only right after an accepted one: over a gap the fast model's
+        # validation region grows with its larger noise and would take another reflector's measurement
+        accepted = bool(seen[i]) and _gated_update(tracker, z[i], float(confidence[i]),
+                                                   measurement_noise_m=measurement_noise_m, gate=gate,
+                                                   union=gap == 0)
         gap = 0 if accepted else gap + 1
         if gap > max_gap:
             return _up_to_last_measurement(segment), i
-        segment.append((i, kf.x.copy(), kf.P.copy(), accepted))
+        if accepted:
+            x, P, mu = tracker.x.copy(), tracker.P.copy(), tracker.mu.copy() if mixed else np.ones(1)
+        else:
+            x, P, mu = (a.copy() for a in _prior(tracker))
+        segment.append((i, x, P, accepted, mu))
     return _up_to_last_measurement(segment), len(z)
 
 
 def _up_to_last_measurement(segment: list) -> list:
     """A track ends at its last accepted measurement: past it, a prediction only drifts."""
-    last = max(k for k, (*_, accepted) in enumerate(segment) if accepted)
+    last = max(k for k, (_, _, _, accepted, _) in enumerate(segment) if accepted)
     return segment[:last + 1]
 
 
@@ -158,13 +233,16 @@ def kalman_track(z: np.ndarray, confidence: np.ndarray, dt: float, config: Kalma
 
     Tracks start on confirmed measurements (see ``confirmed``): started on a lone outlier, the gate would
     reject the true measurements that follow. Gaps inside a track are bridged; RTS smoothing makes the
-    bridge an interpolation between the measurements on either side.
+    bridge an interpolation between the measurements on either side. With ``fast_process_noise`` > 0 each
+    track is an IMM of the slow and the fast model, and its RTS pass takes, per frame, the process noise
+    mixed by the forward pass's model probabilities.
     """
     n, order, max_gap = len(z), config.order, config.max_gap
     out, predicted = np.full((n, 3), np.nan), np.zeros(n, bool)
     seen = np.isfinite(z).all(axis=1)
     reach = {"dt": dt, "max_speed_m_s": config.max_speed_m_s, "slack_m": 3 * config.measurement_noise_m}
-    model = {"order": order, "dt": dt, "process_noise": config.process_noise}
+    noises = (config.process_noise,) + ((config.fast_process_noise,) if config.fast_process_noise > 0 else ())
+    model = {"order": order, "dt": dt, "process_noises": noises, "switch": config.switch_probability}
     i = 0
     while i < n:
         if not (seen[i] and confirmed(z, i, count=config.confirm, within=max_gap, **reach)):
@@ -173,14 +251,18 @@ def kalman_track(z: np.ndarray, confidence: np.ndarray, dt: float, config: Kalma
         segment, i = _follow(z, seen, confidence, i, max_gap=max_gap, gate=config.gate,
                              measurement_noise_m=config.measurement_noise_m, **model)
         frames = [k for k, *_ in segment]
-        xs, ps = np.array([x for _, x, _, _ in segment]), np.array([p for _, _, p, _ in segment])
+        xs, ps = np.array([e[1] for e in segment]), np.array([e[2] for e in segment])  # (step, dim_x), (step, dim_x, dim_x)
         if config.rts and len(segment) > 1:
             from filterpy.kalman import rts_smoother
 
-            template = _filter(order, dt, config.process_noise)
-            xs, *_ = rts_smoother(xs, ps, Fs=[template.F] * len(segment), Qs=[template.Q] * len(segment))
+            templates = [_filter(order, dt, q) for q in noises]
+            Qm = np.array([t.Q for t in templates])  # (model, dim_x, dim_x)
+            mu = np.array([e[4] for e in segment])  # (step, model)
+            # the step k -> k+1 takes the noise of the models that explain frame k+1 (a single model: its own Q)
+            Qs = np.einsum("km,mij->kij", np.vstack([mu[1:], mu[-1:]]), Qm)  # (step, dim_x, dim_x)
+            xs, *_ = rts_smoother(xs, ps, Fs=[templates[0].F] * len(segment), Qs=Qs)
         out[frames] = xs[:, ::order + 1]
-        predicted[frames] = [not accepted for *_, accepted in segment]
+        predicted[frames] = [not e[3] for e in segment]
     return out, predicted
 
 
