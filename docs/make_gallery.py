@@ -1,6 +1,6 @@
 """Render the gallery under docs/: the studio (docs/studio/: colorized depth with reflectors black, IR and
-reflector ids for three views of a few exercises, one of them also with ir_bloom_px 3, and a retargeted CMU clip) and the input stages
-(docs/stages/: the FCN's inputs I_CD and I_F for three views, as in DeepMoCap's Figure 4).
+reflector ids for three views of a few exercises, one of them also with ir_bloom_px 3, and a retargeted CMU
+clip) and the input stages (docs/stages/: the FCN's inputs I_CD and I_F for three views, as in DeepMoCap's Figure 4).
 
     python docs/make_gallery.py
 """
