@@ -86,7 +86,11 @@ def layout(spec: Mapping[str, Any] | None = None, *, views: int = 3, rng: np.ran
     else:
         ring = dict(spec.get("ring", {}))
         ring.setdefault("count", views)
-        rolls = np.broadcast_to(np.asarray(ring.pop("roll_deg", 0.0), float), (int(ring["count"]),))
+        rolls = np.atleast_1d(np.asarray(ring.pop("roll_deg", 0.0), float))
+        if rolls.ndim != 1 or len(rolls) not in (1, int(ring["count"])):
+            raise LayoutError(f"the ring's roll_deg {rolls.tolist()} must be one number or one per sensor "
+                              f"({int(ring['count'])})")
+        rolls = np.broadcast_to(rolls, (int(ring["count"]),))
         cams = [kinect_v2(f"kinect{i}", _rolled(look_at(p, target), r), rng)
                 for i, (p, r) in enumerate(zip(ring_positions(**ring), rolls))]
     if not cams:

@@ -57,6 +57,9 @@ class SequenceSpec:
         if not 0 <= self.camera_roll_deg <= 45:
             raise ValueError(f"camera_roll_deg must be within 0-45 degrees (a real rig's sensors sit 1-3 off level), "
                              f"got {self.camera_roll_deg}")
+        if self.camera_roll_deg and (not self.random_layout or self.layout is not None):
+            raise ValueError(f"camera_roll_deg ({self.camera_roll_deg}) rolls a random ring's sensors: set "
+                             "random_layout: true without a layout, or give the layout's sensors (or ring) a roll_deg")
         if not 0 <= self.ir_bloom_px <= 20:
             raise ValueError(f"ir_bloom_px must be within 0-20 pixels (a real Kinect v2's reflector regions need about 3), "
                              f"got {self.ir_bloom_px}")
@@ -103,7 +106,7 @@ def build_rig(spec: SequenceSpec, bvh_text: str | None = None) -> Rig | mesh_syn
     prims = body.surface(subject)
     placements = reflectors.place(prims, rng, spec.jitter)
     layout_spec = spec.layout or (cameras.random_ring(rng, spec.views) if spec.random_layout else None)
-    if spec.camera_roll_deg and spec.random_layout and not spec.layout:  # its own stream: the draws above stay
+    if spec.camera_roll_deg:  # a random ring (checked by SequenceSpec); its own stream: the draws above stay
         layout_spec["ring"]["roll_deg"] = cameras.random_rolls(np.random.default_rng([spec.seed, 2]), spec.views,
                                                                spec.camera_roll_deg)
     cams = cameras.layout(layout_spec, views=spec.views, rng=rng if spec.random_layout else None)

@@ -104,6 +104,8 @@ def test_a_ring_rolls_each_sensor_about_its_own_viewing_axis():
         turn = np.degrees(np.arctan2(ref.cam_to_world[:3, 1] @ cam.cam_to_world[:3, 0],
                                      ref.cam_to_world[:3, 0] @ cam.cam_to_world[:3, 0]))
         assert turn == pytest.approx(deg, abs=1e-9)  # image x turned toward image y by the roll
+    with pytest.raises(ValueError, match=r"roll_deg \[1.0, 2.0\] must be one number or one per sensor \(3\)"):
+        cameras.layout({"ring": {**ring["ring"], "roll_deg": [1.0, 2.0]}})
     one = cameras.layout({"ring": {**ring["ring"], "roll_deg": 2.0}})  # one roll for every sensor
     assert all(np.allclose(a.cam_to_world, b.cam_to_world) for a, b in zip(one, cameras.layout(
         {"ring": {**ring["ring"], "roll_deg": [2.0] * 3}})))
@@ -123,3 +125,5 @@ def test_a_studio_sequence_rolls_its_random_ring_and_keeps_every_other_draw():
     assert 0 < max(turns) <= 3.0 + 1e-9 and len(set(np.round(turns, 6))) == len(turns)  # each its own roll
     with pytest.raises(ValueError, match="camera_roll_deg"):
         SequenceSpec("elbow_flexion", camera_roll_deg=-1.0)
+    with pytest.raises(ValueError, match="rolls a random ring's sensors"):
+        SequenceSpec("elbow_flexion", camera_roll_deg=2.0)  # no random ring to roll
