@@ -101,6 +101,7 @@ def layout(spec: Mapping[str, Any] | None = None, *, views: int = 3, rng: np.ran
 
 
 def _rolled(pose: np.ndarray, degrees: float) -> np.ndarray:
+    """A camera-to-world transform turned by ``degrees`` about its viewing axis (see ``roll``).  (4, 4) -> (4, 4)"""
     out = pose.copy()
     out[:3, :3] = out[:3, :3] @ roll(float(degrees))
     return out
@@ -142,9 +143,7 @@ def sensor_pose(name: str, s: Mapping[str, Any], target: np.ndarray) -> np.ndarr
         pose[:3, :3] = _rotation(name, s["rotation"]) if "rotation" in s else _quaternion(name, s["quaternion"])
         pose[:3, 3] = position
         return pose
-    pose = look_at(position, s.get("target", target))
-    pose[:3, :3] = pose[:3, :3] @ roll(float(s.get("roll_deg", 0.0)))
-    return pose
+    return _rolled(look_at(position, s.get("target", target)), float(s.get("roll_deg", 0.0)))
 
 
 def roll(degrees: float) -> np.ndarray:
