@@ -75,7 +75,7 @@ def main() -> None:
              ("kick_box_kicking", SequenceSpec("kick_box_kicking", frames=24, seed=3, subject_height=1.74), None, 20),
              ("classic_squat", SequenceSpec("classic_squat", frames=40, seed=4, subject_height=1.62), None, 28),
              ("kick_box_kicking_bloom3",  # the same frame with regions the size of a real Kinect v2's
-              SequenceSpec("kick_box_kicking", frames=24, seed=3, subject_height=1.74, ir_bloom_px=3.0), None, 20)]
+              SequenceSpec("kick_box_kicking", frames=24, seed=3, subject_height=1.74, ir_bloom_px=3), None, 20)]
     clip = SHARED / "cmu_14_14_jumping_jacks.bvh"
     if clip.exists():
         shots.append(("cmu_jumping_jacks", SequenceSpec("bvh", frames=40, seed=7, random_layout=True),

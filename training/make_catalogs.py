@@ -29,13 +29,13 @@ from mocapflow.tasks.studio.motion import ATHLETIC, EXERCISES
 VALIDATION_EXERCISES = ("alternate_side_reaches", "side_step_knee_elbow")
 TRAIN_EXERCISES = tuple(e for e in EXERCISES if e not in VALIDATION_EXERCISES and e not in ATHLETIC)
 ROLL_DEG = 3.0  # a real rig's sensors sit 1-3 degrees off level
-BLOOM_PX = (0.0, 4.0)  # saturation round each reflector: 3 px gives a real Kinect v2's 100-400 px regions
+BLOOM_PX = (0, 4)  # saturation round each reflector, whole pixels: 3 gives a real Kinect v2's 100-400 px regions
 HERE = Path(__file__).parent
 
 
 def sequences(exercises, count: int, first_seed: int, rng: np.random.Generator,
               variation: tuple[float, float] | None = None, *, speed=(0.7, 1.4), amplitude=(0.7, 1.15),
-              roll_deg: float = 0.0, bloom_px: tuple[float, float] | None = None) -> list[str]:
+              roll_deg: float = 0.0, bloom_px: tuple[int, int] | None = None) -> list[str]:
     lines = []
     for i in range(count):
         motion, seed = exercises[i % len(exercises)], first_seed + i
@@ -45,7 +45,7 @@ def sequences(exercises, count: int, first_seed: int, rng: np.random.Generator,
                 f"subject_height: {rng.uniform(1.5, 2.0):.2f}, heading_deg: {rng.uniform(-180, 180):.0f}, "
                 f"speed: {rng.uniform(*speed):.2f}, amplitude: {rng.uniform(*amplitude):.2f}, "
                 f"start_s: {rng.uniform(0.0, 2.0):.2f}{varied}{rolled}")
-        bloomed = f", ir_bloom_px: {rng.uniform(*bloom_px):.1f}" if bloom_px else ""
+        bloomed = f", ir_bloom_px: {rng.integers(bloom_px[0], bloom_px[1] + 1)}" if bloom_px else ""
         lines.append(head + bloomed + "}")
     return lines
 

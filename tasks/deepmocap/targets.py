@@ -45,20 +45,19 @@ class BoxRule:
     link_px: float = 0.0
 
 
-def subject_box(blob_id: np.ndarray, blob_area: np.ndarray, *, min_area: int = 3, speck_area: int = 0,
-                link_px: float = 0.0) -> np.ndarray:
-    """(x0, y0, x1, y1) around the reflector regions of at least ``min_area`` pixels; the whole image if none.
+def subject_box(blob_id: np.ndarray, blob_area: np.ndarray, rule: BoxRule = BoxRule()) -> np.ndarray:
+    """(x0, y0, x1, y1) around the reflector regions of at least ``rule.min_area`` pixels; the whole image if none.
 
-    A speck, a region under ``speck_area`` pixels whose centre lies farther than ``link_px`` from every other
-    region's (a reflective object in the room, sensor glare), is left out: it would stretch the box over the
+    A speck, a region under ``rule.speck_area`` pixels whose centre lies farther than ``rule.link_px`` from every
+    other region's (a reflective object in the room, sensor glare), is left out: it would stretch the box over the
     image. A reflector on the body has a neighbour within reach; a large isolated region stays in."""
     h, w = blob_id.shape  # (y, x)
-    keep = np.concatenate([[False], np.asarray(blob_area) >= min_area])  # index 0: no blob
+    keep = np.concatenate([[False], np.asarray(blob_area) >= rule.min_area])  # index 0: no blob
     ys, xs = np.nonzero(blob_id)
     labels = blob_id[ys, xs]
-    if speck_area > 0 and link_px > 0 and keep.sum() > 1:
-        small = np.concatenate([[0], np.asarray(blob_area)]) < speck_area
-        keep &= ~_specks(xs, ys, labels, keep, small, link_px)
+    if rule.speck_area > 0 and rule.link_px > 0 and keep.sum() > 1:
+        small = np.concatenate([[0], np.asarray(blob_area)]) < rule.speck_area
+        keep &= ~_specks(xs, ys, labels, keep, small, rule.link_px)
     inside = keep[labels]
     if not inside.any():
         return np.array([0.0, 0.0, w - 1.0, h - 1.0], np.float32)

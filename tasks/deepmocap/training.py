@@ -108,8 +108,7 @@ def sample_inputs(depth_image, flow_image, blob_id, blob_area, *, sample_scale: 
     (y, x, 3) x2, (y, x), (blob,) -> (y', x', 3) x2, (4,)"""
     h, w = depth_image.shape[:2]
     size = (int(round(w * sample_scale)), int(round(h * sample_scale)))
-    subject = targets.subject_box(blob_id, blob_area, min_area=box.min_area, speck_area=box.speck_area,
-                                  link_px=box.link_px)
+    subject = targets.subject_box(blob_id, blob_area, box)
     return (cv2.resize(depth_image, size, interpolation=cv2.INTER_AREA),
             cv2.resize(flow_image, size, interpolation=cv2.INTER_AREA), to_sample_scale(subject, sample_scale))
 

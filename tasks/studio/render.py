@@ -132,7 +132,7 @@ class FrameStack:
 
 def render(view: View, prims: tuple[Primitive, ...], placements: tuple[Placement, ...],
            pose: Pose, prev: Pose, nxt: Pose, rng: np.random.Generator, noise: float = 1.0, *,
-           bloom_px: float = 0.0) -> Frame:
+           bloom_px: int = 0) -> Frame:
     """Render one view at one frame; ``prev``/``nxt`` are the poses one frame before and after. ``bloom_px``: the
     sensor's saturation spreads this many pixels round each reflector (IR saturated, no depth there)."""
     rot, pos = pose.rot, pose.pos
@@ -260,19 +260,18 @@ def _ellipsoid(C, Q, radii, d):
     return t, normal
 
 
-def saturated(reflector: np.ndarray, bloom_px: float) -> np.ndarray:
+def saturated(reflector: np.ndarray, bloom_px: int) -> np.ndarray:
     """The pixels a time-of-flight sensor saturates: the retro-reflectors' own and, with ``bloom_px`` > 0, a disc of that
     radius round them (a real Kinect v2's reflector regions measure 100-400 px, the tape alone a few dozen).
     (y, x) bool -> (y, x) bool"""
     if bloom_px <= 0:
         return reflector
-    r = int(round(bloom_px))
-    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * bloom_px + 1, 2 * bloom_px + 1))
     return cv2.dilate(reflector.astype(np.uint8), disc) > 0
 
 
 def _sensor(view, prims, placements, t_buf, prim_buf, normal_buf, local_buf, pose, prev, nxt, rng, noise,
-            bloom_px=0.0) -> Frame:
+            bloom_px=0) -> Frame:
     body = prim_buf >= 0
     rid = np.full(prim_buf.shape, -1, dtype=np.int8)
     for k, prim in enumerate(prims):

@@ -43,7 +43,7 @@ class SequenceSpec:
     variation: float = 0.0  # random posture, heading and drift on an exercise (motion.vary, motion.wander)
     random_layout: bool = False
     camera_roll_deg: float = 0.0  # with random_layout: each sensor rolled by up to this many degrees either way
-    ir_bloom_px: float = 0.0  # the sensor's saturation spreads this many pixels round each reflector (render.saturated)
+    ir_bloom_px: int = 0  # the sensor's saturation spreads this many whole pixels round each reflector (render.saturated)
     layout: Mapping[str, Any] | None = None
     label: str = ""  # the motion's name in the ground truth (defaults to ``motion``)
     body: str = "capsule"  # the subject: "capsule" (the template's primitives) or "mesh" (Anny, tasks/studio/mesh_synth.py)

@@ -115,7 +115,7 @@ def test_later_fields_enter_the_fingerprint_only_when_set():
     assert fingerprint(SequenceSpec("classic_squat", seed=3, body="mesh"), None) != fingerprint(plain, None)
     assert fingerprint(SequenceSpec("classic_squat", seed=3, random_layout=True, camera_roll_deg=2.0), None) != \
         fingerprint(SequenceSpec("classic_squat", seed=3, random_layout=True), None)
-    assert fingerprint(SequenceSpec("classic_squat", seed=3, ir_bloom_px=3.0), None) != fingerprint(plain, None)
+    assert fingerprint(SequenceSpec("classic_squat", seed=3, ir_bloom_px=3), None) != fingerprint(plain, None)
 
 
 @pytest.mark.needs_shared

@@ -70,7 +70,7 @@ def test_subject_box_spans_the_reflector_regions():
     blob_id[5:8, 10:13] = 1
     blob_id[40:44, 50:52] = 2
     blob_id[20, 2] = 3  # a 1-pixel speck is not a reflector
-    box = targets.subject_box(blob_id, np.array([9, 8, 1]), min_area=3)
+    box = targets.subject_box(blob_id, np.array([9, 8, 1]), targets.BoxRule(min_area=3))
     np.testing.assert_array_equal(box, [10, 5, 51, 43])
 
 
@@ -82,10 +82,11 @@ def test_a_speck_far_from_the_subject_stays_out_of_its_box():
     blob_id[10:12, 10:12] = 4  # a speck in a corner of the room, 4 px
     blob_id[400:420, 480:500] = 5  # a large region far off: a reflector, not a speck
     areas = np.array([100, 100, 4, 4, 400])
-    rule = dict(min_area=3, speck_area=20, link_px=120.0)
-    np.testing.assert_array_equal(targets.subject_box(blob_id, areas, **rule), [250, 200, 499, 419])
-    np.testing.assert_array_equal(targets.subject_box(blob_id, areas, min_area=3), [10, 10, 499, 419])  # no rule
+    rule = targets.BoxRule(min_area=3, speck_area=20, link_px=120.0)
+    np.testing.assert_array_equal(targets.subject_box(blob_id, areas, rule), [250, 200, 499, 419])
+    no_speck_rule = targets.BoxRule(min_area=3)
+    np.testing.assert_array_equal(targets.subject_box(blob_id, areas, no_speck_rule), [10, 10, 499, 419])
     areas[4] = 0  # without the large one: the subject and its hand
-    np.testing.assert_array_equal(targets.subject_box(blob_id, areas, **rule), [250, 200, 301, 249])
+    np.testing.assert_array_equal(targets.subject_box(blob_id, areas, rule), [250, 200, 301, 249])
     only = np.where(blob_id == 4, 4, 0).astype(np.uint16)
-    np.testing.assert_array_equal(targets.subject_box(only, areas, **rule), [10, 10, 11, 11])  # alone: kept
+    np.testing.assert_array_equal(targets.subject_box(only, areas, rule), [10, 10, 11, 11])  # alone: kept

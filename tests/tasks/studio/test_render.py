@@ -179,7 +179,7 @@ def test_ir_bloom_widens_the_saturated_regions_to_a_real_kinects_and_keeps_the_t
     from scipy import ndimage
 
     plain = synthesize(build_rig(SequenceSpec("elbow_flexion", frames=2, seed=1, noise=0.0)), 0, 1)
-    bloomed = synthesize(build_rig(SequenceSpec("elbow_flexion", frames=2, seed=1, noise=0.0, ir_bloom_px=3.0)), 0, 1)
+    bloomed = synthesize(build_rig(SequenceSpec("elbow_flexion", frames=2, seed=1, noise=0.0, ir_bloom_px=3)), 0, 1)
     np.testing.assert_array_equal(plain.gt_reflector_id.values, bloomed.gt_reflector_id.values)
     np.testing.assert_array_equal(plain.gt_pixels.values, bloomed.gt_pixels.values)
 
@@ -191,10 +191,10 @@ def test_ir_bloom_widens_the_saturated_regions_to_a_real_kinects_and_keeps_the_t
     before, after = areas(plain), areas(bloomed)
     assert np.median(before) < 100 <= np.median(after) <= 400
     rid = bloomed.gt_reflector_id.values[0, 0] >= 0
-    ring = render.saturated(rid, 3.0) & ~rid
+    ring = render.saturated(rid, 3) & ~rid
     assert ring.any() and (bloomed.depth.values[0, 0][ring] == 0).all()  # no depth in the bloom
     assert (plain.depth.values[0, 0][ring] > 0).mean() > 0.5  # where the plain sensor read the body or the room
     with pytest.raises(ValueError, match="ir_bloom_px must be within"):
-        SequenceSpec("elbow_flexion", ir_bloom_px=-1.0)
+        SequenceSpec("elbow_flexion", ir_bloom_px=-1)
     with pytest.raises(ValueError, match="capsule body's renderer"):
-        SequenceSpec("elbow_flexion", ir_bloom_px=3.0, body="mesh")
+        SequenceSpec("elbow_flexion", ir_bloom_px=3, body="mesh")
