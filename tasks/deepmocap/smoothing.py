@@ -149,19 +149,25 @@ def _start(z0: np.ndarray, *, order: int, dt: float, process_noises: tuple[float
     return IMMEstimator(filters, mu=mu, M=M)
 
 
+def _models(tracker: KalmanFilter | IMMEstimator) -> list[KalmanFilter]:
+    """The Kalman filters a track runs: an IMM's models, or the one filter itself."""
+    return list(getattr(tracker, "filters", [tracker]))
+
+
 def _prior(tracker: KalmanFilter | IMMEstimator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The predicted state (dim_x,), its covariance (dim_x, dim_x) and the models' prior probabilities (model,).
 
     For the IMM, the moment-matched mix of the models' predictions weighted by the prior model probabilities
     (``cbar``; filterpy's own ``x_prior`` weights them by the previous posterior ones).
     """
-    if not hasattr(tracker, "filters"):
+    models = _models(tracker)
+    if len(models) == 1:
         return tracker.x, tracker.P, np.ones(1)
     w = tracker.cbar  # (model,)
-    xs = np.array([f.x for f in tracker.filters])  # (model, dim_x)
+    xs = np.array([f.x for f in models])  # (model, dim_x)
     x = w @ xs  # (dim_x,)
     d = xs - x  # (model, dim_x)
-    P = np.einsum("m,mij->ij", w, np.array([f.P for f in tracker.filters]) + d[:, :, None] * d[:, None, :])
+    P = np.einsum("m,mij->ij", w, np.array([f.P for f in models]) + d[:, :, None] * d[:, None, :])
     return x, P, w.copy()
 
 
@@ -172,17 +178,18 @@ def _gated_update(tracker: KalmanFilter | IMMEstimator, z: np.ndarray, confidenc
     model predicts it (the union of the models' validation regions): against the mix alone, the slow model's
     weight would reject the first frames of a fast move, the very measurements that should switch the models."""
     R = np.eye(3) * (measurement_noise_m / max(confidence, 0.05)) ** 2  # (3, 3)
+    models = _models(tracker)
     x, P, _ = _prior(tracker)  # (dim_x,), (dim_x, dim_x)
-    H = tracker.filters[0].H if hasattr(tracker, "filters") else tracker.H  # (3, dim_x)
-    predictions = [(x, P)] + ([(f.x, f.P) for f in tracker.filters] if union and hasattr(tracker, "filters") else [])
+    H = models[0].H  # (3, dim_x)
+    predictions = [(x, P)] + ([(f.x, f.P) for f in models] if union and len(models) > 1 else [])
     for x, P in predictions:
         residual = z - H @ x  # (3,)
         if residual @ np.linalg.solve(H @ P @ H.T + R, residual) <= gate:
             break
     else:
         return False
-    if hasattr(tracker, "filters"):
-        for f in tracker.filters:  # IMMEstimator.update takes no R: each model's is set
+    if len(models) > 1:
+        for f in models:  # IMMEstimator.update takes no R: each model's is set
             f.R = R
         tracker.update(z)
     else:
@@ -201,7 +208,7 @@ def _follow(z: np.ndarray, seen: np.ndarray, confidence: np.ndarray, first: int,
     """
     tracker = _start(z[first], order=order, dt=dt, process_noises=process_noises, switch=switch,
                      measurement_noise_m=measurement_noise_m)
-    mixed = hasattr(tracker, "filters")
+    mixed = len(_models(tracker)) > 1
     mu0 = tracker.mu.copy() if mixed else np.ones(1)
     segment, gap = [(first, tracker.x.copy(), tracker.P.copy(), True, mu0)], 0
     for i in range(first + 1, len(z)):
