@@ -1,5 +1,5 @@
 """Write the FCN's training and validation catalogs (training/catalog.yaml, training/catalog_athletic.yaml,
-training/validation.yaml).
+training/validation.yaml, training/validation_athletic.yaml).
 
 Only the studio's procedural motions are used; the real CMU clips are reserved for the held-out
 benchmark (benchmarks/catalog.yaml). The split is by subject and by motion: validation subjects (seeds
@@ -14,7 +14,10 @@ real rig's are (the random rings' heights, 0.5-1 m, already span a real DMC rig'
 each reflector's saturation spread 0-4 px round it (``ir_bloom_px``: real Kinect v2 regions are 100-400 px,
 the studio's own 2-90 px). Their subjects (seeds 300+)
 are neither validation's nor the benchmarks' (8000+). The validation split has both kinds too: six textbook
-sequences and six varied ones (crossing, spreading and lifted legs are where labels swap).
+sequences and six varied ones (crossing, spreading and lifted legs are where labels swap); and
+training/validation_athletic.yaml judges the next network on what it adds: the seven athletic motions
+performed by validation subjects (seeds 520+), filmed like the new training groups (rolled rings, regions
+spread 0-4 px).
 Regenerate with ``python training/make_catalogs.py``.
 """
 
@@ -123,6 +126,13 @@ def main() -> None:
     validation += "\n".join(sequences(VALIDATION_EXERCISES, 6, 506, varied_validation, variation=(0.5, 1.0))) + "\n"
     validation += STAGES.format(name="validation") + VALIDATION_STAGES
     (HERE / "validation.yaml").write_text(validation)
+    title = ("Validation set of the next two-stream FCN: the athletic motions, rolled rings and real-sized\n"
+             "# reflector regions, performed by validation subjects")
+    beyond = HEADER.format(title=title, name="validation", frames=40,
+                           usage="mocapflow evaluate --catalog training/validation_athletic.yaml")
+    beyond += "\n".join(sequences(tuple(ATHLETIC), 7, 520, np.random.default_rng(2047), speed=(0.8, 1.2),
+                                   amplitude=(0.85, 1.05), roll_deg=ROLL_DEG, bloom_px=BLOOM_PX)) + "\n"
+    (HERE / "validation_athletic.yaml").write_text(beyond + STAGES.format(name="validation") + VALIDATION_STAGES)
 
 
 if __name__ == "__main__":

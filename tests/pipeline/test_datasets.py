@@ -115,7 +115,8 @@ def test_a_misspelt_dataset_option_stops_the_run_before_any_stage(toy_project):
 
 @pytest.mark.parametrize("name", ["catalog.yaml", "benchmarks/catalog.yaml", "benchmarks/athletic.yaml",
                                   "benchmarks/real_rig.yaml", "benchmarks/real_appearance.yaml", "training/catalog.yaml",
-                                  "training/catalog_athletic.yaml", "training/validation.yaml", "training/tracker.yaml",
+                                  "training/catalog_athletic.yaml", "training/validation.yaml", "training/validation_athletic.yaml",
+                                  "training/tracker.yaml",
                                   "demo"])
 def test_the_shipped_catalogs_still_load_and_discover_their_sequences(tmp_path, name):
     if name == "demo":
