@@ -330,18 +330,34 @@ def _load_samples(store: Store, up, variables=None) -> xr.Dataset:
 
     Each sample carries ``sequence``, ``view`` and ``frame`` coordinates; variables without a frame
     dimension (calibration, say) are left out, since samples of different sequences cannot share them.
+    The samples are read one partition at a time into arrays sized for all of them, so reading takes the
+    memory of the result plus one partition (a training set can be many GB; concatenating loaded parts
+    would take twice that).
     """
-    parts = []
+    parts = []  # (sequence, the partition's artifact, lazily opened)
     for sequence, keys in up.by_sequence.items():
         for key in keys.values():
-            ds = store.open(up.stage, key, up.schema)
-            ds = _select(ds, variables, up)
-            ds = ds.drop_vars([n for n, v in ds.data_vars.items() if "frame" not in v.dims])
-            stacked = ds.stack(sample=[d for d in ("view", "frame") if d in ds.dims]).transpose("sample", ...).load()
-            stacked = stacked.reset_index("sample").assign_coords(
-                sequence=("sample", np.full(stacked.sizes["sample"], sequence, dtype=object)))
-            parts.append(stacked)
-    return xr.concat(parts, dim="sample", data_vars="minimal", coords="minimal", compat="override", join="override")
+            ds = _select(store.open(up.stage, key, up.schema), variables, up)
+            parts.append((sequence, ds.drop_vars([n for n, v in ds.data_vars.items() if "frame" not in v.dims])))
+    sizes = [int(np.prod([ds.sizes[d] for d in ("view", "frame") if d in ds.dims])) for _, ds in parts]
+    ends = np.cumsum(sizes)
+    columns, first = {}, None
+    for (sequence, ds), end, size in zip(parts, ends, sizes):
+        stacked = ds.stack(sample=[d for d in ("view", "frame") if d in ds.dims]).transpose("sample", ...).load()
+        stacked = stacked.reset_index("sample").assign_coords(sequence=("sample", np.full(size, sequence, dtype=object)))
+        if first is None:
+            first = stacked
+            columns = {name: np.empty((int(ends[-1]), *v.shape[1:]), v.dtype)  # (sample, ...) for all the parts
+                       for name, v in stacked.variables.items() if v.dims[:1] == ("sample",)}
+        for name, column in columns.items():
+            column[end - size:end] = stacked.variables[name].values
+    if first is None:
+        raise StorageError(f"stage {up.stage!r} has no partition to read samples from; run it first")
+    sample = {name: (first.variables[name].dims, column, first.variables[name].attrs) for name, column in columns.items()}
+    return xr.Dataset({name: sample[name] for name in first.data_vars},
+                      coords={**{name: first.coords[name] for name in first.coords if name not in sample},
+                              **{name: sample[name] for name in first.coords if name in sample}},
+                      attrs=first.attrs)
 
 
 def _load_input(store: Store, up, view: str | None, lo: int, hi: int, variables=None,
