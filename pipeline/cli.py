@@ -349,12 +349,16 @@ def train(catalog_path, overrides, sequences, stage, out, workers, threads, as_j
     store = Store(catalog.root)
     plan = build_plan(catalog, sequences)
     item = training_item(plan, catalog, stage)
-    compute_missing(select(plan, catalog, store, only=None, until=item.partition.stage), store, workers=workers,
-                    processes=not threads, what="training failed")
+    log_path = _run_log(store, "train")
+    inputs = [i for i in select(plan, catalog, store, only=None, until=item.partition.stage)
+              if i.partition.id != item.partition.id]
+    compute_missing(inputs, store, workers=workers, processes=not threads, what="training failed")
+    # the training itself in this process (it takes every core anyway): its progress reaches the console and the log
+    compute_missing([item], store, workers=1, processes=False, what="training failed")
     data = export_weights(store, item, Path(out))
     sha = hashlib.sha256(data).hexdigest()
     click.echo(f"wrote {out} ({len(data) / 1e6:.2f} MB, sha256 {sha[:16]}) from {item.partition.id} "
-               f"(key {item.key[:12]}) in {time.perf_counter() - started:.1f} s")
+               f"(key {item.key[:12]}) in {time.perf_counter() - started:.1f} s; log {log_path}")
     if as_json:
         click.echo(json.dumps({"weights": str(out), "sha256": sha, "bytes": len(data), "key": item.key,
                                "seconds": round(time.perf_counter() - started, 3)}))

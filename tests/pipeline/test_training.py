@@ -52,6 +52,8 @@ def test_train_caches_reproduces_and_feeds_inference(tmp_path):
     trained = store.open("weights", first["key"], get_schema("fcn_weights"))
     assert trained.sizes["iteration"] == 3 and np.isfinite(trained["loss"].values).all()
     assert trained.attrs["training"]["samples"] == 2 * 2 * 6  # every (sequence, view, frame) with a reflector seen
+    logs = list((tmp_path / "storage" / "logs").glob("run-*.log"))  # the training's progress is in the run's log
+    assert len(logs) == 1 and "iteration 2/3: loss" in logs[0].read_text()
 
     again = last_json(mocapflow("train", "--catalog", "catalog.yaml", "--out", "again.pt", "--json", cwd=tmp_path))
     assert again["key"] == first["key"] and (tmp_path / "again.pt").read_bytes() == data  # cached, same bytes
