@@ -198,10 +198,11 @@ register(TaskSpec(
     description="region-contour depth, back-projection, patch mean / strap normal-line fusion (Eq. 10, A1)",
 ))
 for name, fn, params, version, what in (
-        ("kalman", smoothing.kalman, smoothing.KalmanConfig, "6",
+        ("kalman", smoothing.kalman, smoothing.KalmanConfig, "7",
          "labels kept continuous (a limb under both labels loses one, exchanges undone by Viterbi, a label on "
          "another reflector's track dropped), then a filterpy Kalman filter (optionally an IMM of a slow and a "
-         "fast model): confirmed track starts, gating, gaps bridged, optional RTS smoothing"),
+         "fast model): confirmed track starts, gating, competing tracks chosen by support and top speed, gaps "
+         "bridged, optional RTS smoothing"),
         ("butterworth", smoothing.butterworth, smoothing.ButterworthConfig, "1", "zero-phase Butterworth low-pass"),
         ("none", smoothing.no_smoothing, smoothing.NoSmoothing, "1", "the fused markers unchanged")):
     register(TaskSpec(name=name, fn=fn, version=version, params=params, output="smoothed_markers", partition="sequence",

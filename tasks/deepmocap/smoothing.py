@@ -11,6 +11,9 @@ tracks"). Three swappable implementations of the `smoothed` stage:
   fast process noise, so that the noise follows the motion (a foot in a kick or a sprint) instead of one
   value serving slow and fast limbs alike;
   a track starts only on a measurement that the next ones confirm (reachable at a top speed);
+  a measurement a track rejected may start a track of its own, and of the competing tracks the chain that best
+  explains the reflector's measurements, never asking it to move faster than the top speed from one piece to
+  the next, is kept (a ghost of the reflector that one view keeps seeing loses to the reflector itself);
   Mahalanobis gating rejects outliers (against the IMM's mixed prediction, or either model's right after an
   accepted measurement); gaps of up to ``max_gap`` frames inside a track are bridged, a
   track ends at its last accepted measurement (past it a reflector is reported missing rather than
@@ -55,6 +58,10 @@ class KalmanConfig:
     # accuracy (docs/deepmocap.md, "Motions the training lacks")
     fast_process_noise: float = 0.0
     switch_probability: float = 0.05  # IMM: probability per frame that a reflector changes model (slow <-> fast)
+    # measurements a track rejected that may start tracks of their own (per reflector), of which the chain that
+    # best explains the measurements is kept (0: one pass, each track from the first confirmed measurement after
+    # the last one ends); 8 chosen on the training splits (docs/deepmocap.md, "The tail")
+    alternatives: int = 8
 
     def __post_init__(self):
         if not self.process_noise > 0:
@@ -76,6 +83,8 @@ class KalmanConfig:
             raise ValueError(f"swap_reach must be >= 1 frame (e.g. 5), got {self.swap_reach}")
         if not self.max_speed_m_s > 0:
             raise ValueError(f"max_speed_m_s must be > 0 (e.g. 10.0), got {self.max_speed_m_s}")
+        if self.alternatives < 0:
+            raise ValueError(f"alternatives must be >= 0 tracks (0: off, e.g. 8), got {self.alternatives}")
         if self.confirm < 0:
             raise ValueError(f"confirm must be >= 0 measurements (0 starts a track on any), got {self.confirm}")
 
@@ -235,11 +244,64 @@ def _up_to_last_measurement(segment: list) -> list:
     return segment[:last + 1]
 
 
+def _candidates(z: np.ndarray, seen: np.ndarray, *, confirmable, follow, alternatives: int) -> list[list]:
+    """Candidate tracks of one reflector, in order of their first frame: one from each confirmed measurement
+    that no earlier track took, after the earlier tracks end, and, up to ``alternatives`` of them, inside an
+    earlier track's frames (a measurement it rejected: where two streams compete for a label, as a reflector
+    and a ghost of it that one view keeps, both are followed and ``_select`` chooses).  z (frame, 3), seen (frame,)"""
+    covered = np.zeros(len(z), bool)  # (frame,) measurements some track took
+    resume, spawned, tracks = 0, 0, []
+    for i in np.flatnonzero(seen):
+        inside = i < resume
+        if covered[i] or (inside and spawned >= alternatives) or not confirmable(i):
+            continue
+        segment, stop = follow(i)
+        tracks.append(segment)
+        covered[[f for f, _, _, accepted, _ in segment if accepted]] = True
+        resume, spawned = max(resume, stop), spawned + inside
+    return tracks
+
+
+def _select(tracks: list[list], z: np.ndarray, seen: np.ndarray, *, switch_cost: float, **reach) -> list[list]:
+    """The chain of track pieces that best explains a reflector's measurements: each piece a track up to its end or
+    up to where a later track starts inside it; a piece scores the measurements it took less those it rejected
+    within its frames; consecutive pieces must not overlap and the reflector must be able to move from one to the
+    next at the top speed (``follows``); leaving a track before its end for another costs ``switch_cost``.
+    Weighted interval scheduling by dynamic programming over the pieces (sorted by their last frame).
+    z (frame, 3), seen (frame,); each track a list of (frame, x, P, accepted, mu) -> the chosen pieces, in order"""
+    pieces = []  # (track, last entry kept, first frame, last frame, score, cut)
+    for t, track in enumerate(tracks):
+        frames = np.array([e[0] for e in track])
+        accepted = np.array([e[3] for e in track])
+        starts = {u[0][0] for u in tracks if frames[0] < u[0][0] <= frames[-1]}
+        cuts = {len(track) - 1} | {int(np.flatnonzero(accepted & (frames < s))[-1]) for s in starts}
+        for k in sorted(cuts):
+            taken = int(accepted[:k + 1].sum())
+            rejected = int(seen[frames[0]:frames[k] + 1].sum()) - taken
+            pieces.append((t, k, frames[0], frames[k], taken - rejected, k < len(track) - 1))
+    pieces.sort(key=lambda p: p[3])
+    best, before = [], []
+    for p, (_, _, first, _, score, _) in enumerate(pieces):
+        options = [(best[q] - (switch_cost if pieces[q][5] else 0.0), q) for q in range(p)
+                   if pieces[q][3] < first and follows(z, pieces[q][3], first, **reach)]
+        base, q = max(options, default=(0.0, -1), key=lambda o: o[0])
+        best.append(score + max(base, 0.0))
+        before.append(q if base > 0 else -1)
+    chain, p = [], int(np.argmax(best)) if best and max(best) > 0 else -1
+    while p >= 0:
+        t, k = pieces[p][:2]
+        chain.append(tracks[t][:k + 1])
+        p = before[p]
+    return chain[::-1]
+
+
 def kalman_track(z: np.ndarray, confidence: np.ndarray, dt: float, config: KalmanConfig) -> tuple[np.ndarray, np.ndarray]:
     """Filtered positions of one reflector and which frames are predictions.  (frame, 3), (frame,) -> same, bool
 
     Tracks start on confirmed measurements (see ``confirmed``): started on a lone outlier, the gate would
-    reject the true measurements that follow. Gaps inside a track are bridged; RTS smoothing makes the
+    reject the true measurements that follow. With ``alternatives`` > 0, measurements a track rejected start
+    tracks of their own and the best-supported chain of pieces, never faster than the top speed between them,
+    is kept (``_select``). Gaps inside a track are bridged; RTS smoothing makes the
     bridge an interpolation between the measurements on either side. With ``fast_process_noise`` > 0 each
     track is an IMM of the slow and the fast model, and its RTS pass takes, per frame, the process noise
     mixed by the forward pass's model probabilities.
@@ -250,13 +312,14 @@ def kalman_track(z: np.ndarray, confidence: np.ndarray, dt: float, config: Kalma
     reach = {"dt": dt, "max_speed_m_s": config.max_speed_m_s, "slack_m": 3 * config.measurement_noise_m}
     noises = (config.process_noise,) + ((config.fast_process_noise,) if config.fast_process_noise > 0 else ())
     model = {"order": order, "dt": dt, "process_noises": noises, "switch": config.switch_probability}
-    i = 0
-    while i < n:
-        if not (seen[i] and confirmed(z, i, count=config.confirm, within=max_gap, **reach)):
-            i += 1
-            continue
-        segment, i = _follow(z, seen, confidence, i, max_gap=max_gap, gate=config.gate,
-                             measurement_noise_m=config.measurement_noise_m, **model)
+    tracks = _candidates(
+        z, seen, alternatives=config.alternatives,
+        confirmable=lambda i: confirmed(z, i, count=config.confirm, within=max_gap, **reach),
+        follow=lambda i: _follow(z, seen, confidence, i, max_gap=max_gap, gate=config.gate,
+                                 measurement_noise_m=config.measurement_noise_m, **model))
+    if config.alternatives > 0:
+        tracks = _select(tracks, z, seen, switch_cost=config.confirm + 1, **reach)
+    for segment in tracks:
         frames = [k for k, *_ in segment]
         xs, ps = np.array([e[1] for e in segment]), np.array([e[2] for e in segment])  # (step, dim_x), (step, dim_x, dim_x)
         if config.rts and len(segment) > 1:
