@@ -262,37 +262,58 @@ def _candidates(z: np.ndarray, seen: np.ndarray, *, confirmable, follow, alterna
     return tracks
 
 
-def _select(tracks: list[list], z: np.ndarray, seen: np.ndarray, *, switch_cost: float, **reach) -> list[list]:
-    """The chain of track pieces that best explains a reflector's measurements: each piece a track up to its end or
-    up to where a later track starts inside it; a piece scores the measurements it took less those it rejected
-    within its frames; consecutive pieces must not overlap and the reflector must be able to move from one to the
-    next at the top speed (``follows``); leaving a track before its end for another costs ``switch_cost``.
-    Weighted interval scheduling by dynamic programming over the pieces (sorted by their last frame).
-    z (frame, 3), seen (frame,); each track a list of (frame, x, P, accepted, mu) -> the chosen pieces, in order"""
-    pieces = []  # (track, last entry kept, first frame, last frame, score, cut)
+def _pieces(tracks: list[list], n: int) -> list[tuple]:
+    """Each track up to its end, and up to its last measurement before each later track's start inside it, with
+    its score: the measurements it took less those it rejected within its frames that another track took (a
+    stream it ignored; an outlier no track takes costs nothing).  n: frames ->
+    [(track, last entry kept, first frame, last frame, score, cut before the track's end)], by last frame"""
+    taken_by = np.zeros((len(tracks), n), bool)  # (track, frame)
+    for t, track in enumerate(tracks):
+        taken_by[t, [e[0] for e in track if e[3]]] = True
+    pieces = []
     for t, track in enumerate(tracks):
         frames = np.array([e[0] for e in track])
         accepted = np.array([e[3] for e in track])
+        competing = np.delete(taken_by, t, axis=0).any(axis=0) & ~taken_by[t]  # (frame,)
         starts = {u[0][0] for u in tracks if frames[0] < u[0][0] <= frames[-1]}
         cuts = {len(track) - 1} | {int(np.flatnonzero(accepted & (frames < s))[-1]) for s in starts}
         for k in sorted(cuts):
-            taken = int(accepted[:k + 1].sum())
-            rejected = int(seen[frames[0]:frames[k] + 1].sum()) - taken
-            pieces.append((t, k, frames[0], frames[k], taken - rejected, k < len(track) - 1))
-    pieces.sort(key=lambda p: p[3])
-    best, before = [], []
-    for p, (_, _, first, _, score, _) in enumerate(pieces):
-        options = [(best[q] - (switch_cost if pieces[q][5] else 0.0), q) for q in range(p)
-                   if pieces[q][3] < first and follows(z, pieces[q][3], first, **reach)]
-        base, q = max(options, default=(0.0, -1), key=lambda o: o[0])
-        best.append(score + max(base, 0.0))
-        before.append(q if base > 0 else -1)
-    chain, p = [], int(np.argmax(best)) if best and max(best) > 0 else -1
+            score = int(accepted[:k + 1].sum()) - int(competing[frames[0]:frames[k] + 1].sum())
+            pieces.append((t, k, int(frames[0]), int(frames[k]), score, k < len(track) - 1))
+    return sorted(pieces, key=lambda p: p[3])
+
+
+def _best_chain(pieces: list[tuple], joins: np.ndarray, *, switch_cost: float) -> list[int]:
+    """Weighted interval scheduling by dynamic programming over ``pieces`` (``_pieces``): the chain of the highest
+    total score whose consecutive pieces may follow one another (``joins`` (piece, piece) bool: the first ends
+    before the second starts, within the top speed's reach); leaving a track before its end costs
+    ``switch_cost``.  -> the chain's piece indices, in order"""
+    best, before = np.full(len(pieces), -np.inf), np.full(len(pieces), -1)
+    for p, (_, _, _, _, score, _) in enumerate(pieces):
+        base, q = 0.0, -1
+        for r in np.flatnonzero(joins[:p, p]):
+            value = best[r] - (switch_cost if pieces[r][5] else 0.0)
+            if value > base:
+                base, q = value, int(r)
+        best[p], before[p] = score + base, q
+    if not len(pieces) or best.max() <= 0:
+        return []
+    chain, p = [], int(np.argmax(best))
     while p >= 0:
-        t, k = pieces[p][:2]
-        chain.append(tracks[t][:k + 1])
-        p = before[p]
+        chain.append(p)
+        p = int(before[p])
     return chain[::-1]
+
+
+def _select(tracks: list[list], z: np.ndarray, *, switch_cost: float, **reach) -> list[list]:
+    """The chain of track pieces that best explains a reflector's measurements (``_pieces``, ``_best_chain``):
+    consecutive pieces must not overlap and the reflector must be able to move from one to the next at the top
+    speed (``follows``).  z (frame, 3); each track a list of (frame, x, P, accepted, mu) -> the
+    chosen pieces, in order"""
+    pieces = _pieces(tracks, len(z))
+    joins = np.array([[a[3] < b[2] and follows(z, a[3], b[2], **reach) for b in pieces] for a in pieces],
+                     bool).reshape(len(pieces), len(pieces))  # (piece, piece)
+    return [tracks[pieces[p][0]][:pieces[p][1] + 1] for p in _best_chain(pieces, joins, switch_cost=switch_cost)]
 
 
 def kalman_track(z: np.ndarray, confidence: np.ndarray, dt: float, config: KalmanConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -318,7 +339,7 @@ def kalman_track(z: np.ndarray, confidence: np.ndarray, dt: float, config: Kalma
         follow=lambda i: _follow(z, seen, confidence, i, max_gap=max_gap, gate=config.gate,
                                  measurement_noise_m=config.measurement_noise_m, **model))
     if config.alternatives > 0:
-        tracks = _select(tracks, z, seen, switch_cost=config.confirm + 1, **reach)
+        tracks = _select(tracks, z, switch_cost=config.confirm + 1, **reach)
     for segment in tracks:
         frames = [k for k, *_ in segment]
         xs, ps = np.array([e[1] for e in segment]), np.array([e[2] for e in segment])  # (step, dim_x), (step, dim_x, dim_x)
