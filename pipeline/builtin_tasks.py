@@ -198,7 +198,7 @@ register(TaskSpec(
     description="region-contour depth, back-projection, patch mean / strap normal-line fusion (Eq. 10, A1)",
 ))
 for name, fn, params, version, what in (
-        ("kalman", smoothing.kalman, smoothing.KalmanConfig, "8",
+        ("kalman", smoothing.kalman, smoothing.KalmanConfig, "9",
          "labels kept continuous (a limb under both labels loses one, exchanges undone by Viterbi, a label on "
          "another reflector's track dropped), then a filterpy Kalman filter (optionally an IMM of a slow and a "
          "fast model): confirmed track starts, gating, competing tracks chosen by support and top speed, gaps "

@@ -60,8 +60,8 @@ class KalmanConfig:
     switch_probability: float = 0.05  # IMM: probability per frame that a reflector changes model (slow <-> fast)
     # measurements a track rejected that may start tracks of their own (per reflector), of which the chain that
     # best explains the measurements is kept (0: one pass, each track from the first confirmed measurement after
-    # the last one ends); 8 chosen on the training splits (docs/deepmocap.md, "The tail")
-    alternatives: int = 8
+    # the last one ends); a bound on the work, which more than 16 did not change on the training splits
+    alternatives: int = 16
 
     def __post_init__(self):
         if not self.process_noise > 0:
@@ -266,7 +266,7 @@ def _pieces(tracks: list[list], n: int) -> list[tuple]:
     """Each track up to its end, and up to its last measurement before each later track's start inside it, with
     its score: the measurements it took less those it rejected within its frames that another track took (a
     stream it ignored; an outlier no track takes costs nothing).  n: frames ->
-    [(track, last entry kept, first frame, last frame, score, cut before the track's end)], by last frame"""
+    [(track, last entry kept, first frame, last frame, score)], by last frame"""
     taken_by = np.zeros((len(tracks), n), bool)  # (track, frame)
     for t, track in enumerate(tracks):
         taken_by[t, [e[0] for e in track if e[3]]] = True
@@ -279,22 +279,20 @@ def _pieces(tracks: list[list], n: int) -> list[tuple]:
         cuts = {len(track) - 1} | {int(np.flatnonzero(accepted & (frames < s))[-1]) for s in starts}
         for k in sorted(cuts):
             score = int(accepted[:k + 1].sum()) - int(competing[frames[0]:frames[k] + 1].sum())
-            pieces.append((t, k, int(frames[0]), int(frames[k]), score, k < len(track) - 1))
+            pieces.append((t, k, int(frames[0]), int(frames[k]), score))
     return sorted(pieces, key=lambda p: p[3])
 
 
-def _best_chain(pieces: list[tuple], joins: np.ndarray, *, switch_cost: float) -> list[int]:
+def _best_chain(pieces: list[tuple], joins: np.ndarray) -> list[int]:
     """Weighted interval scheduling by dynamic programming over ``pieces`` (``_pieces``): the chain of the highest
     total score whose consecutive pieces may follow one another (``joins`` (piece, piece) bool: the first ends
-    before the second starts, within the top speed's reach); leaving a track before its end costs
-    ``switch_cost``.  -> the chain's piece indices, in order"""
+    before the second starts, within the top speed's reach).  -> the chain's piece indices, in order"""
     best, before = np.full(len(pieces), -np.inf), np.full(len(pieces), -1)
-    for p, (_, _, _, _, score, _) in enumerate(pieces):
+    for p, (_, _, _, _, score) in enumerate(pieces):
         base, q = 0.0, -1
         for r in np.flatnonzero(joins[:p, p]):
-            value = best[r] - (switch_cost if pieces[r][5] else 0.0)
-            if value > base:
-                base, q = value, int(r)
+            if best[r] > base:
+                base, q = best[r], int(r)
         best[p], before[p] = score + base, q
     if not len(pieces) or best.max() <= 0:
         return []
@@ -305,7 +303,7 @@ def _best_chain(pieces: list[tuple], joins: np.ndarray, *, switch_cost: float) -
     return chain[::-1]
 
 
-def _select(tracks: list[list], z: np.ndarray, *, switch_cost: float, **reach) -> list[list]:
+def _select(tracks: list[list], z: np.ndarray, **reach) -> list[list]:
     """The chain of track pieces that best explains a reflector's measurements (``_pieces``, ``_best_chain``):
     consecutive pieces must not overlap and the reflector must be able to move from one to the next at the top
     speed (``follows``).  z (frame, 3); each track a list of (frame, x, P, accepted, mu) -> the
@@ -313,7 +311,7 @@ def _select(tracks: list[list], z: np.ndarray, *, switch_cost: float, **reach) -
     pieces = _pieces(tracks, len(z))
     joins = np.array([[a[3] < b[2] and follows(z, a[3], b[2], **reach) for b in pieces] for a in pieces],
                      bool).reshape(len(pieces), len(pieces))  # (piece, piece)
-    return [tracks[pieces[p][0]][:pieces[p][1] + 1] for p in _best_chain(pieces, joins, switch_cost=switch_cost)]
+    return [tracks[pieces[p][0]][:pieces[p][1] + 1] for p in _best_chain(pieces, joins)]
 
 
 def kalman_track(z: np.ndarray, confidence: np.ndarray, dt: float, config: KalmanConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -339,7 +337,7 @@ def kalman_track(z: np.ndarray, confidence: np.ndarray, dt: float, config: Kalma
         follow=lambda i: _follow(z, seen, confidence, i, max_gap=max_gap, gate=config.gate,
                                  measurement_noise_m=config.measurement_noise_m, **model))
     if config.alternatives > 0:
-        tracks = _select(tracks, z, switch_cost=config.confirm + 1, **reach)
+        tracks = _select(tracks, z, **reach)
     for segment in tracks:
         frames = [k for k, *_ in segment]
         xs, ps = np.array([e[1] for e in segment]), np.array([e[2] for e in segment])  # (step, dim_x), (step, dim_x, dim_x)

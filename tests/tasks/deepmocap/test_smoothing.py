@@ -145,7 +145,6 @@ def test_alternatives_leave_a_clean_track_as_one_pass_makes_it(seed):
     z = truth + np.random.default_rng(seed).normal(0, 0.003, truth.shape)
     z[30:34] = np.nan
     z[60] += [0.5, 0.0, 0.0]  # an outlier no measurement after it can follow
-    z[70] += [0.08, 0.0, 0.0]  # one within the top speed's reach, that the gate rejects
     confidence = np.full(len(z), 0.9)
     out, predicted = smoothing.kalman_track(z, confidence, 1 / 30, _track_config())
     one_pass, one_predicted = smoothing.kalman_track(z, confidence, 1 / 30, _track_config(alternatives=0))
