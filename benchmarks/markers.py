@@ -1,5 +1,6 @@
 """3D stages benchmark: time per frame of `markers3d` (2D->3D + fusion) and of each `smoothed`
-implementation on a 3-view held-out sequence, one CPU core. Run the held-out evaluation first so the
+implementation (and of `kalman` in one pass, without competing tracks) on a 3-view held-out sequence, one CPU
+core. Run the held-out evaluation first so the
 inputs exist (`mocapflow evaluate --catalog benchmarks/catalog.yaml`):
 
     taskset -c 0 python benchmarks/markers.py
@@ -45,12 +46,13 @@ def _inputs():
 def main(repeats: int = 3) -> None:
     reflectors, masks, frames = _inputs()
     n = reflectors.sizes["frame"]
-    fuse_s, smooth_s = [], {"kalman": [], "butterworth": [], "none": []}
+    fuse_s, smooth_s = [], {"kalman": [], "kalman_one_pass": [], "butterworth": [], "none": []}
     for _ in range(repeats):
         t = time.perf_counter()
         markers = markers3d.markers3d(reflectors, masks, frames, markers3d.Markers3DConfig())
         fuse_s.append(time.perf_counter() - t)
         for name, fn, config in (("kalman", smoothing.kalman, smoothing.KalmanConfig()),
+                                 ("kalman_one_pass", smoothing.kalman, smoothing.KalmanConfig(alternatives=0)),
                                  ("butterworth", smoothing.butterworth, smoothing.ButterworthConfig()),
                                  ("none", smoothing.no_smoothing, smoothing.NoSmoothing())):
             t = time.perf_counter()

@@ -54,8 +54,8 @@ class KalmanConfig:
     duplicate_reach: int = 15  # frames a side's last position is kept when judging which label is the impostor
     shared_m: float = 0.05  # > 0: two labels the body keeps apart, this close after being apart: one is dropped (labels.py)
     # > 0: an interacting-multiple-model filter of a slow (process_noise) and a fast (this) model; 0: one filter.
-    # 8000 (20x) is the value chosen on the training splits; off by default, as it costs the slow held-out clips
-    # accuracy (docs/deepmocap.md, "Motions the training lacks")
+    # 8000 (20x) is the value chosen on the training splits; off by default, as it costs two of the three training
+    # splits' poses (docs/deepmocap.md, "Motions the training lacks")
     fast_process_noise: float = 0.0
     switch_probability: float = 0.05  # IMM: probability per frame that a reflector changes model (slow <-> fast)
     # measurements a track rejected that may start tracks of their own (per reflector), of which the chain that
@@ -84,7 +84,7 @@ class KalmanConfig:
         if not self.max_speed_m_s > 0:
             raise ValueError(f"max_speed_m_s must be > 0 (e.g. 10.0), got {self.max_speed_m_s}")
         if self.alternatives < 0:
-            raise ValueError(f"alternatives must be >= 0 tracks (0: off, e.g. 8), got {self.alternatives}")
+            raise ValueError(f"alternatives must be >= 0 tracks (0: one pass, e.g. 16), got {self.alternatives}")
         if self.confirm < 0:
             raise ValueError(f"confirm must be >= 0 measurements (0 starts a track on any), got {self.confirm}")
 

@@ -248,7 +248,7 @@ def test_kalman_config_refuses_bad_imm_values(bad, field):
 
 
 def test_the_kalman_stage_defaults_to_one_filter():
-    """The IMM is an option: it costs the slow held-out clips accuracy (docs/deepmocap.md)."""
+    """The IMM is an option: it costs two of the three training splits' poses (docs/deepmocap.md)."""
     truth = _kick()
     z = truth + np.random.default_rng(0).normal(0, 0.003, truth.shape)
     default = smoothing.kalman_track(z, np.full(len(z), 0.9), 1 / 30, smoothing.KalmanConfig())
