@@ -270,11 +270,12 @@ def _pieces(tracks: list[list], n: int) -> list[tuple]:
     taken_by = np.zeros((len(tracks), n), bool)  # (track, frame)
     for t, track in enumerate(tracks):
         taken_by[t, [e[0] for e in track if e[3]]] = True
+    taken = taken_by.any(axis=0)  # (frame,)
     pieces = []
     for t, track in enumerate(tracks):
         frames = np.array([e[0] for e in track])
         accepted = np.array([e[3] for e in track])
-        competing = np.delete(taken_by, t, axis=0).any(axis=0) & ~taken_by[t]  # (frame,)
+        competing = taken & ~taken_by[t]  # (frame,) taken by another track, not by this one
         starts = {u[0][0] for u in tracks if frames[0] < u[0][0] <= frames[-1]}
         cuts = {len(track) - 1} | {int(np.flatnonzero(accepted & (frames < s))[-1]) for s in starts}
         for k in sorted(cuts):
@@ -289,11 +290,10 @@ def _best_chain(pieces: list[tuple], joins: np.ndarray) -> list[int]:
     before the second starts, within the top speed's reach).  -> the chain's piece indices, in order"""
     best, before = np.full(len(pieces), -np.inf), np.full(len(pieces), -1)
     for p, (_, _, _, _, score) in enumerate(pieces):
-        base, q = 0.0, -1
-        for r in np.flatnonzero(joins[:p, p]):
-            if best[r] > base:
-                base, q = best[r], int(r)
-        best[p], before[p] = score + base, q
+        earlier = np.flatnonzero(joins[:p, p])  # pieces this one may follow
+        q = int(earlier[np.argmax(best[earlier])]) if earlier.size else -1
+        before[p] = q if q >= 0 and best[q] > 0 else -1  # a chain worth nothing is not continued
+        best[p] = score + (best[q] if before[p] >= 0 else 0.0)
     if not len(pieces) or best.max() <= 0:
         return []
     chain, p = [], int(np.argmax(best))
