@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def cli(*args, cwd, env=None) -> tuple[float, dict]:
     started = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "mocapflow.pipeline.cli", *map(str, args), "--json", "--no-progress"],
+    proc = subprocess.run([sys.executable, "-m", "mocapflow.cli.commands", *map(str, args), "--json", "--no-progress"],
                           cwd=cwd, env=env, capture_output=True, text=True, check=True)
     return time.perf_counter() - started, json.loads(proc.stdout.strip().splitlines()[-1])
 

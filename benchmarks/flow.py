@@ -47,7 +47,7 @@ def time_per_pair(pairs: int = 12) -> dict[str, float]:
 
 
 def epe(task: str) -> dict:
-    proc = subprocess.run([sys.executable, "-m", "mocapflow.pipeline.cli", "evaluate", "--catalog",
+    proc = subprocess.run([sys.executable, "-m", "mocapflow.cli.commands", "evaluate", "--catalog",
                            str(ROOT / "benchmarks" / "catalog.yaml"), "--json", "--set", f"stages.flow.task={task}"],
                           capture_output=True, text=True, check=True)
     lines = proc.stdout.strip().splitlines()

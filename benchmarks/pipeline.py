@@ -46,7 +46,7 @@ def catalog_text(frames: int, preset: str, motion: str = str(CLIP)) -> str:
 
 
 def mocapflow(folder: Path, *args: str) -> None:
-    subprocess.run([sys.executable, "-m", "mocapflow.pipeline.cli", *args, "--no-progress"], cwd=folder, check=True,
+    subprocess.run([sys.executable, "-m", "mocapflow.cli.commands", *args, "--no-progress"], cwd=folder, check=True,
                    stdout=subprocess.DEVNULL)
 
 

@@ -43,7 +43,7 @@ def render_times(motions=("jumping_jack", "kick_box_kicking", "classic_squat"), 
 
 def disk_per_view_frame(frames=32, views=3) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
-        subprocess.run([sys.executable, "-m", "mocapflow.pipeline.cli", "synth", "--out", tmp, "--motion",
+        subprocess.run([sys.executable, "-m", "mocapflow.cli.commands", "synth", "--out", tmp, "--motion",
                         "jumping_jack", "--frames", str(frames), "--views", str(views)], check=True, capture_output=True)
         store = Path(tmp) / "jumping_jack.zarr"
         sizes = {}

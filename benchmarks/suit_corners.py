@@ -44,7 +44,7 @@ from mocapflow.tasks.studio.mesh_render import (NO_HIT, MeshScene, cast_view, in
                                                  surface_points, visibility)
 from mocapflow.tasks.suit import corners as co  # noqa: E402
 from mocapflow.tasks.suit import networks  # noqa: E402
-from mocapflow.tasks.suit import pattern as pt  # noqa: E402
+from mocapflow.tasks.shared import suit_pattern as pt  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 MOTIONS = Path(os.environ.get("MOCAPFLOW_MOTIONS", ROOT.parent / "shared" / "data" / "motions"))

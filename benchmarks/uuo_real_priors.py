@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapflow.pipeline.marker_files import read_markers
+from mocapflow.systems.uuo.marker_files import read_markers
 from mocapflow.tasks.shared.body import JOINT_NAMES
 from mocapflow.tasks.uuo.labelled import base_label
 

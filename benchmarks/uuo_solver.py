@@ -18,7 +18,7 @@ import numpy as np
 
 
 def main() -> None:
-    from mocapflow.pipeline import studio_io
+    from mocapflow.systems.studio import specs as studio_io
     from mocapflow.tasks.studio import uuo_takes as uuo
     from mocapflow.tasks.uuo import prior, segmentation, solve
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from mocapflow.pipeline.catalog import load_catalog
 from mocapflow.pipeline.plan import build_plan
-from mocapflow.pipeline.report_suit import histogram, overlay_labels, view_3d
+from mocapflow.systems.suit.report import histogram, overlay_labels, view_3d
 from mocapflow.pipeline.storage import Store
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -204,16 +204,15 @@ class _Validator:
         return value
 
     def datasets(self, raw: dict) -> dict[str, DatasetConfig]:
-        from mocapflow.pipeline.datasets import DATASET_KINDS
-
+        kinds = registry.dataset_kinds()
         out = {}
         for name, body in raw.items():
             body = dict(self.mapping(body, "datasets", name))
             kind = body.pop("kind", None)
-            if kind not in DATASET_KINDS:
+            if kind not in kinds:
                 raise CatalogError(f"{self.where('datasets', name, 'kind')}: unknown dataset kind {kind!r}"
-                                   f"{registry.did_you_mean(str(kind), DATASET_KINDS)}; use one of {sorted(DATASET_KINDS)}")
-            options = getattr(DATASET_KINDS[kind], "options", None)  # a plugin's reader may leave its own unchecked
+                                   f"{registry.did_you_mean(str(kind), kinds)}; use one of {sorted(kinds)}")
+            options = getattr(kinds[kind], "options", None)  # a plugin's reader may leave its own unchecked
             for key in body if options is not None else ():
                 if key not in options:
                     raise CatalogError(f"{self.where('datasets', name, key)}: unknown option {key!r} for a {kind!r} "
@@ -320,3 +319,19 @@ class _Validator:
         for name in stages:
             visit(name, [])
         return order
+
+
+def stage_writing(catalog, schema: str, *, refined: bool = False) -> str | None:
+    """The last stage of the catalog whose implementation writes ``schema``: one that also reads that schema
+    (refines an upstream artifact of its kind, as refine_reflectors does the views' reflectors2d) when
+    ``refined``, otherwise one that does not."""
+    found = [s.name for s in catalog.stages.values() if s.spec.output == schema
+             and (schema in s.spec.inputs.values()) == refined]
+    return found[-1] if found else None
+
+
+def final_stage(catalog, schema: str) -> str | None:
+    """The stage whose ``schema`` artifact is the one to hand out (exported, reported): the last stage refining
+    an artifact of that schema (as the plausibility check does the smoothed markers) where there is one, otherwise
+    the last stage writing it."""
+    return stage_writing(catalog, schema, refined=True) or stage_writing(catalog, schema)

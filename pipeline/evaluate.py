@@ -1,31 +1,19 @@
 """`mocapflow evaluate`: accuracy of the catalog's stages on its evaluation split, against studio ground truth.
 
-Missing partitions are computed first (through the same engine as `mocapflow run`); then each
-sequence's artifacts are read view by view and scored by the pure metrics of tasks/deepmocap/evaluation.py:
-scene flow (the `flow` stage), the labelled 2D reflectors (a stage writing `reflectors2d`), the 3D
-reflectors (`markers3d`, `smoothed_markers` and the plausibility check that refines them, with the tail of the
-error: p95, p99 and the share of marker-frames more than 10 cm from the truth) and the joints of the solved poses (`poses`).
+Missing partitions are computed first (through the same engine as `mocapflow run`); then every registered
+system's evaluator that applies to the catalog (registry.Evaluator: DeepMoCap's, UUO's, the suit's, a plug-in's)
+scores its stages. The result holds each evaluator's figures and ``sequences`` (figures per sequence); the headline
+and the tables are each evaluator's, in the order the systems are registered.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from mocapflow.pipeline import registry
 from mocapflow.pipeline.errors import PlanError
 from mocapflow.pipeline.plan import Plan, build_plan
 from mocapflow.pipeline.storage import Store
-from mocapflow.tasks.deepmocap.evaluation import (TABLE8_JOINTS, Matches2D, flow_errors, jitter, joint_errors, marker_errors,
-                                       match_2d, pck_radius, summarize_2d, summarize_flow, summarize_joints,
-                                       summarize_markers)
-
-C_MIN_SWEEP = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
-# 3D marker stages scored: (kind, schema, whether the stage refines an artifact of that schema). "checked" is the
-# plausibility check after the poses (tasks/deepmocap/plausibility.py): what export writes.
-MARKER_KINDS = (("fused", "markers3d", False), ("smoothed", "smoothed_markers", False),
-                ("checked", "smoothed_markers", True))
-# JSON prefixes of each kind's figures (the smoothed stage's kept bare, as before the tail was reported), and of its tail
-MARKER_PREFIX = {"fused": ("marker_fused_", "markers3d_"), "smoothed": ("marker_", "smoothed_"),
-                 "checked": ("marker_checked_", "checked_")}
 
 
 def evaluation_plan(catalog, sequences: str | None) -> Plan:
@@ -33,318 +21,47 @@ def evaluation_plan(catalog, sequences: str | None) -> Plan:
     return build_plan(catalog, pattern)
 
 
-def stage_writing(catalog, schema: str, *, refined: bool = False) -> str | None:
-    """The last stage of the catalog whose implementation writes ``schema``: one that also reads that schema
-    (refines an upstream artifact of its kind, as refine_reflectors does the views' reflectors2d) when
-    ``refined``, otherwise one that does not."""
-    found = [s.name for s in catalog.stages.values() if s.spec.output == schema
-             and (schema in s.spec.inputs.values()) == refined]
-    return found[-1] if found else None
+def applicable(catalog) -> list[registry.Evaluator]:
+    """The evaluators of the registered systems that score some stage of ``catalog``."""
+    return [e for e in registry.evaluators() if e.applies(catalog)]
 
 
-def final_stage(catalog, schema: str) -> str | None:
-    """The stage whose ``schema`` artifact is the one to hand out (exported, reported): the last stage refining
-    an artifact of that schema (as the plausibility check does the smoothed markers) where there is one, otherwise
-    the last stage writing it."""
-    return stage_writing(catalog, schema, refined=True) or stage_writing(catalog, schema)
-
-
-def evaluate(catalog, plan: Plan, store: Store, *, flow: bool = True) -> dict:
-    """Figures per sequence and overall for every stage the catalog has and the studio can score (``flow``
-    False: all but the scene flow, the slowest to score and no figure of the capture itself)."""
+def evaluate(catalog, plan: Plan, store: Store, *, thorough: bool = True) -> dict:
+    """Figures per sequence and overall of every evaluator that applies (``thorough`` False: without the figures
+    that are slow to score and no figure of the capture itself, such as DeepMoCap's scene flow)."""
     if not plan.sequences:
         raise PlanError("the evaluation split selects no sequence; check evaluation.sequences or --sequences")
-    stage_2d = stage_writing(catalog, "reflectors2d")
-    stages_3d = {(kind, schema): stage_writing(catalog, schema, refined=refined)
-                 for kind, schema, refined in MARKER_KINDS}
-    stage_poses = stage_writing(catalog, "poses")
-    read = {up for s in catalog.stages.values() for up in s.inputs.values()}
-    # the bodies a UUO catalog ends with: those choosing among hypotheses, and baselines no stage reads on
-    uuo_stages = [s.name for s in catalog.stages.values() if s.spec.output == "uuo_body"
-                  and ("uuo_body" in s.spec.inputs.values() or s.name not in read)]
-    from mocapflow.pipeline.evaluate_suit import evaluate_suit, suit_stages
-
-    suit = suit_stages(catalog)
-    if "flow" not in catalog.stages and stage_2d is None and stage_poses is None and not uuo_stages \
-            and len(suit) < 2:
-        raise PlanError("the catalog has no `flow`, reflectors2d, UUO or suit stage to evaluate; add one (see "
+    found = applicable(catalog)
+    if not found:
+        names = [e.name for e in registry.evaluators()]
+        raise PlanError(f"the catalog has no stage any system's evaluator scores (evaluators: {names}); add one (see "
                         "catalog.yaml)")
     result: dict = {"sequences": {}}
-    if uuo_stages:
-        from mocapflow.pipeline.evaluate_uuo import evaluate_uuo
-
-        result["uuo"] = evaluate_uuo(catalog, plan, store, uuo_stages, result["sequences"])
-    if len(suit) >= 2:  # a suit stage besides the images
-        result["suit"] = evaluate_suit(plan, store, suit, result["sequences"])
-    if "flow" not in catalog.stages and stage_2d is None and stage_poses is None:
-        return result
-    raws = {}
-    for seq in plan.sequences:
-        raw = plan.open(store, "frames", seq.id)
-        if "gt_body" not in raw:
-            raise PlanError(f"sequence {seq.id!r} has no ground truth (gt_body); evaluate on studio sequences")
-        raws[seq.id] = raw
-        result["sequences"][seq.id] = {"exercise": raw.attrs.get("exercise", "")}
-    if "flow" in catalog.stages and flow:
-        result["flow"] = _evaluate_flow(plan, store, raws, result["sequences"])
-        result["task"] = catalog.stages["flow"].task
-    if stage_2d is not None:
-        result["reflectors2d"] = _evaluate_2d(plan, store, raws, stage_2d, result["sequences"])
-    stage_refined = stage_writing(catalog, "reflectors2d", refined=True)
-    if stage_refined is not None:
-        result["reflectors2d_refined"] = _evaluate_2d(plan, store, raws, stage_refined, result["sequences"],
-                                                      key="reflectors2d_refined")
-    for (kind, schema), stage in stages_3d.items():
-        if stage is not None:
-            result[f"markers_{kind}"] = _evaluate_markers(plan, store, raws, stage, schema, kind, result["sequences"])
-    if stage_poses is not None:
-        result["poses"] = _evaluate_poses(plan, store, raws, stage_poses, result["sequences"])
+    for evaluator in found:
+        result.update(evaluator.evaluate(catalog, plan, store, result["sequences"], thorough))
     return result
 
 
-def _evaluate_poses(plan: Plan, store: Store, raws: dict, stage: str, per_sequence: dict) -> dict:
-    """3D joint error of the Table 8 joints: overall, per joint (Table 8 form) and per exercise (Table 7 form)."""
-    errors, by_exercise = [], {}
-    for seq in plan.sequences:
-        raw = raws[seq.id]
-        if "gt_joints" not in raw:
-            raise PlanError(f"sequence {seq.id!r} has no joint ground truth (gt_joints)")
-        est = plan.open(store, stage, seq.id).load()
-        est_joints = [str(j) for j in est["joint"].values]
-        gt_names = [str(j) for j in raw["joint"].values]
-        e = joint_errors(est["position"].values[:, [est_joints.index(j) for j in TABLE8_JOINTS]],
-                         raw["gt_joints"].values[:, [gt_names.index(j) for j in TABLE8_JOINTS]])
-        per_sequence[seq.id]["poses"] = summarize_joints(e, TABLE8_JOINTS)
-        by_exercise.setdefault(per_sequence[seq.id]["exercise"] or seq.id, []).append(e)
-        errors.append(e)
-    out = summarize_joints(np.concatenate(errors), TABLE8_JOINTS)
-    out["per_exercise"] = {k: summarize_joints(np.concatenate(v), TABLE8_JOINTS) for k, v in by_exercise.items()}
-    out["stage"] = stage
-    return out
-
-
-def _evaluate_markers(plan: Plan, store: Store, raws: dict, stage: str, schema_name: str, kind: str,
-                      per_sequence: dict) -> dict:
-    """3D error of each reflector against the studio's ground truth, completeness and jitter."""
-    errors, names, jitters, gt_jitters = [], None, [], []
-    for seq in plan.sequences:
-        raw = raws[seq.id]
-        if "gt_reflectors" not in raw:
-            raise PlanError(f"sequence {seq.id!r} has no 3D reflector ground truth (gt_reflectors)")
-        est = plan.open(store, stage, seq.id).load()
-        names = [str(n) for n in est["reflector"].values]
-        gt = raw["gt_reflectors"].values
-        e = marker_errors(est["position"].values, gt)
-        fps = float(raw.attrs["fps"])
-        per_sequence[seq.id][f"markers_{kind}"] = summarize_markers(
-            e, names, jitter_value=jitter(est["position"].values, fps), gt_jitter=jitter(gt, fps))
-        errors.append(e)
-        jitters.append(per_sequence[seq.id][f"markers_{kind}"]["jitter_ms2"])
-        gt_jitters.append(per_sequence[seq.id][f"markers_{kind}"]["gt_jitter_ms2"])
-    out = summarize_markers(np.concatenate(errors), names, jitter_value=float(np.nanmean(jitters)),
-                            gt_jitter=float(np.nanmean(gt_jitters)))
-    out["stage"] = stage
-    return out
-
-
-def _evaluate_flow(plan: Plan, store: Store, raws: dict, per_sequence: dict) -> dict:
-    all_errors, all_eligible = [], 0
-    for seq in plan.sequences:
-        raw, errors, eligible = raws[seq.id], [], 0
-        if "gt_scene_flow_prev" not in raw:
-            raise PlanError(f"sequence {seq.id!r} has no scene-flow ground truth (gt_scene_flow_prev)")
-        for view in seq.views:
-            est = plan.open(store, "flow", seq.id, view).sel(view=view)
-            gt = raw.sel(view=view)
-            e, n = flow_errors(est["flow"].values, est["valid"].values, gt["gt_scene_flow_prev"].values,
-                               gt["gt_body"].values, gt["depth"].values, est["frame"].values == 0)
-            errors.append(e)
-            eligible += n
-        errors = np.concatenate(errors)
-        per_sequence[seq.id]["flow"] = summarize_flow(errors, eligible)
-        all_errors.append(errors)
-        all_eligible += eligible
-    return summarize_flow(np.concatenate(all_errors), all_eligible)
-
-
-def _evaluate_2d(plan: Plan, store: Store, raws: dict, stage: str, per_sequence: dict, key: str = "reflectors2d") -> dict:
-    """AP per reflector and mAP at PCK 0.05, before (best candidate) and after filtering, and the c_min sweep."""
-    names = None
-    n_reflectors = raws[plan.sequences[0].id].sizes["reflector"]
-    total = {k: Matches2D(n_reflectors) for k in ("filtered", "unfiltered")}
-    for seq in plan.sequences:
-        raw = raws[seq.id]
-        if "gt_reflectors2d" not in raw:
-            raise PlanError(f"sequence {seq.id!r} has no 2D reflector ground truth (gt_reflectors2d)")
-        seq_matches = {k: Matches2D(n_reflectors) for k in total}
-        for view in seq.views:
-            est = plan.open(store, stage, seq.id, view)
-            est, gt = est.sel(view=view).load(), raw.sel(view=view)
-            names = list(est["reflector"].values)
-            body, uv, pixels = gt["gt_body"].values, gt["gt_reflectors2d"].values, gt["gt_pixels"].values
-            arrays = {kind: (np.stack([est[x].values, est[y].values], axis=-1), est[c].values)  # (frame, reflector, 2)
-                      for kind, (x, y, c) in {"filtered": ("x", "y", "confidence"),
-                                              "unfiltered": ("candidate_x", "candidate_y",
-                                                             "candidate_confidence")}.items()}
-            for i in range(est.sizes["frame"]):
-                radius = pck_radius(body[i])
-                for kind, (xy, confidence) in arrays.items():
-                    for matches in (seq_matches[kind], total[kind]):
-                        match_2d(matches, xy[i], confidence[i], uv[i], pixels[i], radius)
-        per_sequence[seq.id][key] = {k: summarize_2d(m, names) for k, m in seq_matches.items()}
-    out = {k: summarize_2d(m, names) for k, m in total.items()}
-    out["sweep"] = {c: summarize_2d(total["filtered"], names, c_min=c) for c in C_MIN_SWEEP}
-    out["stage"] = stage
-    return out
-
-
 def headline(result: dict) -> dict:
-    """The JSON figures `mocapflow evaluate --json` prints."""
+    """The JSON figures `mocapflow evaluate --json` prints: the sequence count, then each evaluator's."""
     out: dict = {"sequences": len(result["sequences"])}
-    if "flow" in result:
-        flow = result["flow"]
-        out.update({"flow_task": result["task"], "flow_epe_mm": flow["epe_mean_mm"],
-                    "flow_epe_median_mm": flow["epe_median_mm"], "flow_coverage": flow["coverage"]})
-    if "reflectors2d" in result:
-        r = result["reflectors2d"]
-        out.update({"map2d": r["filtered"]["map"], "map2d_unfiltered": r["unfiltered"]["map"],
-                    "map2d_no_end": r["filtered"]["map_no_end"], "map2d_unfiltered_no_end": r["unfiltered"]["map_no_end"],
-                    "precision2d": r["filtered"]["precision"], "recall2d": r["filtered"]["recall"]})
-    if "reflectors2d_refined" in result:
-        r = result["reflectors2d_refined"]["filtered"]
-        out.update({"map2d_refined": r["map"], "map2d_refined_no_end": r["map_no_end"],
-                    "precision2d_refined": r["precision"], "recall2d_refined": r["recall"]})
-    for kind, (prefix, tail_prefix) in MARKER_PREFIX.items():
-        if f"markers_{kind}" in result:
-            m = result[f"markers_{kind}"]
-            out.update({f"{prefix}err_median_mm": m["median_mm"], f"{prefix}err_mean_mm": m["mean_mm"],
-                        f"{prefix}err_p95_mm": m["p95_mm"], f"{prefix}completeness": m["completeness"],
-                        f"{prefix}jitter_ms2": m["jitter_ms2"], f"{tail_prefix}p95_mm": m["p95_mm"],
-                        f"{tail_prefix}p99_mm": m["p99_mm"], f"{tail_prefix}gross_share": m["gross_share"]})
-    if "poses" in result:
-        p = result["poses"]
-        out.update({"pck3d_20cm": p["pck_20cm"], "pck3d_5cm": p["pck_5cm"], "mae3d_cm": p["mae_cm"],
-                    "rmse3d_cm": p["rmse_cm"], "poses_solved": p["solved"]})
-    if "suit" in result:
-        from mocapflow.pipeline.evaluate_suit import suit_headline
-
-        out.update(suit_headline(result["suit"]))
-    if "uuo" in result:
-        from mocapflow.pipeline.evaluate_uuo import uuo_headline
-
-        out.update(uuo_headline(result["uuo"]))
+    for evaluator in registry.evaluators():
+        out.update(evaluator.headline(result))
     return out
 
 
-def _format(rows: list[tuple]) -> list[str]:
+def table(result: dict) -> str:
+    """The text tables of every evaluator with figures in ``result``, a blank line between them."""
+    parts = [lines for e in registry.evaluators() if (lines := e.table(result))]
+    return "\n\n".join("\n".join(lines) for lines in parts)
+
+
+def format_rows(rows: list[tuple]) -> list[str]:
+    """Rows of strings as left-aligned columns, two spaces apart."""
     widths = [max(len(r[c]) for r in rows) for c in range(len(rows[0]))]
     return ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
 
 
-def table(result: dict) -> str:
-    lines = []
-    if "flow" in result:
-        lines += _flow_table(result)
-    if "reflectors2d" in result:
-        lines += ([""] if lines else []) + _reflectors_table(result)
-    if "reflectors2d_refined" in result:
-        lines += ([""] if lines else []) + _refined_table(result)
-    if any(f"markers_{k}" in result for k in MARKER_PREFIX):
-        lines += ([""] if lines else []) + _markers_table(result)
-    if "poses" in result:
-        lines += ([""] if lines else []) + poses_table(result["poses"])
-    if "suit" in result:
-        from mocapflow.pipeline.evaluate_suit import suit_table
-
-        lines += ([""] if lines else []) + suit_table(result["suit"])
-    if "uuo" in result:
-        from mocapflow.pipeline.evaluate_uuo import uuo_table
-
-        lines += ([""] if lines else []) + uuo_table(result["uuo"])
-    return "\n".join(lines)
-
-
-def poses_table(p: dict) -> list[str]:
-    """Per joint (Table 8 form) and per exercise (Table 7 form) 3D joint accuracy."""
-    lines = [f"3D joints ({p['stage']}): MAE / RMSE (cm) and 3D PCK (%) on the 12 joints of Table 8"]
-    rows = [("joint", "MAE cm", "PCK@5cm", "PCK@20cm")]
-    rows += [(n, f"{j['mae_cm']:.2f}", _pct(j["pck_5cm"]), _pct(j["pck_20cm"])) for n, j in p["per_joint"].items()]
-    rows += [("all", f"{p['mae_cm']:.2f}", _pct(p["pck_5cm"]), _pct(p["pck_20cm"]))]
-    lines += _format(rows) + ["", "per exercise"]
-    rows = [("exercise", "MAE cm", "RMSE cm", "PCK@5cm", "PCK@20cm", "solved %")]
-    rows += [(n, f"{e['mae_cm']:.2f}", f"{e['rmse_cm']:.2f}", _pct(e["pck_5cm"]), _pct(e["pck_20cm"]), _pct(e["solved"]))
-             for n, e in p["per_exercise"].items()]
-    rows += [("all", f"{p['mae_cm']:.2f}", f"{p['rmse_cm']:.2f}", _pct(p["pck_5cm"]), _pct(p["pck_20cm"]),
-              _pct(p["solved"]))]
-    return lines + _format(rows)
-
-
-def _markers_table(result: dict) -> list[str]:
-    kinds = [k for k in MARKER_PREFIX if f"markers_{k}" in result]
-    lines = ["3D reflectors: error against ground truth (mm), share of marker-frames > 10 cm off, completeness, "
-             "jitter (mean |acceleration|, m/s^2)"]
-    rows = [("sequence", "motion", "markers", "median", "mean", "p95", "p99", "> 10 cm %", "complete %", "jitter",
-             "true jitter")]
-    for name, s in list(result["sequences"].items()) + [("all", {"exercise": "", **{f"markers_{k}": result[f"markers_{k}"]
-                                                                                    for k in kinds}})]:
-        for k in kinds:
-            m = s[f"markers_{k}"]
-            rows.append((name, s["exercise"], f"{k} ({result[f'markers_{k}']['stage']})", f"{m['median_mm']:.1f}",
-                         f"{m['mean_mm']:.1f}", f"{m['p95_mm']:.1f}", f"{m['p99_mm']:.1f}",
-                         _pct(m["gross_share"]), f"{100 * m['completeness']:.2f}",
-                         f"{m['jitter_ms2']:.2f}", f"{m['gt_jitter_ms2']:.2f}"))
-    lines += _format(rows) + ["", "median error per reflector (mm)"]
-    rows = [("reflector",) + tuple(kinds)]
-    names = result[f"markers_{kinds[0]}"]["per_reflector_median_mm"]
-    rows += [(n,) + tuple(f"{result[f'markers_{k}']['per_reflector_median_mm'][n]:.1f}" for k in kinds) for n in names]
-    return lines + _format(rows)
-
-
-def _flow_table(result: dict) -> list[str]:
-    rows = [("sequence", "motion", "EPE mean mm", "EPE median mm", "EPE p90 mm", "coverage")]
-    for name, r in list(result["sequences"].items()) + [("all", {"exercise": "", "flow": result["flow"]})]:
-        f = r["flow"]
-        rows.append((name, r["exercise"], f"{f['epe_mean_mm']:.2f}", f"{f['epe_median_mm']:.2f}",
-                     f"{f['epe_p90_mm']:.2f}", f"{f['coverage']:.3f}"))
-    return [f"scene flow ({result['task']}), 3D end-point error on visible body pixels"] + _format(rows)
-
-
-def _pct(v: float) -> str:
+def pct(v: float) -> str:
+    """A share as a percentage with two decimals, '-' for NaN."""
     return "-" if np.isnan(v) else f"{100 * v:.2f}"
-
-
-def _reflectors_table(result: dict) -> list[str]:
-    r = result["reflectors2d"]
-    lines = [f"2D reflectors ({r['stage']}): AP % at PCK 0.05 of the subject's box (Tables 2-5 form)"]
-    rows = [("reflector", "AP unfiltered", "AP filtered")]
-    rows += [(n, _pct(r["unfiltered"]["ap"][n]), _pct(r["filtered"]["ap"][n])) for n in r["filtered"]["ap"]]
-    rows += [("mAP", _pct(r["unfiltered"]["map"]), _pct(r["filtered"]["map"])),
-             ("mAP without end-reflectors", _pct(r["unfiltered"]["map_no_end"]), _pct(r["filtered"]["map_no_end"]))]
-    lines += _format(rows) + ["", "per sequence"]
-    rows = [("sequence", "motion", "mAP unfiltered", "mAP filtered", "precision", "recall")]
-    for name, s in result["sequences"].items():
-        u, f = s["reflectors2d"]["unfiltered"], s["reflectors2d"]["filtered"]
-        rows.append((name, s["exercise"], _pct(u["map"]), _pct(f["map"]), _pct(f["precision"]), _pct(f["recall"])))
-    lines += _format(rows) + ["", "c_min sweep of the filtered estimates (Fig. 12 form)"]
-    rows = [("c_min", "mAP", "precision", "recall", "estimates")]
-    rows += [(f"{c:.1f}", _pct(s["map"]), _pct(s["precision"]), _pct(s["recall"]), str(s["estimates"]))
-             for c, s in r["sweep"].items()]
-    return lines + _format(rows)
-
-
-def _refined_table(result: dict) -> list[str]:
-    """AP of each view's own estimates (after filtering) against the same estimates refined from the poses."""
-    refined = result["reflectors2d_refined"]["filtered"]
-    own = result["reflectors2d"]["filtered"] if "reflectors2d" in result else {}
-    lines = [f"2D reflectors refined from the solved poses ({result['reflectors2d_refined']['stage']}): AP % at PCK 0.05"]
-    rows = [("reflector", "AP filtered", "AP refined")]
-    rows += [(n, _pct(own.get("ap", {}).get(n, np.nan)), _pct(ap)) for n, ap in refined["ap"].items()]
-    rows += [(label, _pct(own.get(k, np.nan)), _pct(refined[k])) for label, k in (
-        ("mAP", "map"), ("mAP without end-reflectors", "map_no_end"), ("precision", "precision"), ("recall", "recall"))]
-    lines += _format(rows) + ["", "per sequence"]
-    rows = [("sequence", "motion", "mAP filtered", "mAP refined", "precision", "recall")]
-    for name, s in result["sequences"].items():
-        f = s["reflectors2d_refined"]["filtered"]
-        rows.append((name, s["exercise"], _pct(s["reflectors2d"]["filtered"]["map"]) if "reflectors2d" in s else "-",
-                     _pct(f["map"]), _pct(f["precision"]), _pct(f["recall"])))
-    return lines + _format(rows)

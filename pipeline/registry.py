@@ -1,11 +1,17 @@
-"""Registered task implementations and their engine-facing metadata.
+"""The one registry of the engine: capture systems, their task implementations, dataset kinds, schemas,
+evaluators, exporters, report sections and weight readers.
 
-tasks/ holds pure array functions; this module says how the engine drives each one: which
-stage partition kind it runs on, which artifacts it reads (role -> schema) and writes, its
-frozen params dataclass, its explicit code version (bump it when results change), the frame
-halo it needs around a region, and which params name weight files (hashed into the cache key;
-an empty one means the file shipped in mocapflow.models).
-Plugins listed in a catalog register further implementations with :func:`register`.
+The engine knows no system. A system (DeepMoCap, UUO, the checkerboard suit, the studio, or a user's plug-in) is a
+:class:`System` value that declares everything it adds; it reaches the engine through one path, whichever way it
+is found: an entry point of the group ``mocapflow.systems`` (how the built-in systems are found, as xarray finds
+its backends) or a module named in a catalog's ``plugins:`` that calls :func:`register_system` on import. Either
+way :func:`register_system` registers its parts here, and `mocapflow evaluate`, `export`, `report` and `train`
+dispatch through these tables, never on a schema's or a system's name.
+
+A task (:class:`TaskSpec`) says how the engine drives one pure function of tasks/: which stage partition kind it
+runs on, which artifacts it reads (role -> schema) and writes, its frozen params dataclass, its explicit code
+version (bump it when results change), the frame halo it needs around a region, and which params name weight
+files (hashed into the cache key; an empty one means the file shipped in mocapflow.models).
 """
 
 from __future__ import annotations
@@ -17,9 +23,13 @@ import inspect
 import types
 import typing
 from dataclasses import dataclass, field
-from typing import Any, Callable, Literal, Mapping
+from importlib.metadata import entry_points
+from typing import Any, Callable, Literal, Mapping, Protocol
 
 from mocapflow.pipeline.errors import CatalogError
+from mocapflow.schemas import ArtifactSchema, register_schema
+
+ENTRY_POINT_GROUP = "mocapflow.systems"
 
 Partitioning = Literal["view", "sequence", "dataset"]
 
@@ -77,7 +87,93 @@ class NoParams:
     """Params of a task that takes none."""
 
 
+class DatasetKind(Protocol):
+    """A dataset reader: ``options`` (the catalog keys a dataset of this kind takes besides ``kind``),
+    ``has_views`` (whether a sequence is filmed by named sensors), ``discover(catalog, dataset) ->
+    [SequenceInfo]`` on the driver and ``read(dataset, seq, start, stop) -> xr.Dataset`` on a worker."""
+
+    options: tuple[str, ...]
+
+    def discover(self, catalog, dataset) -> list: ...
+
+    def read(self, dataset, seq, start: int, stop: int) -> Any: ...
+
+
+@dataclass(frozen=True)
+class Evaluator:
+    """What `mocapflow evaluate` scores for one system. ``applies(catalog)``: whether the catalog has stages this
+    evaluator scores; ``evaluate(catalog, plan, store, per_sequence, thorough)`` returns figures (a dict merged into
+    the evaluation's result; its per-sequence figures go into ``per_sequence[seq_id]``; ``thorough`` False skips
+    figures that are slow and no figure of the capture itself); ``headline(result)`` the flat JSON figures and
+    ``table(result)`` the text lines it prints (both given the whole result)."""
+
+    name: str
+    applies: Callable[[Any], bool]
+    evaluate: Callable[..., dict]
+    headline: Callable[[dict], dict]
+    table: Callable[[dict], list[str]]
+
+
+@dataclass(frozen=True)
+class ExportJob:
+    """One sequence to export: the stage's artifact (``data``) and what an exporter may read besides it."""
+
+    catalog: Any
+    plan: Any
+    store: Any
+    stage: str
+    sequence: str
+    data: Any  # xr.Dataset of the stage for this sequence
+    out_dir: Any  # pathlib.Path
+    up: str | None = None  # TRC's up axis, where the format has one
+
+
+@dataclass(frozen=True)
+class Exporter:
+    """A file format one system writes: ``format`` (the --format name), the ``schemas`` it exports (in order of
+    preference when no --stage is named), ``write(job) -> [Path]`` per sequence, optionally ``default_stage(catalog)``
+    (else the last stage writing one of ``schemas``) and ``needs(catalog, stage)``, further stages computed first."""
+
+    format: str
+    schemas: tuple[str, ...]
+    write: Callable[[ExportJob], list]
+    default_stage: Callable[[Any], str | None] | None = None
+    needs: Callable[[Any, str], list[str]] | None = None
+    options: tuple[str, ...] = ()  # the export options it takes ("up")
+
+
+@dataclass(frozen=True)
+class ReportSection:
+    """What `mocapflow report` shows of one system. ``applies(catalog)``; ``takes(catalog, plan, store)`` the
+    sequences as the report's :class:`~mocapflow.pipeline.report.Take` (markers, joints, truth) or [] ;
+    ``figures(folder, catalog, plan, store, result)`` extra images (paths) given the evaluation's result;
+    ``named_figures``: the evaluation's JSON keys it names on the page, key -> (label, scale, unit)."""
+
+    name: str
+    applies: Callable[[Any], bool]
+    takes: Callable[..., list] | None = None
+    figures: Callable[..., list] | None = None
+    named_figures: Mapping[str, tuple[str, float, str]] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class System:
+    """Everything one capture system (or source of data) adds to the engine, declared in one place."""
+
+    name: str
+    description: str = ""
+    tasks: tuple[TaskSpec, ...] = ()
+    dataset_kinds: Mapping[str, Any] = field(default_factory=dict)  # kind -> DatasetKind
+    schemas: tuple[ArtifactSchema, ...] = ()
+    evaluators: tuple[Evaluator, ...] = ()
+    exporters: tuple[Exporter, ...] = ()
+    report: tuple[ReportSection, ...] = ()
+    weights: Mapping[str, Callable[[Any], dict]] = field(default_factory=dict)  # schema -> tensors of its artifact
+
+
 _REGISTRY: dict[str, TaskSpec] = {}
+_SYSTEMS: dict[str, System] = {}
+_DATASET_KINDS: dict[str, Any] = {}
 _BUILTINS_LOADED = False
 
 
@@ -135,8 +231,66 @@ def names() -> list[str]:
     return sorted(_REGISTRY)
 
 
+def register_system(system: System) -> System:
+    """Register (or replace) a system and every part it declares; returns it for module-level use."""
+    if not isinstance(system, System):
+        raise CatalogError(f"a system must be a mocapflow.pipeline.registry.System, got {system!r}; declare one "
+                           "(see docs/adding-a-system.md)")
+    for kind, reader in system.dataset_kinds.items():
+        owner = next((s.name for s in _SYSTEMS.values() if kind in s.dataset_kinds and s.name != system.name), None)
+        if owner is not None:
+            raise CatalogError(f"system {system.name!r} declares dataset kind {kind!r}, which system {owner!r} "
+                               "already declares; give it another name")
+        _DATASET_KINDS[kind] = reader
+    for schema in system.schemas:
+        register_schema(schema)
+    for spec in system.tasks:
+        register(spec)
+    _SYSTEMS[system.name] = system
+    return system
+
+
+def systems() -> list[System]:
+    """The registered systems, in the order they were registered (entry points sorted by name, then plug-ins)."""
+    _load_builtins()
+    return list(_SYSTEMS.values())
+
+
+def dataset_kinds() -> dict[str, Any]:
+    """Every registered dataset kind -> its reader."""
+    _load_builtins()
+    return dict(_DATASET_KINDS)
+
+
+def dataset_kind(kind: str) -> Any:
+    kinds = dataset_kinds()
+    try:
+        return kinds[kind]
+    except KeyError:
+        raise CatalogError(f"unknown dataset kind {kind!r}{did_you_mean(kind, kinds)}; registered kinds: "
+                           f"{sorted(kinds)}") from None
+
+
+def evaluators() -> list[Evaluator]:
+    return [e for s in systems() for e in s.evaluators]
+
+
+def exporters(fmt: str | None = None) -> list[Exporter]:
+    """The registered exporters (of one --format), in system order."""
+    return [e for s in systems() for e in s.exporters if fmt is None or e.format == fmt]
+
+
+def report_sections() -> list[ReportSection]:
+    return [r for s in systems() for r in s.report]
+
+
+def weights_reader(schema: str) -> Callable[[Any], dict] | None:
+    """The function turning a weights artifact of ``schema`` into plain tensors, where a system declares one."""
+    return next((s.weights[schema] for s in systems() if schema in s.weights), None)
+
+
 def import_plugins(modules: typing.Iterable[str]) -> None:
-    """Import plugin modules (each registers its tasks/schemas on import)."""
+    """Import plugin modules (each registers its systems, tasks or schemas on import)."""
     _load_builtins()
     for module in modules:
         try:
@@ -234,8 +388,15 @@ def _type_name(hint: Any) -> str:
 
 
 def _load_builtins() -> None:
+    """Register the systems installed under the ``mocapflow.systems`` entry point group (once per process)."""
     global _BUILTINS_LOADED
     if _BUILTINS_LOADED:
         return
     _BUILTINS_LOADED = True
-    from mocapflow.pipeline import builtin_tasks  # noqa: F401  (registers on import)
+    for point in sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda p: p.name):
+        try:
+            system = point.load()
+        except Exception as exc:  # a broken plug-in is named, whatever it raised
+            raise CatalogError(f"system {point.name!r} ({point.value}) of the {ENTRY_POINT_GROUP!r} entry points "
+                               f"cannot be loaded: {type(exc).__name__}: {exc}; fix or uninstall it") from exc
+        register_system(system)

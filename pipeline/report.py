@@ -1,9 +1,9 @@
-"""The demo's report: PNG figures drawn with OpenCV and one HTML page that shows them with the figures.
+"""`mocapflow report`: one HTML page of a computed run, its PNG figures drawn with OpenCV.
 
-Figures: labelled 2D reflector estimates over each view's IR image (ground truth as white rings),
-the solved skeleton against the true one on a few frames (front and side views), the 3D PCK curve
-over 0-20 cm and the per-joint mean error (Table 8 joints); per sequence with ground-truth reflectors, the
-worst markers against the truth over time.
+The page shows the run's summary and, where the recordings carry ground truth, the evaluation's tables; per
+sequence the marker table, the trajectories and the worst markers against the truth; the interactive 3D view; and
+the figures each system's report section adds (registry.ReportSection). The drawing helpers here (line plots, bar
+charts, the page) are the systems' too.
 """
 
 from __future__ import annotations
@@ -13,15 +13,16 @@ import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Mapping
 
 import cv2
 import numpy as np
-import xarray as xr
 
+from mocapflow.pipeline import registry
 from mocapflow.pipeline.errors import PlanError, StorageError
+from mocapflow.pipeline.evaluate import evaluate, headline, table
 from mocapflow.pipeline.report_viewer import VIEWER
-from mocapflow.tasks.deepmocap.evaluation import GROSS_MM, marker_errors, marker_tails, worst_markers
-from mocapflow.tasks.shared.body import JOINT_NAMES, PARENTS
+from mocapflow.tasks.shared.marker_errors import GROSS_MM, marker_errors, marker_tails, worst_markers
 
 WHITE, GREY, BLACK = (255, 255, 255), (150, 150, 150), (0, 0, 0)
 SOLVED = (80, 200, 255)  # BGR orange
@@ -35,53 +36,9 @@ PALETTE = [(180, 119, 31), (14, 127, 255), (44, 160, 44), (40, 39, 214), (189, 1
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 
 
-def _colour(i: int, n: int) -> tuple[int, int, int]:
+def colour(i: int, n: int) -> tuple[int, int, int]:
     hsv = np.uint8([[[int(180 * i / max(n, 1)), 220, 255]]])
     return tuple(int(c) for c in cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)[0, 0])
-
-
-def overlay(ir: np.ndarray, xy: np.ndarray, gt_uv: np.ndarray, names: list[str], title: str,
-            recovered: np.ndarray | None = None) -> np.ndarray:
-    """IR image with estimated reflectors (filled, labelled; a ``recovered`` one a hollow dot) and the true ones
-    (rings).  (y, x), (reflector, 2) x2, (reflector,) bool"""
-    ir = ir.astype(np.float64)
-    top = max(float(np.percentile(ir, 99.0)), 1.0)  # the body's IR, not the saturated reflectors, sets the gain
-    img = cv2.cvtColor(np.clip(ir / top * 255.0, 0, 255).astype(np.uint8), cv2.COLOR_GRAY2BGR)
-    for r, name in enumerate(names):
-        if np.isfinite(gt_uv[r]).all():
-            cv2.circle(img, tuple(int(v) for v in gt_uv[r]), 6, WHITE, 1, cv2.LINE_AA)
-        if np.isfinite(xy[r]).all():
-            p = tuple(int(v) for v in xy[r])
-            hollow = recovered is not None and recovered[r]
-            cv2.circle(img, p, 3, _colour(r, len(names)), 1 if hollow else -1, cv2.LINE_AA)
-            cv2.putText(img, name, (p[0] + 4, p[1] - 4), FONT, 0.3, _colour(r, len(names)), 1, cv2.LINE_AA)
-    cv2.putText(img, title, (8, 20), FONT, 0.55, WHITE, 1, cv2.LINE_AA)
-    if img.shape[0] >= 200:  # the legend, where the image has room for it
-        cv2.putText(img, "dot: estimate (hollow: recovered)   ring: ground truth", (8, img.shape[0] - 10), FONT, 0.4,
-                    WHITE, 1, cv2.LINE_AA)
-    return img
-
-
-def skeleton_panel(est: np.ndarray, gt: np.ndarray, title: str, size: int = 260) -> np.ndarray:
-    """Front (x-z) and side (y-z) orthographic views of one frame's joints.  (joint, 3) x2 metres"""
-    panels = []
-    for axes, label in (((0, 2), "front"), ((1, 2), "side")):
-        img = np.full((size, size, 3), 30, np.uint8)
-        centre = np.nanmean(gt[:, axes], axis=0)
-        scale = size / 2.3  # a 2.3 m field of view
-
-        def to_px(p, centre=centre, scale=scale):
-            return int(size / 2 + (p[0] - centre[0]) * scale), int(size / 2 - (p[1] - centre[1]) * scale)
-
-        for joints, colour, width in ((est, SOLVED, 4), (gt, TRUTH, 1)):  # the truth on top, thin: never hidden
-            for j, parent in enumerate(PARENTS):
-                if parent >= 0 and np.isfinite(joints[[j, parent]]).all():
-                    cv2.line(img, to_px(joints[j, axes]), to_px(joints[parent, axes]), colour, width, cv2.LINE_AA)
-        cv2.putText(img, f"{title} {label}", (6, 16), FONT, 0.42, WHITE, 1, cv2.LINE_AA)
-        cv2.putText(img, "solved", (6, size - 24), FONT, 0.4, SOLVED, 1, cv2.LINE_AA)
-        cv2.putText(img, "ground truth", (6, size - 8), FONT, 0.4, TRUTH, 1, cv2.LINE_AA)
-        panels.append(img)
-    return np.hstack(panels)
 
 
 def line_plot(x: np.ndarray, ys: dict[str, np.ndarray], *, title: str, xlabel: str, ylabel: str,
@@ -152,34 +109,6 @@ def write_png(path: Path, img: np.ndarray) -> None:
         raise StorageError(f"cannot write {path}; check the folder is writable")
 
 
-def figures(folder: Path, raw: xr.Dataset, reflectors: xr.Dataset, poses: xr.Dataset, result: dict) -> list[Path]:
-    """Write the report's PNGs for one sequence (``raw``, its 2D reflectors and poses) and the overall figures."""
-    folder.mkdir(parents=True, exist_ok=True)
-    names = [str(n) for n in reflectors["reflector"].values]
-    frame = int(raw.sizes["frame"] // 2)
-    views = []
-    for view in raw["view"].values:
-        est = reflectors.sel(view=view).isel(frame=frame)
-        gt = raw.sel(view=view).isel(frame=frame)
-        uv = np.where(gt["gt_visible"].values[:, None], gt["gt_reflectors2d"].values, np.nan)
-        views.append(overlay(gt["ir"].values, np.stack([est["x"].values, est["y"].values], 1), uv, names,
-                             f"{view}, frame {frame}", est["recovered"].values if "recovered" in est else None))
-    out = [folder / "reflectors.png", folder / "skeleton.png", folder / "pck.png", folder / "joint_errors.png"]
-    write_png(out[0], np.hstack(views))
-    picks = np.linspace(0, poses.sizes["frame"] - 1, 4).round().astype(int)
-    write_png(out[1], np.vstack([skeleton_panel(poses["position"].values[i], raw["gt_joints"].values[i],
-                                                f"frame {i}") for i in picks]))
-    p = result["poses"]
-    curve_x = np.array(list(p["curve"]), float)
-    curves = {"all joints": np.array(list(p["curve"].values()))}
-    curves.update({name: np.array(list(e["curve"].values())) for name, e in p["per_exercise"].items()})
-    write_png(out[2], line_plot(curve_x, {k: 100 * v for k, v in curves.items()}, title="3D PCK of the Table 8 joints",
-                                xlabel="threshold (cm)", ylabel="correct (%)", y_max=100.0))
-    write_png(out[3], bar_chart({n: j["mae_cm"] for n, j in p["per_joint"].items()}, title="mean 3D error per joint",
-                                unit="cm"))
-    return out
-
-
 def write_html(path: Path, *, title: str, summary: dict, table: str, images: list[Path], files: list[Path]) -> None:
     rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(_fmt(v))}</td></tr>" for k, v in summary.items())
     imgs = "".join(f'<figure><img src="{html.escape(_link(i, path.parent))}">'
@@ -203,7 +132,6 @@ def _fmt(v) -> str:
 
 
 # ---- `mocapflow report`: any run, with or without ground truth -------------------------------------------
-MARKER_SCHEMAS = ("smoothed_markers", "markers3d", "raw_markers")  # the first a catalog writes is reported
 
 
 @dataclass
@@ -356,31 +284,11 @@ def _cell(v) -> str:
     return str(v)
 
 
-# The evaluation's JSON keys, named for a reader: (label, scale, unit)
-NAMED_FIGURES = {
-    "sequences": ("sequences", 1, ""), "pck3d_20cm": ("3D PCK @ 20 cm, Table 8 joints", 100, "%"),
-    "pck3d_5cm": ("3D PCK @ 5 cm, Table 8 joints", 100, "%"), "mae3d_cm": ("3D joint MAE", 1, "cm"),
-    "rmse3d_cm": ("3D joint RMSE", 1, "cm"), "poses_solved": ("frames solved", 100, "%"),
-    "map2d": ("2D mAP, filtered", 100, "%"), "map2d_unfiltered": ("2D mAP, unfiltered", 100, "%"),
-    "map2d_refined": ("2D mAP, refined from the poses", 100, "%"), "precision2d": ("2D precision", 100, "%"),
-    "recall2d": ("2D recall", 100, "%"), "marker_err_median_mm": ("3D marker error, median (smoothed)", 1, "mm"),
-    "marker_err_p95_mm": ("3D marker error, 95th percentile (smoothed)", 1, "mm"),
-    "marker_completeness": ("3D markers present (smoothed)", 100, "%"),
-    "smoothed_p99_mm": ("3D marker error, 99th percentile (smoothed)", 1, "mm"),
-    "smoothed_gross_share": ("3D markers > 10 cm off (smoothed)", 100, "%"),
-    "checked_p95_mm": ("3D marker error, 95th percentile (checked, exported)", 1, "mm"),
-    "checked_p99_mm": ("3D marker error, 99th percentile (checked, exported)", 1, "mm"),
-    "checked_gross_share": ("3D markers > 10 cm off (checked, exported)", 100, "%"),
-    "marker_checked_completeness": ("3D markers present (checked, exported)", 100, "%"),
-    "marker_fused_err_median_mm": ("3D marker error, median (fused)", 1, "mm"),
-    "flow_epe_mm": ("scene flow end-point error, mean", 1, "mm"), "flow_coverage": ("scene flow coverage", 100, "%"),
-}
-
-
-def named_figures(figures_: dict) -> dict[str, str]:
-    """The headline figures with names and units (the known ones, in NAMED_FIGURES order)."""
+def named_figures(figures_: dict, names: Mapping[str, tuple[str, float, str]]) -> dict[str, str]:
+    """The headline figures with names and units: those ``names`` knows (JSON key -> (label, scale, unit)), in its
+    order."""
     out = {}
-    for key, (label, scale, unit) in NAMED_FIGURES.items():
+    for key, (label, scale, unit) in names.items():
         if key in figures_ and isinstance(figures_[key], (int, float)):
             v = figures_[key] * scale
             out[label] = f"{v:.4g} {unit}".strip() if isinstance(v, float) else f"{v} {unit}".strip()
@@ -436,45 +344,6 @@ def _worst_section(folder: Path, take: Take, heading: str) -> str:
             f"the worst markers of {heading} over time (log scale); a gap breaks its line</figcaption></figure>")
 
 
-def gather(catalog, plan, store) -> list[Take]:
-    """Every sequence of ``plan`` as the report shows it, from the stored artifacts: the markers of the last
-    stage writing one of ``MARKER_SCHEMAS``, the views and residuals of a markers3d stage, the solved poses and the
-    recording's ground-truth joints and reflectors (matched to the markers by name) where there are."""
-    from mocapflow.pipeline.evaluate import final_stage, stage_writing
-
-    stage = next((s for s in map(lambda schema: final_stage(catalog, schema), MARKER_SCHEMAS) if s), None)
-    if stage is None:
-        raise PlanError(f"the catalog has no stage writing markers ({', '.join(MARKER_SCHEMAS)}) to report on; add "
-                        "one (see catalog.yaml)")
-    fused, poses = stage_writing(catalog, "markers3d"), stage_writing(catalog, "poses")
-    source = next((s.name for s in catalog.stages.values() if s.spec.source), None)
-    takes = []
-    for seq in plan.sequences:
-        markers = plan.open(store, stage, seq.id).load()
-        dim = "reflector" if "reflector" in markers.dims else "marker"
-        raw = plan.open(store, source, seq.id) if source else None
-        fps = float(markers.attrs.get("fps", raw.attrs["fps"] if raw is not None else 30.0))
-        take = Take(seq.id, fps, str((raw.attrs if raw is not None else {}).get("exercise", "")), stage,
-                    [str(n) for n in markers[dim].values], markers["position"].values.astype(np.float64))
-        if fused is not None:
-            f = plan.open(store, fused, seq.id)
-            take.views = f["views"].values
-            residual = f["residual"].values  # (frame, marker, view), NaN where a view has no estimate
-            counted = np.isfinite(residual).sum(-1)
-            with np.errstate(invalid="ignore"):  # a view alone is its own fused point: no residual there
-                take.residual = np.where(counted >= 2, np.nansum(residual, -1) / np.maximum(counted, 1), np.nan)
-        if poses is not None:
-            p = plan.open(store, poses, seq.id).load()
-            take.joints, take.joint_names = p["position"].values, [str(j) for j in p["joint"].values]
-            take.parents = [int(i) for i in PARENTS] if take.joint_names == list(JOINT_NAMES) else []
-        if raw is not None and "gt_joints" in raw and take.joints is not None:
-            take.gt_joints = raw["gt_joints"].values
-        if raw is not None and "gt_reflectors" in raw and set(take.names) <= set(raw["reflector"].values.tolist()):
-            take.gt_markers = raw["gt_reflectors"].sel(reflector=take.names).values.astype(np.float64)
-        takes.append(take)
-    return takes
-
-
 def has_ground_truth(catalog, plan, store) -> bool:
     """Whether every sequence's recording carries ground truth (``gt_*`` variables: the studio's)."""
     source = next((s.name for s in catalog.stages.values() if s.spec.source), None)
@@ -482,40 +351,47 @@ def has_ground_truth(catalog, plan, store) -> bool:
         any(str(v).startswith("gt_") for v in plan.open(store, source, seq.id).data_vars) for seq in plan.sequences)
 
 
+def base_takes(catalog, plan, store, stage: str) -> list[Take]:
+    """Every sequence of ``plan`` as a Take of the markers ``stage`` wrote (a ``reflector`` or ``marker`` axis): their
+    positions, rate and the recording's label (from the catalog's source stage, where it has one)."""
+    source = next((s.name for s in catalog.stages.values() if s.spec.source), None)
+    takes = []
+    for seq in plan.sequences:
+        markers = plan.open(store, stage, seq.id).load()
+        dim = next(d for d in markers["position"].dims if d not in ("frame", "xyz"))  # the marker axis, by any name
+        raw = plan.open(store, source, seq.id) if source else None
+        fps = float(markers.attrs.get("fps", raw.attrs["fps"] if raw is not None else 30.0))
+        takes.append(Take(seq.id, fps, str((raw.attrs if raw is not None else {}).get("exercise", "")), stage,
+                          [str(n) for n in markers[dim].values], markers["position"].values.astype(np.float64)))
+    return takes
+
+
 def build_report(catalog, plan, store, folder: Path, *, title: str, summary: dict | None = None,
                  files: list[Path] = (), result: dict | None = None) -> tuple[Path, list[Path], dict]:
     """The report of a computed run: with ground truth, the accuracy tables and figures; always, per sequence the
     marker table, trajectories and the 3D view. ``result``: the evaluation, when already made. Returns the page,
-    the images and the evaluation's figures."""
-    from mocapflow.pipeline.evaluate import evaluate, headline, table
-
-    takes = gather(catalog, plan, store)
+    the images and the evaluation's figures. What it shows of each system comes from that system's report sections
+    (registry.ReportSection): the takes from the first that has some, the figures and figure names from all."""
+    sections = [r for r in registry.report_sections() if r.applies(catalog)]
+    takes = next((found for r in sections if r.takes is not None and (found := r.takes(catalog, plan, store))), [])
+    if not takes:
+        names = [r.name for r in registry.report_sections()]
+        raise PlanError(f"the catalog has no stage that a system's report section shows (sections: {names}); add "
+                        "a stage writing markers (see catalog.yaml)")
     images, accuracy, figures_ = [], None, {}
     if result is None and has_ground_truth(catalog, plan, store):
         try:
-            result = evaluate(catalog, plan, store, flow=False)  # the scene flow's figures take most of the time
+            result = evaluate(catalog, plan, store, thorough=False)  # the slowest figures (scene flow) left out
         except PlanError as exc:  # ground truth, but no stage the evaluation scores: say so on the page
             accuracy = f"not measured: {exc}"
     if result is not None:
         accuracy, figures_ = table(result), headline(result)
-        images = _accuracy_figures(folder, catalog, plan, store, result)
+        images = [p for r in sections if r.figures is not None for p in r.figures(folder, catalog, plan, store, result)]
+    known = {"sequences": ("sequences", 1, "")}
+    for r in sections:
+        known.update(r.named_figures)
     named = {"sequences": len(takes), "frames": sum(t.position.shape[0] for t in takes),
-             **named_figures(figures_), **(summary or {})}
+             **named_figures(figures_, known), **(summary or {})}
     page = write_report(folder, takes, title=title, summary=named, accuracy=accuracy, images=images, files=files)
     return page, images + [folder / f"{kind}_{t.id}.png" for t in takes for kind in ("trajectories", "worst_markers")
                            if kind == "trajectories" or t.gt_markers is not None], figures_
-
-
-def _accuracy_figures(folder: Path, catalog, plan, store, result: dict) -> list[Path]:
-    """The DeepMoCap figures (2D estimates over IR, skeletons, PCK, per-joint error) of the first sequence, where
-    the catalog has 2D reflectors and poses."""
-    from mocapflow.pipeline.evaluate import stage_writing
-
-    stage_2d, poses = stage_writing(catalog, "reflectors2d"), stage_writing(catalog, "poses")
-    source = stage_writing(catalog, "raw_sequence")
-    if stage_2d is None or poses is None or source is None or "poses" not in result:
-        return []
-    seq = plan.sequences[0]
-    raw = plan.open(store, source, seq.id)
-    reflectors = xr.concat([plan.open(store, stage_2d, seq.id, v).sel(view=v).load() for v in seq.views], dim="view")
-    return figures(folder, raw, reflectors, plan.open(store, poses, seq.id).load(), result)

@@ -8,6 +8,8 @@ sees an array with the wrong dims, dtype or missing attrs.
 from __future__ import annotations
 
 import difflib
+import importlib
+import pkgutil
 from dataclasses import dataclass, field
 from typing import Mapping
 
@@ -126,5 +128,15 @@ def get_schema(name: str) -> ArtifactSchema:
         raise UnknownSchema(name, SCHEMAS) from exc
 
 
+_LOADED = False
+
+
 def _load_builtin() -> None:
-    from mocapflow.schemas import fcn, markers, raw, skeleton, stages, suit, uuo  # noqa: F401  (register on import)
+    """Import every module of this package once: each registers the schemas of one system on import (a system's
+    plug-in registers its own through its System declaration)."""
+    global _LOADED
+    if _LOADED:
+        return
+    _LOADED = True
+    for module in pkgutil.iter_modules(__path__):
+        importlib.import_module(f"{__name__}.{module.name}")

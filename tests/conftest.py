@@ -37,7 +37,7 @@ def env_with_plugins() -> dict:
 
 def mocapflow(*args, cwd, check=True, timeout=300) -> subprocess.CompletedProcess:
     """Run the real CLI in a subprocess; returns the CompletedProcess (text)."""
-    proc = subprocess.run([sys.executable, "-m", "mocapflow.pipeline.cli", *map(str, args)], cwd=cwd,
+    proc = subprocess.run([sys.executable, "-m", "mocapflow.cli.commands", *map(str, args)], cwd=cwd,
                           env=env_with_plugins(), capture_output=True, text=True, timeout=timeout)
     if check and proc.returncode != 0:
         raise AssertionError(f"mocapflow {' '.join(map(str, args))} exited {proc.returncode}\n"

@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from mocapflow.tasks.shared.marker_errors import tail
+
+
 
 def flow_errors(flow: np.ndarray, valid: np.ndarray, gt_flow: np.ndarray, gt_body: np.ndarray,
                 depth: np.ndarray, first_frame: np.ndarray) -> tuple[np.ndarray, int]:
@@ -108,28 +111,11 @@ def summarize_2d(matches: Matches2D, names, c_min: float = 0.0) -> dict:
 # 3D optical data (DeepMoCap §3.4): per-reflector error against the studio's ground truth (a strap's
 # ground truth is the limb centre at the strap, a patch's the tape's centre), completeness and jitter.
 
-def marker_errors(xyz: np.ndarray, gt: np.ndarray) -> np.ndarray:
-    """Distances in mm, NaN where no estimate.  (frame, reflector, 3) m x2 -> (frame, reflector)"""
-    return 1000.0 * np.linalg.norm(xyz.astype(np.float64) - gt.astype(np.float64), axis=-1)
-
-
 def jitter(xyz: np.ndarray, fps: float) -> float:
     """Mean acceleration magnitude (m/s^2) over frames whose neighbours are observed too.  (frame, reflector, 3)"""
     acc = (xyz[2:] - 2 * xyz[1:-1] + xyz[:-2]) * fps**2
     norms = np.linalg.norm(acc, axis=-1)
     return float(np.nanmean(norms)) if np.isfinite(norms).any() else float("nan")
-
-
-GROSS_MM = 100.0  # a marker this far from the truth is a gross error
-
-
-def tail(values: np.ndarray, gross_mm: float = GROSS_MM) -> dict:
-    """The tail of the marker errors written as data: p95 and p99 (mm, linear interpolation between order
-    statistics) and the share of them farther than ``gross_mm`` from the truth.  (n,) finite mm -> dict"""
-    if not values.size:
-        return {"p95_mm": float("nan"), "p99_mm": float("nan"), "gross_share": float("nan")}
-    return {"p95_mm": float(np.percentile(values, 95)), "p99_mm": float(np.percentile(values, 99)),
-            "gross_share": float(np.mean(values > gross_mm))}
 
 
 def summarize_markers(errors: np.ndarray, names, *, jitter_value: float = float("nan"),
@@ -144,30 +130,6 @@ def summarize_markers(errors: np.ndarray, names, *, jitter_value: float = float(
             "mean_mm": float(values.mean()) if values.size else float("nan"),
             **tail(values), "completeness": float(seen.mean()), "jitter_ms2": jitter_value, "gt_jitter_ms2": gt_jitter,
             "per_reflector_median_mm": per}
-
-
-def marker_tails(errors: np.ndarray, gross_mm: float = GROSS_MM) -> dict[str, np.ndarray]:
-    """Per marker over time: the largest error (mm) and its frame (-1 where never seen), p95 (mm, linear
-    interpolation as ``tail``), the frames farther than ``gross_mm`` and their share of the frames with a value.
-    (frame, marker) mm, NaN where no estimate -> each (marker,)"""
-    seen = np.isfinite(errors)
-    counted = seen.sum(axis=0)
-    filled = np.where(seen, errors, -np.inf)
-    with np.errstate(invalid="ignore"):
-        gross = (np.where(seen, errors, 0.0) > gross_mm).sum(axis=0)
-        return {"max_mm": np.where(counted > 0, filled.max(axis=0), np.nan),
-                "max_frame": np.where(counted > 0, filled.argmax(axis=0), -1),
-                "p95_mm": np.array([np.percentile(errors[seen[:, m], m], 95) if counted[m] else np.nan
-                                    for m in range(errors.shape[1])]),
-                "gross_frames": gross, "gross_share": np.where(counted > 0, gross / np.maximum(counted, 1), np.nan)}
-
-
-def worst_markers(errors: np.ndarray, k: int = 5, gross_mm: float = GROSS_MM) -> np.ndarray:
-    """Indices of the ``k`` markers worst by p95, ties by the largest error, worst first; markers never seen
-    last.  (frame, marker) mm -> (min(k, marker),) int"""
-    t = marker_tails(errors, gross_mm)
-    order = np.lexsort((-np.nan_to_num(t["max_mm"], nan=-np.inf), -np.nan_to_num(t["p95_mm"], nan=-np.inf)))
-    return order[:k]
 
 
 # Motion capture (DeepMoCap §5.3, Tables 6-8, Fig. 14): 3D joint error on the 12 joints of Table 8.

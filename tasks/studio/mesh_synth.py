@@ -1,9 +1,9 @@
 """A studio sequence filmed on the mesh body: the Kinect-like sensors of the capsule studio, Anny as the subject.
 
-``mesh_subject`` draws the Anny phenotype from the seed (its own random stream, so the capsule studio's draws,
-and with them its placements' jitter and camera layouts, stay the same for the same seed) and the template
-subject of the same height that performs the motion; ``build_mesh_rig`` carries the template's reflectors onto
-the mesh and retargets and skins the whole motion. ``synthesize_mesh`` ray-casts frames [start, stop) of every
+The take (tasks/studio/take.py: the Anny body from its own random stream, so the capsule studio's draws, and with
+them its placements' jitter and camera layouts, stay the same for the same seed, and the template subject of the
+same height performing the motion, skinned onto the mesh) is filmed here; ``build_mesh_rig`` carries the template's
+reflectors onto the mesh. ``synthesize_mesh`` ray-casts frames [start, stop) of every
 view (one Embree scene per frame, shared by the views) into the raw-sequence schema: depth and IR from the
 capsule studio's sensor model, reflector ids from the faces the reflectors cover, scene flow from each hit's
 surface point on the neighbouring frames' meshes. Ground truth: the 20 template joints (the mesh bones at them), the
@@ -20,8 +20,8 @@ import xarray as xr
 from scipy.spatial.transform import Rotation
 
 from mocapflow.tasks.shared import body
-from mocapflow.tasks.shared.mesh_body import PARTS, MeshBody, mesh_body, part_of_bone, random_phenotype
-from mocapflow.tasks.studio import mesh_motion, mesh_reflectors, render
+from mocapflow.tasks.shared.mesh_body import PARTS, MeshBody, part_of_bone
+from mocapflow.tasks.studio import mesh_motion, mesh_reflectors, render, take
 from mocapflow.tasks.studio.mesh_render import MeshScene, barycentric, cast_view, vertex_normals
 
 MESH_STUDIO_VERSION = "1"
@@ -45,23 +45,16 @@ class MeshRig:
         return self.take.root.shape[0] - 1
 
 
-def build_mesh_rig(spec, body_: MeshBody, subject: body.Subject, prims: tuple, placements: tuple, views: tuple,
-                   mot) -> MeshRig:
-    """The mesh rig: ``mot`` (the template ``subject``'s motion, n_frames + 1 frames) performed by ``body_``, and the
-    template's reflector ``placements`` on ``prims`` carried onto the mesh."""
+def build_mesh_rig(shot: take.Take, prims: tuple, placements: tuple, views: tuple) -> MeshRig:
+    """The mesh rig: the take ``shot`` filmed by ``views``, the template's reflector ``placements`` on ``prims``
+    (the take's template subject) carried onto the mesh."""
+    body_, subject = shot.body, shot.subject
     mesh_placements, face_reflector = mesh_reflectors.place_on_mesh(body_, subject, prims, placements)
     fine = {name: i for i, name in enumerate(_FINE_PARTS)}
     bone_part = np.array([fine[part_of_bone(n)] for n in body_.bone_names], np.int16)
     face_part = bone_part[body_.vertex_bone[body_.faces[:, 0]]]
-    return MeshRig(spec, body_, subject, mesh_placements, face_reflector, face_part, views, mot,
-                   mesh_motion.retarget(body_, subject, mot))
-
-
-def mesh_subject(spec) -> tuple[MeshBody, body.Subject]:
-    """The sequence's Anny body (from its own random stream, so the capsule studio's draws are untouched) and the
-    template subject of the same height that performs its motion."""
-    body_ = mesh_body(random_phenotype(np.random.default_rng([spec.seed, 2]), spec.subject_height))
-    return body_, body.Subject(height=body_.height)
+    return MeshRig(shot.spec, body_, subject, mesh_placements, face_reflector, face_part, views, shot.motion,
+                   shot.mesh)
 
 
 def view_frame(rig: MeshRig, view: render.View, scene: MeshScene, f: int, normals: np.ndarray,

@@ -24,7 +24,7 @@ from mocapflow.tasks.shared.mesh_body import MeshBody
 from mocapflow.tasks.studio.cameras import look_at, ring_positions
 from mocapflow.tasks.studio.mesh_render import (Lighting, MeshScene, cast_view, grey_image, radiance, surface_points,
                                                  visibility)
-from mocapflow.tasks.suit.pattern import Suit, texture, uv_charts
+from mocapflow.tasks.shared.suit_pattern import Suit, texture, uv_charts
 
 SUIT_STUDIO_VERSION = "1+texel"
 # Softboxes all around (§3 "Camera system": 32 of them): a strong diffuse term, two soft key lights, a dark room.
@@ -78,6 +78,11 @@ class SuitRig:
     look: SuitLook
 
 
+def camera_names(count: int) -> list[str]:
+    """The suit cameras' view names: ``cam00``, ``cam01``, ..."""
+    return [f"cam{i:02d}" for i in range(count)]
+
+
 def suit_cameras(spec: SuitCameras, rng: np.random.Generator) -> tuple[Camera, ...]:
     """The ring of grey cameras, the first facing the subject's front (+Y)."""
     pos = ring_positions(spec.count, spec.radius, 0.0)
@@ -89,7 +94,7 @@ def suit_cameras(spec: SuitCameras, rng: np.random.Generator) -> tuple[Camera, .
         cx = (spec.width - 1) / 2 + rng.uniform(-8, 8)
         cy = (spec.height - 1) / 2 + rng.uniform(-8, 8)
         fi = f * rng.uniform(0.99, 1.01)
-        cams.append(Camera(f"cam{i:02d}", fi, fi, cx, cy, (k1, 0.0, 0.0, 0.0, 0.0), look_at(p, spec.target),
+        cams.append(Camera(camera_names(spec.count)[i], fi, fi, cx, cy, (k1, 0.0, 0.0, 0.0, 0.0), look_at(p, spec.target),
                            spec.width, spec.height))
     return tuple(cams)
 

@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from mocapflow.tasks.shared import body, reflectors
 from mocapflow.tasks.shared.kinematics import forward_kinematics
-from mocapflow.tasks.studio import bvh, cameras, mesh_synth, motion, render
+from mocapflow.tasks.studio import cameras, mesh_synth, motion, render, take
 
 STUDIO_VERSION = "2"
 BODIES = ("capsule", "mesh")
@@ -98,11 +98,14 @@ class Rig:
 
 
 def build_rig(spec: SequenceSpec, bvh_text: str | None = None) -> Rig | mesh_synth.MeshRig:
-    """Everything fixed by ``spec``: the subject, placements, cameras and the whole motion."""
+    """Everything fixed by ``spec``: the subject, placements, cameras and the whole motion (on the mesh body: the
+    take of tasks/studio/take.py, filmed by the same sensors)."""
     rng = np.random.default_rng([spec.seed, 1])
     subject = body.random_subject(rng, spec.subject_height)
+    shot = None
     if spec.body == "mesh":  # the template of the mesh's height performs the motion; the draws above stay
-        mesh, subject = mesh_synth.mesh_subject(spec)
+        shot = take.make_take(spec, bvh_text)
+        subject = shot.subject
     prims = body.surface(subject)
     placements = reflectors.place(prims, rng, spec.jitter)
     layout_spec = spec.layout or (cameras.random_ring(rng, spec.views) if spec.random_layout else None)
@@ -110,20 +113,10 @@ def build_rig(spec: SequenceSpec, bvh_text: str | None = None) -> Rig | mesh_syn
         layout_spec["ring"]["roll_deg"] = cameras.random_rolls(np.random.default_rng([spec.seed, 2]), spec.views,
                                                                spec.camera_roll_deg)
     cams = cameras.layout(layout_spec, views=spec.views, rng=rng if spec.random_layout else None)
-    if spec.motion == "bvh":
-        if bvh_text is None:
-            raise ValueError("motion 'bvh' needs the clip's text")
-        clip = bvh.parse_bvh(bvh_text)
-        frames = None if spec.frames is None else spec.frames + 1
-        mot = bvh.retarget(clip, subject, fps=spec.fps, n_frames=frames, start_s=spec.start_s,
-                           label=spec.label or "bvh", user_map=spec.motion_map)
-    else:
-        mot = motion.exercise(spec.motion, subject, n_frames=(spec.frames or 90) + 1, fps=spec.fps,
-                              speed=spec.speed, amplitude=spec.amplitude, repetitions=spec.repetitions,
-                              heading_deg=spec.heading_deg, variation=spec.variation, seed=spec.seed)
     views = tuple(render.prepare_view(c) for c in cams)
-    if spec.body == "mesh":
-        return mesh_synth.build_mesh_rig(spec, mesh, subject, prims, placements, views, mot)
+    if shot is not None:
+        return mesh_synth.build_mesh_rig(shot, prims, placements, views)
+    mot = take.performed_motion(spec, subject, bvh_text)
     rot, pos = forward_kinematics(mot.local_rot, mot.root_pos, body.rest_offsets(subject), body.PARENTS)
     return Rig(spec, subject, prims, placements, views, mot, rot, pos)
 

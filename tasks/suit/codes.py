@@ -27,9 +27,10 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from mocapflow.tasks.suit.corners import Augment, adam_cosine, augment_crops, seeded
+from mocapflow.tasks.suit.augment import Augment, adam_cosine, augment_crops, seeded
 from mocapflow.tasks.suit.metrics import quad_truth
-from mocapflow.tasks.suit.pattern import ALPHABET, BLACK, WHITE, level, print_code
+from mocapflow.tasks.shared.suit_pattern import ALPHABET, BLACK, WHITE, level, print_code
+from mocapflow.tasks.suit.net_configs import N_CHARS, CodeError, CodeNetConfig
 from mocapflow.tasks.suit.quads import CROP, warp_quads
 
 if TYPE_CHECKING:
@@ -37,11 +38,6 @@ if TYPE_CHECKING:
 
     from mocapflow.tasks.suit.networks import RecogNet, RejectorNet
 
-N_CHARS = len(ALPHABET)
-
-
-class CodeError(ValueError):
-    """Crops, samples or settings the code networks cannot use."""
 
 
 def code_index(code: str) -> int:
@@ -54,21 +50,6 @@ def code_text(index: int) -> str:
 
 
 # ---------------------------------------------------------------------------------------------------- networks
-
-@dataclass(frozen=True)
-class CodeNetConfig:
-    """A VGG-like trunk on the crop average-pooled by ``pool``: per width a 3x3 convolution, batch normalisation,
-    ReLU and a 2x2 max pool; then a hidden fully connected layer."""
-
-    widths: tuple[int, ...] = (16, 32, 64)
-    hidden: int = 64
-    pool: int = 4  # 104 -> 26
-
-    def __post_init__(self):
-        if not self.widths or min(self.widths) < 1 or self.hidden < 1 or CROP % self.pool:
-            raise CodeError(f"code networks need positive widths and hidden size and a pool dividing {CROP}, got "
-                            f"{self.widths}, {self.hidden}, {self.pool}")
-
 
 def net_config(architecture: dict) -> CodeNetConfig:
     return CodeNetConfig(widths=tuple(architecture["widths"]), hidden=int(architecture["hidden"]),

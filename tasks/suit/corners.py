@@ -36,32 +36,16 @@ if TYPE_CHECKING:
 
     from mocapflow.tasks.suit.networks import CornerdetNet
 
+from mocapflow.tasks.suit.augment import Augment, adam_cosine, augment_crops, dihedral, seeded
+from mocapflow.tasks.suit.net_configs import CornerError, CornerNetConfig
+
 CELL = 8  # §3.1, Chen et al. 2021: cells of 8 x 8 pixels
 MARGIN = 6  # each side of a cell, so a crop is 20 x 20
 CROP = CELL + 2 * MARGIN
 CELL_LO = MARGIN - 0.5  # the cell's extent in crop coordinates (pixel centres), [5.5, 13.5)
 
 
-class CornerError(ValueError):
-    """An image, truth or setting the corner detector cannot work with."""
-
-
 # ---------------------------------------------------------------------------------------------------- the network
-
-@dataclass(frozen=True)
-class CornerNetConfig:
-    """CornerdetNet's widths: four convolutions (4x4/2, 3x3/2, 2x2/2, 2x2/1: receptive field 20, stride 8), then
-    a 1x1 hidden layer and the 1x1 output (logit, u, v); batch normalisation after each hidden convolution."""
-
-    widths: tuple[int, int, int, int] = (24, 48, 96, 96)
-    hidden: int = 96
-    batch_norm: bool = True
-
-    def __post_init__(self):
-        if len(self.widths) != 4 or min(self.widths) < 1 or self.hidden < 1:
-            raise CornerError(f"CornerdetNet needs four positive widths and a positive hidden width, got "
-                              f"widths={self.widths}, hidden={self.hidden}")
-
 
 def check_net(net: nn.Module) -> None:
     """A network in evaluation mode, else a CornerError: in training mode batch normalisation would use each batch's
@@ -451,19 +435,6 @@ def _clear(affines: np.ndarray, tree: cKDTree | None, ignore_px: float) -> np.nd
 # ------------------------------------------------------------------------------------------------------ training
 
 @dataclass(frozen=True)
-class Augment:
-    """§4.2, Chen et al. 2021: intensity perturbations (contrast, brightness, gamma), noise and blur per crop,
-    drawn uniformly in these ranges; plus an exact quarter turn / flip of each crop with its target."""
-
-    contrast: tuple[float, float] = (0.5, 1.3)  # about the crop's mean
-    brightness: float = 0.12  # +- this, in [0, 1] grey
-    gamma: tuple[float, float] = (0.6, 1.6)
-    noise: tuple[float, float] = (0.0, 0.03)  # Gaussian sigma, [0, 1] grey
-    blur: tuple[float, float] = (0.0, 1.2)  # Gaussian sigma, px, for a ``blur_share`` of the crops
-    blur_share: float = 0.5
-
-
-@dataclass(frozen=True)
 class TrainConfig:
     net: CornerNetConfig = CornerNetConfig()
     augment: Augment = Augment()
@@ -515,74 +486,6 @@ def train_cornerdet(samples: CornerSamples, config: TrainConfig = TrainConfig(),
         opt.step()
         sched.step()
     return net.cpu().eval()
-
-
-def seeded(seed: int, stream: int) -> tuple[torch.Generator, np.random.Generator, str]:
-    """A training's randomness from its seed (torch's global one too) and the device it runs on: the GPU when
-    present (batches are still drawn on the CPU)."""
-    import torch
-
-    torch.manual_seed(seed)
-    return (torch.Generator().manual_seed(seed), np.random.default_rng([seed, stream]),
-            "cuda" if torch.cuda.is_available() else "cpu")
-
-
-def adam_cosine(params: list, learning_rate: float, iterations: int):
-    """Adam with a cosine decay to 1 % of the learning rate over the iterations.  -> optimizer, scheduler"""
-    import torch
-
-    opt = torch.optim.Adam(params, lr=learning_rate)
-    return opt, torch.optim.lr_scheduler.CosineAnnealingLR(opt, iterations, eta_min=0.01 * learning_rate)
-
-
-def dihedral(x: torch.Tensor, position: torch.Tensor, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
-    """A random one of the 8 exact quarter turns and flips per crop, its target turned with it (the cell is
-    central, so (u, v) -> (v, u) on a transpose and u -> 1 - u on a flip of x).  (n, 1, 20, 20), (n, 2)"""
-    import torch
-
-    n = len(x)
-    t, fx, fy = (torch.rand(n, generator=gen) < 0.5 for _ in range(3))
-    x = torch.where(t[:, None, None, None], x.transpose(-1, -2), x)
-    p = torch.where(t[:, None], position.flip(-1), position)
-    x = torch.where(fx[:, None, None, None], x.flip(-1), x)
-    p = torch.stack([torch.where(fx, 1 - p[:, 0], p[:, 0]), p[:, 1]], dim=1)
-    x = torch.where(fy[:, None, None, None], x.flip(-2), x)
-    p = torch.stack([p[:, 0], torch.where(fy, 1 - p[:, 1], p[:, 1])], dim=1)
-    return x, p
-
-
-def augment_crops(x: torch.Tensor, aug: Augment, gen: torch.Generator) -> torch.Tensor:
-    """§4.2, Chen et al. 2021: blur, contrast, brightness, gamma and noise per crop, then 8-bit levels.
-    (n, 1, 20, 20) in [0, 1] -> same"""
-    import torch
-
-    n = len(x)
-
-    def draw(lo: float, hi: float) -> torch.Tensor:  # drawn on the CPU (the generator's), used where x is
-        return (lo + (hi - lo) * torch.rand(n, generator=gen))[:, None, None, None].to(x.device)
-
-    sigma = draw(*aug.blur) * (torch.rand(n, 1, 1, 1, generator=gen) < aug.blur_share).to(x.device)
-    x = _gaussian_blur(x, sigma.flatten())
-    mean = x.mean(dim=(2, 3), keepdim=True)
-    x = (x - mean) * draw(*aug.contrast) + mean + draw(-aug.brightness, aug.brightness)
-    x = x.clamp(0, 1) ** draw(*aug.gamma)
-    x = x + draw(*aug.noise) * torch.randn(x.shape, generator=gen).to(x.device)
-    return torch.round(x.clamp(0, 1) * 255) / 255
-
-
-def _gaussian_blur(x: torch.Tensor, sigma: torch.Tensor, radius: int = 3) -> torch.Tensor:
-    """Per-crop separable Gaussian blur (sigma 0: unchanged), replicated borders.  (n, 1, y, x), (n,) -> same"""
-    import torch
-    from torch.nn import functional as F
-
-    t = torch.arange(-radius, radius + 1, dtype=x.dtype, device=x.device)
-    k = torch.exp(-0.5 * (t[None] / sigma.clamp(min=1e-3)[:, None]) ** 2)  # (n, 2r + 1)
-    k = k / k.sum(dim=1, keepdim=True)
-    n = len(x)
-    y = F.pad(x.transpose(0, 1), (radius, radius, radius, radius), mode="replicate")  # (1, n, y + 2r, x + 2r)
-    y = F.conv2d(y, k[:, None, None, :], groups=n)
-    y = F.conv2d(y, k[:, None, :, None], groups=n)
-    return y.transpose(0, 1)
 
 
 # ---------------------------------------------------------------------------------------------------- the stage

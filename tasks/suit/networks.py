@@ -9,8 +9,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from mocapflow.tasks.suit.codes import N_CHARS, CodeNetConfig
-from mocapflow.tasks.suit.corners import CornerNetConfig
+from mocapflow.tasks.suit.net_configs import N_CHARS, CodeNetConfig, CornerNetConfig
 from mocapflow.tasks.suit.quads import CROP
 
 CORNERDET = CornerNetConfig()

@@ -12,9 +12,9 @@ import pytest
 import yaml
 from click.testing import CliRunner
 
-from mocapflow.pipeline import cli
-from mocapflow.pipeline.calibration_import import cameras_of, read_calibration, read_opencv, read_qca, read_toml
-from mocapflow.pipeline.datasets import _calibration
+from mocapflow.cli import commands as cli
+from mocapflow.formats.calibration import cameras_of, read_calibration, read_opencv, read_qca, read_toml
+from mocapflow.systems.deepmocap.readers import read_calibration_yaml
 from mocapflow.pipeline.errors import InputError
 from mocapflow.tasks.shared.cameras import calibrated_camera, extrinsics_of
 from mocapflow.tasks.shared.kinematics import Y_UP_TO_Z_UP
@@ -200,7 +200,7 @@ def test_the_cli_writes_a_calibration_yaml_the_image_reader_accepts(tmp_path):
     result = CliRunner().invoke(cli.main, args)
     assert result.exit_code == 0, result.output
     assert "3 view(s) cam0, cam1, cam2" in result.output
-    calib = _calibration(tmp_path / "seq")  # what an `images` dataset reads
+    calib = read_calibration_yaml(tmp_path / "seq")  # what an `images` dataset reads
     assert calib["fps"] == 30.0
     for name, cam in ring().items():
         np.testing.assert_allclose(calib["cameras"][name].project(POINTS)[0], cam.project(POINTS)[0], atol=1e-6)
@@ -213,8 +213,8 @@ def test_the_cli_writes_a_calibration_yaml_the_image_reader_accepts(tmp_path):
     assert (tmp_path / "seq" / "calibration.yaml").read_text() == text  # kept
     forced = CliRunner().invoke(cli.main, [*args[:2], str(tmp_path / "other.qca.txt"), *args[3:], "--force"])
     assert forced.exit_code == 0, forced.output
-    assert list(_calibration(tmp_path / "seq")["cameras"]) == ["cam0"]
-    assert _calibration(tmp_path / "seq")["cameras"]["cam0"].width == 1920
+    assert list(read_calibration_yaml(tmp_path / "seq")["cameras"]) == ["cam0"]
+    assert read_calibration_yaml(tmp_path / "seq")["cameras"]["cam0"].width == 1920
 
 
 def test_the_cli_merges_opencv_files_and_needs_their_unit(tmp_path):
@@ -229,7 +229,7 @@ def test_the_cli_merges_opencv_files_and_needs_their_unit(tmp_path):
     assert not out.exists()
     result = CliRunner().invoke(cli.main, [*base, "--unit", "mm"])
     assert result.exit_code == 0, result.output
-    calib = _calibration(tmp_path)
+    calib = read_calibration_yaml(tmp_path)
     assert calib["fps"] == 60.0 and list(calib["cameras"]) == ["cam0", "cam1", "cam2"]
     np.testing.assert_allclose(calib["cameras"]["cam2"].cam_to_world, ring()["cam2"].cam_to_world, atol=1e-9)
     unknown = CliRunner().invoke(cli.main, [*base[:-4], "--format", "vicon", "--fps", "60", "--out", str(out)])
@@ -325,7 +325,7 @@ def test_empty_files_unknown_formats_and_unit_mistakes_are_refused(tmp_path):
     with pytest.raises(InputError, match=r"cam0.yml is empty"):
         read_opencv(tmp_path / "cam0.yml", unit="m")
     with pytest.raises(InputError, match=r"unknown calibration format 'vicon'; use one of qca, toml, opencv"):
-        read_calibration(tmp_path / "cam0.yml", "vicon")
+        readread_calibration_yaml(tmp_path / "cam0.yml", "vicon")
     with pytest.raises(InputError, match=r"missing.qca does not exist"):
         read_qca(tmp_path / "missing.qca")
     (tmp_path / "Calib.toml").write_text(good_toml())

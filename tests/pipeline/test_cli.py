@@ -7,7 +7,7 @@ import pytest
 from click.testing import CliRunner
 
 from conftest import PLUGINS, mocapflow
-from mocapflow.pipeline import cli
+from mocapflow.cli import commands as cli
 from mocapflow.pipeline.catalog import load_catalog
 from mocapflow.pipeline.plan import build_plan
 from mocapflow.pipeline.storage import Store

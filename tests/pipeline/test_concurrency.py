@@ -16,13 +16,13 @@ def test_two_runs_on_one_root_refuse_each_others_partitions_naming_the_holder(to
     hold = project / "hold"  # the first run's scale tasks wait while this file exists
     hold.write_text("")
     env = {**env_with_plugins(), "TOY_HOLD_WHILE": str(hold)}
-    first = subprocess.Popen([sys.executable, "-m", "mocapflow.pipeline.cli", "run", "--json", "--keep-going"],
+    first = subprocess.Popen([sys.executable, "-m", "mocapflow.cli.commands", "run", "--json", "--keep-going"],
                              cwd=project, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 120
     while not list((project / "storage").glob("scaled/*/.lock")) and time.time() < deadline:
         time.sleep(0.05)
     try:
-        second = subprocess.run([sys.executable, "-m", "mocapflow.pipeline.cli", "run", "--json", "--keep-going"],
+        second = subprocess.run([sys.executable, "-m", "mocapflow.cli.commands", "run", "--json", "--keep-going"],
                                 cwd=project, env=env_with_plugins(), capture_output=True, text=True, timeout=300)
     finally:
         hold.unlink()

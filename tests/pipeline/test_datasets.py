@@ -10,7 +10,8 @@ import yaml
 
 from conftest import ROOT, last_json, mocapflow, read_artifacts, write_raw_zarr
 from mocapflow.pipeline.catalog import load_catalog
-from mocapflow.pipeline.datasets import DATASET_KINDS, discover
+from mocapflow.pipeline.datasets import discover
+from mocapflow.pipeline.registry import dataset_kinds
 from mocapflow.pipeline.errors import CatalogError, InputError
 
 
@@ -95,7 +96,7 @@ def test_a_misspelt_dataset_option_is_refused_at_load_naming_key_line_and_the_ri
     path.write_text(DATASET_ONLY.format(kind=kind, options=options))
     with pytest.raises(CatalogError) as err:
         load_catalog(path)
-    allowed = ["kind", *DATASET_KINDS[kind].options]
+    allowed = ["kind", *dataset_kinds()[kind].options]
     assert str(err.value) == (f"catalog.yaml (line {line}): datasets.rec.{typo}: unknown option {typo!r} for a {kind!r} "
                               f"dataset (did you mean {right!r}?); its options are {allowed}")
     path.write_text(DATASET_ONLY.format(kind=kind, options=options.replace(f"{typo}:", f"{right}:")))
@@ -120,14 +121,14 @@ def test_a_misspelt_dataset_option_stops_the_run_before_any_stage(toy_project):
                                   "demo"])
 def test_the_shipped_catalogs_still_load_and_discover_their_sequences(tmp_path, name):
     if name == "demo":
-        from mocapflow.pipeline.demo import DemoOptions, prepare
+        from mocapflow.cli.demo import DemoOptions, prepare
 
         catalog = prepare(tmp_path, DemoOptions())
     else:
         catalog = load_catalog(ROOT / name)
     assert catalog.datasets
     for dataset in catalog.datasets.values():
-        assert set(dataset.options) <= set(DATASET_KINDS[dataset.kind].options)
+        assert set(dataset.options) <= set(dataset_kinds()[dataset.kind].options)
         found = discover(catalog, dataset)
         assert found and all(s.n_frames > 0 and s.views for s in found)
     if name == "demo":
@@ -157,7 +158,7 @@ def test_png_frames_are_read_in_numeric_order(tmp_path):
         for f in range(12):
             (seq_dir / "k0" / kind / f"{f:06d}.png").rename(seq_dir / "k0" / kind / f"{f}.png")
     [seq] = discover_images(tmp_path)
-    frames = DATASET_KINDS["images"].read(None, seq, 0, 12)
+    frames = dataset_kinds()["images"].read(None, seq, 0, 12)
     np.testing.assert_array_equal(frames["depth"].values[0], data["k0", "depth"])
     np.testing.assert_array_equal(frames["ir"].sel(frame=[2, 10]).values[0], data["k0", "ir"][[2, 10]])
 

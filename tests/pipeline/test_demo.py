@@ -7,7 +7,8 @@ import cv2
 
 from browser import run_browser
 from conftest import last_json, mocapflow
-from mocapflow.pipeline.export import read_bvh_joints, read_c3d
+from mocapflow.formats.bvh import read_bvh_joints
+from mocapflow.formats.c3d import read_points as read_c3d
 
 # Floor of the shipped FCN weights on this smoke run: the pose goals (measured PCK@20cm 100 %, PCK@5cm
 # 90.8 %, MAE 2.47 cm; procedural motion, so not an accuracy figure of the system, see docs/results.md), which

@@ -79,7 +79,7 @@ def test_run_on_cluster_equals_local_run(toy_project, cluster, tmp_path_factory)
 def test_killing_a_worker_mid_run_still_completes(toy_project, cluster, tmp_path_factory):
     address, workers = cluster
     project = toy_project(sleep=0.2, frames=32)
-    run = subprocess.Popen([sys.executable, "-m", "mocapflow.pipeline.cli", "run", "--json", "--scheduler", address],
+    run = subprocess.Popen([sys.executable, "-m", "mocapflow.cli.commands", "run", "--json", "--scheduler", address],
                            cwd=project, env=env_with_plugins(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     _wait(lambda: len(list((project / "storage").glob("scaled/*/_regions/*"))) >= 3)
     os.kill(workers[0].pid, signal.SIGKILL)

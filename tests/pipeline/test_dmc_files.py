@@ -11,11 +11,12 @@ import pytest
 import yaml
 
 from conftest import mocapflow, read_artifacts
-from mocapflow.pipeline import dmc_files
+from mocapflow.systems.deepmocap import dmc_files
 from mocapflow.pipeline.catalog import load_catalog
-from mocapflow.pipeline.datasets import DATASET_KINDS, discover
+from mocapflow.pipeline.datasets import discover
+from mocapflow.pipeline.registry import dataset_kinds
 from mocapflow.pipeline.errors import CatalogError, InputError
-from mocapflow.pipeline.scaffold import DEFAULT_STAGES
+from mocapflow.cli.scaffold import DEFAULT_STAGES
 from mocapflow.tasks.deepmocap.masks import MaskConfig, masks
 from mocapflow.tasks.shared.cameras import calibrated_camera
 from mocapflow.tasks.shared.kinematics import Y_UP_TO_Z_UP
@@ -133,7 +134,7 @@ def test_extrinsics_in_the_view_folder_a_y_up_world_and_ir_frames(tmp_path, take
         ext.write_text("".join(" ".join(f"{x:.9f}" for x in r) + "\n" for r in values))
     catalog_for(tmp_path, intrinsics, up="y")
     [seq], dataset = discover_dmc(tmp_path)
-    frames = DATASET_KINDS["dmc"].read(dataset, seq, 0, 1)
+    frames = dataset_kinds()["dmc"].read(dataset, seq, 0, 1)
     np.testing.assert_array_equal(frames["ir"].values, one["ir"].values)
     np.testing.assert_array_equal(frames["depth"].values, one["depth"].values)
     np.testing.assert_allclose(frames["cam_to_world"].values, one["cam_to_world"].values, atol=1e-8)

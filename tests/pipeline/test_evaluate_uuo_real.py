@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mocapflow.pipeline.evaluate_uuo import label_consistency
+from mocapflow.systems.uuo.evaluate import label_consistency
 
 
 def test_consistency_counts_the_frames_of_each_label_on_its_majority_part():

@@ -9,9 +9,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from conftest import mocapflow, read_artifacts
-from mocapflow.pipeline import export_uuo
-from mocapflow.pipeline.export import read_bvh_joints
-from mocapflow.pipeline.marker_files import read_markers
+from mocapflow.systems.uuo import export as export_uuo
+from mocapflow.formats.bvh import read_bvh_joints
+from mocapflow.systems.uuo.marker_files import read_markers
 from mocapflow.tasks.shared.kinematics import local_rotations
 from mocapflow.tasks.shared.mesh_body import PHENOTYPE_NAMES
 from mocapflow.tasks.studio import uuo_takes as uuo

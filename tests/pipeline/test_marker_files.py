@@ -8,7 +8,7 @@ import pytest
 
 from conftest import SHARED, last_json, mocapflow, read_artifacts
 from mocapflow.pipeline.errors import InputError
-from mocapflow.pipeline.marker_files import read_markers
+from mocapflow.systems.uuo.marker_files import read_markers
 from mocapflow.schemas import get_schema
 
 C3D = SHARED / "c3d"
@@ -80,7 +80,7 @@ def test_bad_marker_files_and_settings_are_refused(tmp_path):
 def test_an_exported_trc_reads_back_as_the_markers_it_came_from(tmp_path, up):
     import xarray as xr
 
-    from mocapflow.pipeline.export import write_trc
+    from mocapflow.systems.deepmocap.export import write_trc
 
     rng = np.random.default_rng(0)
     position = rng.uniform(-1, 2, (5, 3, 3)).astype(np.float32)

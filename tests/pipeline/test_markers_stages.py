@@ -7,7 +7,8 @@ import numpy as np
 
 from conftest import PLUGINS, last_json, mocapflow
 from mocapflow.pipeline.catalog import load_catalog
-from mocapflow.pipeline.export import read_bvh_joints, read_c3d
+from mocapflow.formats.bvh import read_bvh_joints
+from mocapflow.formats.c3d import read_points as read_c3d
 from mocapflow.pipeline.plan import build_plan
 from mocapflow.pipeline.storage import Store
 from mocapflow.schemas import get_schema

@@ -11,7 +11,7 @@ import pytest
 
 from conftest import last_json, mocapflow, read_artifacts
 from mocapflow.pipeline.errors import InputError
-from mocapflow.pipeline.prior_files import read_prior
+from mocapflow.systems.uuo.prior_files import read_prior
 from mocapflow.tasks.shared.body import JOINT_NAMES
 
 Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # Z-up world -> a Y-up file's axes

@@ -9,8 +9,10 @@ from dataclasses import dataclass, field
 import pytest
 import xarray as xr
 
-from mocapflow.pipeline import builtin_tasks, registry  # noqa: F401  (builtin_tasks registers on import)
+from mocapflow.pipeline import registry
 from mocapflow.pipeline.errors import CatalogError
+
+registry.systems()  # the built-in systems registered before a test swaps the registry for a copy
 
 
 @dataclass(frozen=True)
@@ -109,7 +111,8 @@ def test_planning_imports_no_torch():
     import subprocess
     import sys
 
-    code = ("import sys; from mocapflow.pipeline import cli, registry; registry.import_plugins(()); "
+    code = ("import sys; from mocapflow.cli import commands; from mocapflow.pipeline import registry; "
+            "registry.import_plugins(()); registry.systems(); "
             "print(sorted(m for m in ('torch', 'anny') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"

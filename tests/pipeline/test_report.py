@@ -6,7 +6,8 @@ import re
 import cv2
 import numpy as np
 
-from mocapflow.pipeline.report import PALETTE, Take, overlay, write_report
+from mocapflow.pipeline.report import PALETTE, Take, write_report
+from mocapflow.systems.deepmocap.report import overlay
 
 
 def test_overlay_draws_a_recovered_estimate_hollow():

@@ -20,7 +20,7 @@ def test_kill_dash_nine_then_resume_finishes_only_unfinished_work(toy_project, t
     project = toy_project(sleep=0.25, frames=40)
     hold = project / "hold"  # created part-way: every region started after it waits, holding its lock
     env = {**env_with_plugins(), "TOY_HOLD_WHILE": str(hold)}
-    proc = subprocess.Popen([sys.executable, "-m", "mocapflow.pipeline.cli", "run", "--json", "--workers", "2"],
+    proc = subprocess.Popen([sys.executable, "-m", "mocapflow.cli.commands", "run", "--json", "--workers", "2"],
                             cwd=project, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             start_new_session=True)
     storage = project / "storage"

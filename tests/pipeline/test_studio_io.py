@@ -12,7 +12,7 @@ import xarray as xr
 from conftest import SHARED, last_json, mocapflow, read_artifacts
 from mocapflow.pipeline.errors import InputError
 from mocapflow.pipeline.hashing import digest
-from mocapflow.pipeline.studio_io import fingerprint, make_spec
+from mocapflow.systems.studio.specs import fingerprint, make_spec
 from mocapflow.tasks.shared.body import JOINT_INDEX, Subject
 from mocapflow.tasks.studio import bvh
 from motion_files import USER_MAP, mixamo_text
@@ -244,7 +244,7 @@ def test_a_skeleton_no_map_fits_is_refused_at_planning_with_the_fix(tmp_path):
 
 def test_an_amc_take_with_its_asf_skeleton_is_a_studio_motion(tmp_path):
     from mocapflow.pipeline.errors import CatalogError
-    from mocapflow.pipeline.studio_io import read_motion
+    from mocapflow.systems.studio.specs import read_motion
     from motion_files import cmu_amc_text, cmu_asf_text
 
     (tmp_path / "subject.asf").write_text(cmu_asf_text())

@@ -5,7 +5,8 @@ the tail over time with the worst markers first."""
 import numpy as np
 import pytest
 
-from mocapflow.tasks.deepmocap.evaluation import marker_tails, summarize_markers, tail, worst_markers
+from mocapflow.tasks.deepmocap.evaluation import summarize_markers
+from mocapflow.tasks.shared.marker_errors import marker_tails, tail, worst_markers
 
 
 def test_tail_of_a_hand_made_error_set():

@@ -9,7 +9,7 @@ import pytest
 from mocapflow.tasks.shared.mesh_body import Phenotype, mesh_body
 from mocapflow.tasks.studio import suit_takes as st
 from mocapflow.tasks.studio import synth
-from mocapflow.tasks.suit import pattern as pt
+from mocapflow.tasks.shared import suit_pattern as pt
 
 CLOSE = st.SuitCameras(count=2, width=480, height=640, radius=1.4, heights=(1.2, 1.2), target=(0.0, 0.0, 1.2),
                        view_height_m=0.7)  # about 1 px per mm on the chest

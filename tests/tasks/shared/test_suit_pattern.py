@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from mocapflow.tasks.shared.mesh_body import Phenotype, mesh_body
-from mocapflow.tasks.suit import pattern as pt
+from mocapflow.tasks.shared import suit_pattern as pt
 
 
 @pytest.fixture(scope="module")

@@ -17,10 +17,10 @@ import numpy as np
 import xarray as xr
 
 from mocapflow.pipeline.errors import PlanError, StorageError
-from mocapflow.pipeline.export import SUIT_SCHEMAS, UNIT_SCALE, _inside, _write, _write_c3d, c3d_scale
-
-__all__ = ["SUIT_SCHEMAS", "corner_names", "export_suit", "ply_text", "write_suit_c3d", "write_suit_ply"]
-
+from mocapflow.formats import c3d, ply
+from mocapflow.pipeline.catalog import stage_writing
+from mocapflow.pipeline.export import UNIT_SCALE, target, write_atomically
+from mocapflow.pipeline.registry import ExportJob, Exporter
 
 def corner_names(codes, square_corners: np.ndarray, n_corners: int) -> list[str]:
     """Each corner's first key as a name: code + quad vertex (``AB2``)."""
@@ -36,23 +36,10 @@ def write_suit_c3d(points: xr.Dataset, names: list[str], path: Path) -> None:
     seen = np.isfinite(xyz).all(axis=-1)
     observed = points["observed"].values if "observed" in points else seen
     residual = np.where(seen, np.where(observed, 1.0, 0.0), -1.0)  # (frame, corner)
-    scale = c3d_scale(xyz, residual)
+    scale = c3d.c3d_scale(xyz, residual)
     word4 = np.where(residual < 0, -1.0, residual)
-    _write(path, lambda p: _write_c3d(p, np.where(seen[..., None], xyz, 0.0), names, float(points.attrs["fps"]), scale,
-                                      word4))
-
-
-def ply_text(position: np.ndarray, observed: np.ndarray, cells: np.ndarray) -> str:
-    """One frame of the filled suit: position (corner, 3) m, observed (corner,), cells (cell, 4) counter-clockwise
-    in uv -> ASCII PLY with the cells split into two triangles each."""
-    tris = np.concatenate([cells[:, [0, 1, 2]], cells[:, [0, 2, 3]]])
-    lines = ["ply", "format ascii 1.0", "comment mocapflow: the filled checkerboard suit, metres, Z up",
-             f"element vertex {len(position)}", "property float x", "property float y", "property float z",
-             "property uchar observed", f"element face {len(tris)}", "property list uchar int vertex_indices",
-             "end_header"]
-    lines += [f"{x:.6f} {y:.6f} {z:.6f} {int(o)}" for (x, y, z), o in zip(position, observed)]
-    lines += [f"3 {a} {b} {c}" for a, b, c in tris]
-    return "\n".join(lines) + "\n"
+    write_atomically(path, lambda p: c3d.write_points(p, np.where(seen[..., None], xyz, 0.0), names,
+                                                     float(points.attrs["fps"]), scale, word4), ".c3d")
 
 
 def write_suit_ply(filled: xr.Dataset, cells: np.ndarray, folder: Path) -> list[Path]:
@@ -66,7 +53,7 @@ def write_suit_ply(filled: xr.Dataset, cells: np.ndarray, folder: Path) -> list[
         for f, frame in enumerate(filled["frame"].values):
             path = folder / f"frame_{int(frame):06d}.ply"
             tmp = path.with_name(path.name + ".partial")
-            tmp.write_text(ply_text(position[f], filled["observed"].values[f], cells))
+            tmp.write_text(ply.ply_text(position[f], filled["observed"].values[f], cells))
             tmp.replace(path)
             written.append(path)
     except OSError as exc:
@@ -74,19 +61,36 @@ def write_suit_ply(filled: xr.Dataset, cells: np.ndarray, folder: Path) -> list[
     return written
 
 
-def export_suit(plan, store, images_stage: str, stage: str, fmt: str, out_dir: Path) -> list[Path]:
-    """Write every sequence of the suit ``stage`` as ``fmt`` (c3d or ply); the pattern comes from ``images_stage``."""
-    written = []
-    for item in plan.for_stages([stage]):
-        seq = item.partition.sequence
-        pattern = plan.open(store, images_stage, seq)[["code", "square_corners", "cells", "corner_face"]]
-        data = store.open(stage, item.key, item.stage.schema).load()
-        if fmt == "c3d":
-            names = corner_names([str(c) for c in pattern["code"].values], pattern["square_corners"].values,
-                                 pattern.sizes["corner"])
-            path = _inside(out_dir, f"{seq}.c3d")
-            write_suit_c3d(data, names, path)
-            written.append(path)
-        else:
-            written += write_suit_ply(data, pattern["cells"].values, _inside(out_dir, seq))
-    return written
+def _pattern(job: ExportJob) -> xr.Dataset:
+    """The suit's print (codes, squares, cells) from the catalog's images stage."""
+    images = stage_writing(job.catalog, "suit_images")
+    if images is None:
+        raise PlanError("the catalog has suit stages but no stage writing suit_images, whose print names the corners")
+    return job.plan.open(job.store, images, job.sequence)[["code", "square_corners", "cells", "corner_face"]]
+
+
+def export_c3d(job: ExportJob) -> list[Path]:
+    """The corners (observed or filled) labelled code + quad vertex, as a float C3D."""
+    pattern = _pattern(job)
+    names = corner_names([str(c) for c in pattern["code"].values], pattern["square_corners"].values,
+                         pattern.sizes["corner"])
+    path = target(job.out_dir, f"{job.sequence}.c3d")
+    write_suit_c3d(job.data, names, path)
+    return [path]
+
+
+def export_ply(job: ExportJob) -> list[Path]:
+    """The filled suit as one PLY mesh per frame, ``<out>/<sequence>/frame_NNNNNN.ply``."""
+    return write_suit_ply(job.data, _pattern(job)["cells"].values, target(job.out_dir, job.sequence))
+
+
+def _last_writing(*schemas: str):
+    def find(catalog) -> str | None:
+        return next((s for schema in schemas if (s := stage_writing(catalog, schema))), None)
+    return find
+
+
+EXPORTERS = (
+    Exporter("c3d", ("suit_filled", "suit_points"), export_c3d, default_stage=_last_writing("suit_filled", "suit_points")),
+    Exporter("ply", ("suit_filled",), export_ply, default_stage=_last_writing("suit_filled")),
+)

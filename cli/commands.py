@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import sys
@@ -10,10 +11,25 @@ from pathlib import Path
 
 import click
 
+from mocapflow.cli.demo import DEFAULT_MOTIONS, DemoOptions, run_demo
+from mocapflow.cli.scaffold import scaffold
+from mocapflow.formats.calibration import read_calibration, write_calibration
 from mocapflow.pipeline.catalog import load_catalog
 from mocapflow.pipeline.errors import MocapflowError, PlanError
+from mocapflow.pipeline.evaluate import evaluate as run_evaluation
+from mocapflow.pipeline.evaluate import evaluation_plan, headline, table
+from mocapflow.pipeline.export import export_files
 from mocapflow.pipeline.plan import Partition, Plan, WorkItem, build_plan, select, status
+from mocapflow.pipeline.registry import did_you_mean
+from mocapflow.pipeline.report import build_report
+from mocapflow.pipeline.runlog import run_log
+from mocapflow.pipeline.scheduler import compute_missing, failure_report, run_items
 from mocapflow.pipeline.storage import Store
+from mocapflow.pipeline.training import export_weights, training_item
+from mocapflow.systems.studio.film_deepmocap import write_sequence
+from mocapflow.systems.studio.specs import make_spec, read_layout
+from mocapflow.tasks.studio.motion import EXERCISES
+from mocapflow.tasks.studio.synth import build_rig
 
 catalog_option = click.option("--catalog", "catalog_path", default="catalog.yaml", show_default=True,
                               type=click.Path(dir_okay=False), help="catalog file")
@@ -51,8 +67,6 @@ def main(verbose: int) -> None:
 
 def _run_log(store: Store, command: str) -> str:
     """Log the command's run to a file in the storage root until it returns; the file's path."""
-    from mocapflow.pipeline.runlog import run_log
-
     return click.get_current_context().with_resource(run_log(store, command))
 
 
@@ -78,8 +92,6 @@ def _stage_lines():
 def run(catalog_path, overrides, sequences, only, until, dry_run, workers, threads, address, keep_going, as_json,
         no_progress):
     """Run the catalog's stages, reusing every cached partition."""
-    from mocapflow.pipeline.scheduler import failure_report, run_items
-
     started = time.perf_counter()
     catalog = load_catalog(catalog_path, overrides)
     store = Store(catalog.root)
@@ -197,8 +209,6 @@ def explain(catalog_path, overrides, stage, sequence, view):
 
 def _explained_item(catalog, plan: Plan, stage: str, sequence: str, view: str | None) -> WorkItem:
     """The work item `explain STAGE SEQUENCE [VIEW]` names; an unknown name is refused with the nearest known one."""
-    from mocapflow.pipeline.registry import did_you_mean
-
     if stage not in catalog.stages:
         raise PlanError(f"explain: no stage {stage!r}{did_you_mean(stage, catalog.stages)}; "
                         f"stages: {list(catalog.stages)}")
@@ -288,8 +298,6 @@ def gc(catalog_path, overrides, dry_run):
 @click.option("--force", is_flag=True, help="overwrite an existing catalog.yaml")
 def init(folder, force):
     """Scaffold a catalog.yaml for a FOLDER of recordings (raw zarr stores or PNG sequence folders)."""
-    from mocapflow.pipeline.scaffold import scaffold
-
     path = scaffold(Path(folder), force=force)
     click.echo(f"wrote {path}; check it with `mocapflow run --catalog {path} --dry-run`")
 
@@ -313,8 +321,6 @@ def calibration():
 @click.option("--force", is_flag=True, help="overwrite an existing --out")
 def import_calibration(files, fmt, unit, up, fps, out, force):
     """Write the cameras of FILES (one or more, their views merged) as the project's calibration.yaml."""
-    from mocapflow.pipeline.calibration_import import read_calibration, write_calibration
-
     views: dict = {}
     for file in files:
         for name, values in read_calibration(Path(file), fmt, unit=unit, up=up).items():
@@ -331,7 +337,7 @@ def import_calibration(files, fmt, unit, up, fps, out, force):
               type=click.Path(dir_okay=False), help="training catalog")
 @set_option
 @sequences_option
-@click.option("--stage", default=None, help="the training stage [the catalog's train_fcn stage]")
+@click.option("--stage", default=None, help="the training stage [the catalog's one stage run per dataset]")
 @click.option("--out", default="models/deepmocap_fcn.pt", show_default=True, type=click.Path(dir_okay=False),
               help="weights file to write")
 @workers_option
@@ -339,11 +345,6 @@ def import_calibration(files, fmt, unit, up, fps, out, force):
 @click.option("--json", "as_json", is_flag=True, help="print a JSON summary as the last line of stdout")
 def train(catalog_path, overrides, sequences, stage, out, workers, threads, as_json):
     """Train the two-stream FCN (seeded) and write its weights; every step is a cached stage."""
-    import hashlib
-
-    from mocapflow.pipeline.scheduler import compute_missing
-    from mocapflow.pipeline.training import export_weights, training_item
-
     started = time.perf_counter()
     catalog = load_catalog(catalog_path, overrides)
     store = Store(catalog.root)
@@ -368,11 +369,11 @@ def train(catalog_path, overrides, sequences, stage, out, workers, threads, as_j
 @catalog_option
 @set_option
 @sequences_option
-@click.option("--format", "fmt", type=click.Choice(["c3d", "trc", "bvh", "ply", "report"]), default="c3d",
-              show_default=True,
-              help="c3d/trc: labelled 3D markers; bvh: the solved poses; for the suit: c3d its labelled corners, ply "
-                   "the filled suit mesh per frame; for a UUO solve: c3d its markers labelled by body part and vertex, "
-                   "bvh the solved rig, report a page of figures")
+@click.option("--format", "fmt", default="c3d", show_default=True,
+              help="a format a system exports: c3d/trc labelled 3D markers; bvh the solved poses; for the suit: c3d "
+                   "its labelled corners, ply the filled suit mesh per frame; for a UUO solve: c3d its markers "
+                   "labelled by body part and vertex, bvh the solved rig, report a page of figures; a plug-in "
+                   "system's own")
 @click.option("--stage", default=None,
               help="the stage to export [c3d/trc: the last smoothed stage, else markers3d, else the UUO solve; bvh: "
                    "the poses stage, else the UUO solve; report: the UUO solve]")
@@ -384,8 +385,6 @@ def train(catalog_path, overrides, sequences, stage, out, workers, threads, as_j
 def export(catalog_path, overrides, sequences, fmt, stage, out_dir, up, workers, threads):
     """Write markers as C3D or TRC, poses as BVH, or a UUO report, one per sequence (computes missing partitions
     first)."""
-    from mocapflow.pipeline.export import export_files
-
     for path in export_files(load_catalog(catalog_path, overrides), sequences, fmt, stage, Path(out_dir), workers,
                              processes=not threads, up=up):
         click.echo(f"wrote {path}")
@@ -402,9 +401,6 @@ def export(catalog_path, overrides, sequences, fmt, stage, out_dir, up, workers,
 def report(catalog_path, overrides, sequences, out_dir, workers, threads):
     """An HTML report of the catalog's run, own takes too: per marker tracked frames, gaps, residuals and views,
     trajectories, an interactive 3D view, and with ground truth the accuracy (computes missing partitions first)."""
-    from mocapflow.pipeline.report import build_report
-    from mocapflow.pipeline.scheduler import compute_missing
-
     catalog = load_catalog(catalog_path, overrides)
     store = Store(catalog.root)
     plan = build_plan(catalog, sequences)
@@ -426,8 +422,6 @@ def report(catalog_path, overrides, sequences, out_dir, workers, threads):
 @click.option("--json", "as_json", is_flag=True, help="print the figures as one JSON object, the last line of stdout")
 def demo(out_dir, motions, frames, workers, threads, as_json):
     """Run the whole system on a small studio dataset: accuracy table, BVH + C3D, and an HTML report."""
-    from mocapflow.pipeline.demo import DEFAULT_MOTIONS, DemoOptions, run_demo
-
     text, summary, written = run_demo(Path(out_dir), DemoOptions(motions=tuple(motions) or DEFAULT_MOTIONS,
                                                                   frames=frames), workers=workers,
                                        processes=not threads, log=lambda store: _run_log(store, "demo"),
@@ -449,10 +443,6 @@ def demo(out_dir, motions, frames, workers, threads, as_json):
 @click.option("--json", "as_json", is_flag=True, help="print the figures as one JSON object, the last line of stdout")
 def evaluate(catalog_path, overrides, sequences, workers, threads, as_json):
     """Accuracy of the catalog's stages on its evaluation split (computes missing partitions first)."""
-    from mocapflow.pipeline.evaluate import evaluate as run_evaluation
-    from mocapflow.pipeline.evaluate import evaluation_plan, headline, table
-    from mocapflow.pipeline.scheduler import compute_missing
-
     catalog = load_catalog(catalog_path, overrides)
     store = Store(catalog.root)
     plan = evaluation_plan(catalog, sequences)
@@ -486,9 +476,6 @@ def evaluate(catalog_path, overrides, sequences, workers, threads, as_json):
 def synth(out_dir, motions, views, frames, fps, seed, subject_height, noise, layout_file, body, motion_map, skeleton,
           amc_fps, force):
     """Render studio sequences (raw-sequence zarr stores with ground truth)."""
-    from mocapflow.pipeline.studio_io import build_rig, make_spec, read_layout, write_sequence
-    from mocapflow.tasks.studio.motion import EXERCISES
-
     layout = read_layout(Path(layout_file), "--layout") if layout_file else None
     out = Path(out_dir)
     jobs = []

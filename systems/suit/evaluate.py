@@ -11,9 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from mocapflow.pipeline.catalog import stage_writing
 from mocapflow.pipeline.errors import PlanError
+from mocapflow.pipeline.evaluate import format_rows
+from mocapflow.pipeline.registry import Evaluator
 from mocapflow.tasks.suit import metrics
-from mocapflow.tasks.suit.pattern import ALPHABET
+from mocapflow.tasks.shared.suit_pattern import ALPHABET
 
 TRUTH = ("gt_corners2d", "gt_visible", "gt_readable", "gt_corners", "square_corners", "code")
 
@@ -22,8 +25,6 @@ def suit_stages(catalog) -> dict[str, str]:
     """What to score: per schema of the suit chain the catalog's last stage writing it (suit_points: the last one
     that reads labels, not a hold-out), and ``suit_filled_hidden``: a filling whose points had observations hidden
     (tasks/suit/holdout.py) — then ``suit_filled`` is the last filling of the points themselves."""
-    from mocapflow.pipeline.evaluate import stage_writing
-
     schemas = ("suit_images", "suit_corners", "suit_quads", "suit_codes", "suit_labels")
     out = {s: stage_writing(catalog, s) for s in schemas if stage_writing(catalog, s) is not None}
     points = [s.name for s in catalog.stages.values() if s.spec.output == "suit_points"
@@ -42,6 +43,16 @@ def plan_input(plan, stage: str, role: str = "points") -> str:
     """The upstream stage feeding ``role`` of ``stage``."""
     item = next(i for i in plan.items.values() if i.partition.stage == stage)
     return item.upstream[role].stage
+
+
+def applies(catalog) -> bool:
+    """A suit stage besides the images."""
+    return len(suit_stages(catalog)) >= 2
+
+
+def evaluate(catalog, plan, store, per_sequence: dict, thorough: bool = True) -> dict:
+    """The suit figures of `mocapflow evaluate` (``result["suit"]``)."""
+    return {"suit": evaluate_suit(plan, store, suit_stages(catalog), per_sequence)}
 
 
 def evaluate_suit(plan, store, stages: dict[str, str], per_sequence: dict) -> dict:
@@ -156,6 +167,7 @@ def _network_figures(rows: list[dict]) -> dict:
 def suit_headline(result: dict) -> dict:
     """`--json` figures of the suit chain."""
     out = {}
+    result = result.get("suit", {})
     if "labels" in result:
         lab = result["labels"]
         out.update({"suit_detect_rate": lab["readable_found"], "suit_wrong_labels": lab["wrong"],
@@ -170,8 +182,9 @@ def suit_headline(result: dict) -> dict:
 
 
 def suit_table(result: dict) -> list[str]:
-    from mocapflow.pipeline.evaluate import _format
-
+    if "suit" not in result:
+        return []
+    result = result["suit"]
     rows = [("suit", "figure", "value")]
     if "corners" in result:
         c = result["corners"]
@@ -198,4 +211,7 @@ def suit_table(result: dict) -> list[str]:
             s = result[key]
             rows.append((key, f"{what} median / p95 / p99 {unit}",
                          f"{s['median']:.2f} / {s['p95']:.2f} / {s['p99']:.2f} (n={s['n']})"))
-    return _format(rows)
+    return format_rows(rows)
+
+
+EVALUATOR = Evaluator("suit", applies, evaluate, suit_headline, suit_table)

@@ -1,4 +1,4 @@
-"""Checkerboard-suit takes filmed in the studio, as a dataset kind (``studio_suit``).
+"""The studio filmed by the checkerboard suit's grey cameras: the dataset kind ``studio_suit``.
 
     datasets:
       suit_train:
@@ -11,7 +11,8 @@
           squat_s11: {motion: classic_squat, seed: 11}
           walk: {motion: ../shared/data/motions/cmu_12_01_walk.bvh, seed: 9001}
 
-Sequences take the studio's fields (tasks/studio/synth.py SequenceSpec; the body is always the mesh body). The
+Sequences take the studio's fields (systems/studio/specs.py; the take of tasks/studio/take.py, always on the mesh
+body: no Kinect rig is built). The
 suit is printed on the reference body's UV layout once per size, so every subject wears the same pattern.
 """
 
@@ -25,18 +26,19 @@ import numpy as np
 import xarray as xr
 from scipy.spatial.transform import Rotation
 
+from mocapflow.pipeline.datasets import SequenceInfo
 from mocapflow.pipeline.errors import CatalogError
 from mocapflow.pipeline.hashing import digest
 from mocapflow.pipeline.registry import coerce, did_you_mean
-from mocapflow.pipeline.studio_io import fingerprint, frame_count, make_spec
 from mocapflow.schemas.raw import DIST_COEFS
+from mocapflow.systems.studio.specs import fingerprint, frame_count, sequence_specs, take_for
 from mocapflow.tasks.shared.cache import BoundedCache
 from mocapflow.tasks.shared.mesh_body import Phenotype, mesh_body
+from mocapflow.tasks.shared.suit_pattern import SUITS, Suit, make_suit
 from mocapflow.tasks.studio import suit_takes
-from mocapflow.tasks.studio.synth import build_rig
-from mocapflow.tasks.suit.pattern import SUITS, Suit, make_suit
+from mocapflow.tasks.studio.take import Take
 
-_RIGS: BoundedCache[str, tuple] = BoundedCache(2)  # fingerprint -> (mesh rig, suit rig), this process
+_RIGS: BoundedCache[str, tuple] = BoundedCache(2)  # fingerprint -> (take, suit rig), this process
 _SUITS: BoundedCache[str, Suit] = BoundedCache(4)
 
 
@@ -58,54 +60,51 @@ def _settings(opts: Mapping[str, Any], where: str) -> tuple[str, suit_takes.Suit
     return name, cams, look
 
 
-def discover(catalog, dataset) -> list:
-    from mocapflow.pipeline.datasets import SequenceInfo
+class StudioSuitReader:
+    """Checkerboard-suit takes filmed in the studio by a ring of grey cameras, as suit_images with ground truth."""
 
-    opts = dataset.options
-    sequences = opts.get("sequences") or {}
-    if not isinstance(sequences, dict) or not sequences:
-        raise CatalogError(f"{dataset.where}: a studio_suit dataset needs 'sequences: {{id: {{motion: ...}}}}'")
-    name, cams, look = _settings(opts, dataset.where)
-    out = []
-    for seq_id, body in sequences.items():
-        where = f"{dataset.where}.sequences.{seq_id}"
-        fields = {**(opts.get("defaults") or {}), **(body or {})}
-        if fields.setdefault("body", "mesh") != "mesh":
-            raise CatalogError(f"{where}: suit takes are filmed on the mesh body; drop 'body' or set it to mesh")
-        fields["views"] = 1  # the Kinect ring of the studio spec is not used; the suit's cameras film
-        spec, text, path = make_spec(fields, where, lambda p, w=where: catalog.resolve_data_path(p, w))
-        fp = digest({"take": fingerprint(spec, text), "suit": name, "cameras": dataclasses.asdict(cams),
-                     "look": dataclasses.asdict(look), "studio": suit_takes.SUIT_STUDIO_VERSION})
-        views = tuple(f"cam{i:02d}" for i in range(cams.count))
-        out.append(SequenceInfo(str(seq_id), views, frame_count(spec, text), fp,
-                                {"spec": spec, "bvh_text": text, "suit": name, "cameras": cams, "look": look}))
-    return out
+    options = ("sequences", "defaults", "suit", "cameras", "look")
+
+    @staticmethod
+    def discover(catalog, dataset) -> list[SequenceInfo]:
+        name, cams, look = _settings(dataset.options, dataset.where)
+        views = tuple(suit_takes.camera_names(cams.count))
+        out = []
+        # views = 1: the spec's Kinect ring is not filmed (the suit's cameras are); kept so the take's fingerprint stays
+        for seq_id, _, _, (spec, text, source) in sequence_specs(catalog, dataset, "studio_suit", mesh_only=True,
+                                                                 forced={"views": 1}):
+            fp = digest({"take": fingerprint(spec, text), "suit": name, "cameras": dataclasses.asdict(cams),
+                         "look": dataclasses.asdict(look), "studio": suit_takes.SUIT_STUDIO_VERSION})
+            out.append(SequenceInfo(seq_id, views, frame_count(spec, text), fp,
+                                    {"spec": spec, "source": source, "suit": name, "cameras": cams, "look": look}))
+        return out
+
+    @staticmethod
+    def read(dataset, seq: SequenceInfo, start: int, stop: int) -> xr.Dataset:
+        """Frames [start, stop) of a suit take in the suit_images schema, with ground truth."""
+        shot, rig = rig_for(seq)
+        frames = suit_takes.film(rig, shot.mesh.posed.vertices, range(start, stop))
+        return suit_dataset(rig, shot, frames, seq, start, stop)
 
 
-def rig_for(seq) -> tuple:
+def rig_for(seq) -> tuple[Take, suit_takes.SuitRig]:
+    """The take and the suit's cameras filming it, made once per worker process."""
     def build():
         info = seq.spec
-        mesh_rig = build_rig(info["spec"], info["bvh_text"])
-        rig = suit_takes.suit_rig(mesh_rig.body, reference_suit(info["suit"]), info["cameras"], info["look"],
-                                  info["spec"].seed)
-        return mesh_rig, rig
+        shot = take_for(seq)
+        return shot, suit_takes.suit_rig(shot.body, reference_suit(info["suit"]), info["cameras"], info["look"],
+                                         info["spec"].seed)
 
     return _RIGS.get_or_make(seq.fingerprint, build)
 
 
-def read(dataset, seq, start: int, stop: int) -> xr.Dataset:
-    """Frames [start, stop) of a suit take in the suit_images schema, with ground truth."""
-    mesh_rig, rig = rig_for(seq)
-    shot = suit_takes.film(rig, mesh_rig.take.posed.vertices, range(start, stop))
-    return suit_dataset(rig, mesh_rig, shot, seq, start, stop)
-
-
-def suit_dataset(rig: suit_takes.SuitRig, mesh_rig, shot: suit_takes.SuitFrames, seq, start: int, stop: int) -> xr.Dataset:
+def suit_dataset(rig: suit_takes.SuitRig, take: Take, shot: suit_takes.SuitFrames, seq, start: int,
+                 stop: int) -> xr.Dataset:
     suit, cams, n = rig.suit, rig.cameras, stop - start
-    quats = Rotation.from_matrix(mesh_rig.take.rotations[start:stop].reshape(-1, 3, 3)).as_quat().reshape(n, -1, 4)
+    quats = Rotation.from_matrix(take.mesh.rotations[start:stop].reshape(-1, 3, 3)).as_quat().reshape(n, -1, 4)
     data = {
         "image": (("view", "frame", "y", "x"), shot.image),
-        "timestamp": (("frame",), np.arange(start, stop) / float(mesh_rig.spec.fps)),
+        "timestamp": (("frame",), np.arange(start, stop) / float(take.spec.fps)),
         "dist": (("view", "dist_coef"), np.array([c.dist for c in cams], float)),
         "cam_to_world": (("view", "row", "col"), np.array([c.cam_to_world for c in cams], float)),
         **{k: (("view",), np.array([float(getattr(c, k)) for c in cams])) for k in ("fx", "fy", "cx", "cy")},
@@ -120,15 +119,15 @@ def suit_dataset(rig: suit_takes.SuitRig, mesh_rig, shot: suit_takes.SuitFrames,
         "gt_visible": (("view", "frame", "corner"), shot.visible),
         "gt_readable": (("view", "frame", "corner"), shot.readable),
         "gt_joints": (("frame", "joint", "xyz"),
-                      mesh_rig.take.posed.heads[start:stop][:, mesh_rig.body.joint_bones()].astype(np.float32)),
+                      take.mesh.posed.heads[start:stop][:, take.body.joint_bones()].astype(np.float32)),
         "gt_bone_rotations": (("frame", "bone", "quat"), quats),
-        "gt_root": (("frame", "xyz"), mesh_rig.take.root[start:stop]),
+        "gt_root": (("frame", "xyz"), take.mesh.root[start:stop]),
     }
     coords = {"view": np.array([c.name for c in cams], dtype=object), "frame": np.arange(start, stop, dtype=np.int64),
               "corner": np.arange(suit.n_corners, dtype=np.int64), "dist_coef": np.array(DIST_COEFS, dtype=object),
-              "bone": np.array(mesh_rig.body.bone_names, dtype=object)}
-    attrs = {"fps": float(mesh_rig.spec.fps), "suit": seq.spec["suit"], "length_unit": "m", "up_axis": "Z",
-             "body_model": f"anny {version('anny')}", "phenotype": dataclasses.asdict(mesh_rig.body.phenotype),
-             "suit_studio_version": suit_takes.SUIT_STUDIO_VERSION, "seed": int(mesh_rig.spec.seed),
-             "motion": mesh_rig.motion.label}
+              "bone": np.array(take.body.bone_names, dtype=object)}
+    attrs = {"fps": float(take.spec.fps), "suit": seq.spec["suit"], "length_unit": "m", "up_axis": "Z",
+             "body_model": f"anny {version('anny')}", "phenotype": dataclasses.asdict(take.body.phenotype),
+             "suit_studio_version": suit_takes.SUIT_STUDIO_VERSION, "seed": int(take.spec.seed),
+             "motion": take.motion.label}
     return xr.Dataset(data, coords=coords, attrs=attrs)

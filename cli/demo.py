@@ -13,15 +13,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+from mocapflow.cli.scaffold import DEFAULT_STAGES
 from mocapflow.pipeline.catalog import load_catalog
 from mocapflow.pipeline.errors import InputError
 from mocapflow.pipeline.evaluate import evaluate, headline, table
 from mocapflow.pipeline.export import export_files
 from mocapflow.pipeline.plan import build_plan
 from mocapflow.pipeline.report import build_report
-from mocapflow.pipeline.scaffold import DEFAULT_STAGES
 from mocapflow.pipeline.scheduler import compute_missing
 from mocapflow.pipeline.storage import Store
+from mocapflow.tasks.studio.motion import EXERCISES
 
 DEFAULT_MOTIONS = ("jumping_jack", "classic_squat", "elbow_flexion")
 
@@ -35,8 +36,6 @@ class DemoOptions:
 
 
 def catalog_text(options: DemoOptions) -> str:
-    from mocapflow.tasks.studio.motion import EXERCISES
-
     unknown = [m for m in options.motions if m not in EXERCISES]
     if unknown:
         raise InputError(f"demo motions {unknown} are not studio exercises; choose from {sorted(EXERCISES)}")

@@ -1,15 +1,12 @@
-"""The studio as a dataset kind and as `mocapflow synth`: specs from the catalog or the CLI, rigs per worker.
+"""The studio's sequences as the catalog and the CLI give them: specs checked, motion files read, fingerprints, and
+the take of each sequence (tasks/studio/take.py) made once per worker. The filming modules beside this one turn a
+take into one system's raw dataset (film_deepmocap.py, film_uuo.py, film_suit.py).
 
-A studio dataset in catalog.yaml::
+A studio sequence in a catalog::
 
-    datasets:
-      default:
-        kind: studio
-        layout: layouts/dmc.yaml          # optional camera layout file (else the DMC ring)
-        defaults: {frames: 60, views: 3, noise: 1.0}
-        sequences:
-          jj_s1: {motion: jumping_jack, seed: 1, subject_height: 1.72}
-          walk:  {motion: ../shared/data/motions/cmu_12_01_walk.bvh, seed: 7}
+    sequences:
+      jj_s1: {motion: jumping_jack, seed: 1, subject_height: 1.72}
+      walk:  {motion: ../shared/data/motions/cmu_12_01_walk.bvh, seed: 7}
 
 ``motion`` is an exercise name, a .bvh path or an .amc take with ``skeleton: subject.asf`` beside it
 (``amc_fps``: its frame rate, 120 by default as in the CMU database), paths inside ``data_roots``;
@@ -28,7 +25,6 @@ from importlib.metadata import version
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-import numpy as np
 import yaml
 
 from mocapflow.pipeline.errors import CatalogError, InputError
@@ -39,13 +35,13 @@ from mocapflow.tasks.studio import asf_amc
 from mocapflow.tasks.studio import bvh as bvh_mod
 from mocapflow.tasks.studio.cameras import layout as camera_layout
 from mocapflow.tasks.studio import motion as motion_mod
-from mocapflow.tasks.studio import uuo_takes as uuo
 from mocapflow.tasks.studio.motion import EXERCISES
 from mocapflow.tasks.studio.mesh_synth import MESH_STUDIO_VERSION
-from mocapflow.tasks.studio.synth import STUDIO_VERSION, Rig, SequenceSpec, build_rig, synthesize
+from mocapflow.tasks.studio.synth import STUDIO_VERSION, SequenceSpec
+from mocapflow.tasks.studio.take import Take, make_take
 
 SPEC_FIELDS = {f.name: f for f in dataclasses.fields(SequenceSpec)}
-_RIGS: BoundedCache[str, Rig] = BoundedCache(4)  # fingerprint -> rig, this process
+_TAKES: BoundedCache[str, Take] = BoundedCache(4)  # fingerprint -> take, this process
 
 
 # Keys of a sequence that say where its motion file's skeleton and rate are, not what the studio films.
@@ -197,13 +193,6 @@ def frame_count(spec: SequenceSpec, bvh_text: str | None) -> int:
     return bvh_mod.available_frames(bvh_mod.parse_bvh(bvh_text), spec.fps, spec.start_s) - 1
 
 
-def view_names(spec: SequenceSpec) -> tuple[str, ...]:
-    if spec.layout and "sensors" in spec.layout:
-        return tuple(str(s.get("name", f"kinect{i}")) for i, s in enumerate(spec.layout["sensors"]))
-    count = (spec.layout or {}).get("ring", {}).get("count", spec.views)
-    return tuple(f"kinect{i}" for i in range(count))
-
-
 # Spec fields added after a studio version enter the fingerprint only when set, so caches of sequences
 # that leave them at their default stay valid.
 LATER_FIELDS = ("variation", "body", "motion_map", "camera_roll_deg", "ir_bloom_px")
@@ -227,114 +216,36 @@ def variation_ranges() -> dict:
             "root_speed_m_s": motion_mod.ROOT_SPEED_M_S, "root_drift_m": motion_mod.ROOT_DRIFT_M}
 
 
-def discover(catalog, dataset) -> list:
-    from mocapflow.pipeline.datasets import SequenceInfo
+def take_for(seq) -> Take:
+    """The take of a sequence whose spec holds its SequenceSpec (``spec``) and motion source (``source``), made once
+    per worker process."""
+    def make() -> Take:
+        source = seq.spec["source"]
+        return make_take(seq.spec["spec"], read_motion(source, f"sequence {seq.id}") if source else None)
 
-    opts = dataset.options  # its keys were checked against StudioReader.options when the catalog was loaded
-    layout = None
-    if opts.get("layout"):
-        layout = read_layout(catalog.resolve_data_path(str(opts["layout"]), dataset.where), dataset.where)
+    return _TAKES.get_or_make(seq.fingerprint, make)
+
+
+def sequence_specs(catalog, dataset, kind: str, *, mesh_only: bool = False, forced: Mapping[str, Any] | None = None,
+                   layout: Mapping | None = None) -> list[tuple[str, str, dict, tuple]]:
+    """Per sequence of a studio dataset: (id, where, its ``EXTRA_KEYS`` fields, (spec, BVH text, motion source)).
+    A sequence's fields are the dataset's ``defaults`` and its own; ``mesh_only``: the take is filmed on the mesh
+    body (another ``body`` is refused); ``forced`` fields are set whatever was given."""
+    opts = dataset.options  # its keys were checked against the reader's options when the catalog was loaded
     sequences = opts.get("sequences") or {}
     if not isinstance(sequences, dict) or not sequences:
-        raise CatalogError(f"{dataset.where}: a studio dataset needs 'sequences: {{id: {{motion: ...}}}}'")
-    out = []
-    for seq_id, body in sequences.items():
-        where = f"{dataset.where}.sequences.{seq_id}"
-        spec, text, source = make_spec({**(opts.get("defaults") or {}), **(body or {})}, where,
-                                       lambda p, w=where: catalog.resolve_data_path(p, w), layout)
-        fp = fingerprint(spec, text)
-        out.append(SequenceInfo(str(seq_id), view_names(spec), frame_count(spec, text), fp,
-                                {"spec": spec, "source": source}))
-    return out
-
-
-def rig_for(info) -> Rig:
-    """The sequence's rig, built once per worker process (cameras' rays and the room are reused)."""
-    def build() -> Rig:
-        source = info.spec["source"]
-        return build_rig(info.spec["spec"], read_motion(source, f"sequence {info.id}") if source else None)
-
-    return _RIGS.get_or_make(info.fingerprint, build)
-
-
-def read(dataset, seq, start: int, stop: int):
-    return synthesize(rig_for(seq), start, stop)
-
-
-def write_sequence(rig: Rig, target: str, region_frames: int = 16) -> None:
-    """Render a whole sequence into a raw-sequence zarr store, region by region."""
-    from mocapflow.pipeline.storage import check, init_zarr, write_zarr_region
-    from mocapflow.schemas import get_schema
-
-    schema = get_schema("raw_sequence")
-    for start in range(0, rig.n_frames, region_frames):
-        stop = min(start + region_frames, rig.n_frames)
-        ds = synthesize(rig, start, stop)
-        check(schema, ds, f"studio output {target}")
-        if start == 0:
-            init_zarr(target, schema, ds, rig.n_frames)
-        write_zarr_region(target, ds, start, stop)
-
-
-# ---- unlabelled marker takes on the mesh body (kind: studio_markers) ----------------------------------
-MARKER_DEFAULTS = {"count": 40, "part": "body"}
-_TAKES: BoundedCache[str, tuple] = BoundedCache(4)  # fingerprint -> (layout, captured), this process
-
-
-def marker_options(raw: Mapping[str, Any] | None, where: str) -> tuple[int, str, uuo.MarkerFaults]:
-    """(marker count, body part, capture faults) from a ``markers`` mapping, checked."""
-    from mocapflow.tasks.shared.mesh_body import PARTS
-
-    raw = {**MARKER_DEFAULTS, **(raw or {})}
-    fields = {f.name: f for f in dataclasses.fields(uuo.MarkerFaults)}
-    for key in raw:
-        if key not in fields and key not in MARKER_DEFAULTS:
-            known = sorted(set(fields) | set(MARKER_DEFAULTS))
-            raise CatalogError(f"{where}: unknown markers field {key!r}{did_you_mean(key, known)}; fields: {known}")
-    count = coerce(raw["count"], int, f"{where}.count")
-    if count < 1 or raw["part"] not in PARTS:
-        raise CatalogError(f"{where}: markers need count >= 1 (got {count}) and a part among {sorted(PARTS)} "
-                           f"(got {raw['part']!r})")
-    hints = typing.get_type_hints(uuo.MarkerFaults)
-    values = {k: coerce(tuple(v) if isinstance(v, list) else v, hints[k], f"{where}.{k}")
-              for k, v in raw.items() if k in fields}
-    try:
-        return count, str(raw["part"]), uuo.MarkerFaults(**values)
-    except (ValueError, TypeError) as exc:
-        raise CatalogError(f"{where}: {exc}") from exc
-
-
-def discover_markers(catalog, dataset) -> list:
-    """A studio_markers dataset's sequences: mesh-body takes recorded as unlabelled markers."""
-    from mocapflow.pipeline.datasets import SequenceInfo
-
-    opts = dataset.options
-    sequences = opts.get("sequences") or {}
-    if not isinstance(sequences, dict) or not sequences:
-        raise CatalogError(f"{dataset.where}: a studio_markers dataset needs 'sequences: {{id: {{motion: ...}}}}'")
+        raise CatalogError(f"{dataset.where}: a {kind} dataset needs 'sequences: {{id: {{motion: ...}}}}'")
     out = []
     for seq_id, body in sequences.items():
         where = f"{dataset.where}.sequences.{seq_id}"
         fields = {**(opts.get("defaults") or {}), **(body or {})}
-        markers = marker_options({**(opts.get("markers") or {}), **(fields.pop("markers", None) or {})}, where)
-        if fields.setdefault("body", "mesh") != "mesh":
-            raise CatalogError(f"{where}: unlabelled marker takes are filmed on the mesh body; drop 'body' or set it "
-                               "to mesh")
-        spec, text, source = make_spec(fields, where, lambda p, w=where: catalog.resolve_data_path(p, w))
-        fp = digest({"take": fingerprint(spec, text), "markers": [markers[0], markers[1], dataclasses.asdict(markers[2])]})
-        out.append(SequenceInfo(str(seq_id), (), frame_count(spec, text), fp,
-                                {"spec": spec, "source": source, "markers": markers}))
+        extra = {k: fields.pop(k) for k in EXTRA_KEYS if k in fields}
+        if mesh_only and fields.setdefault("body", "mesh") != "mesh":
+            raise CatalogError(f"{where}: {kind} takes are filmed on the mesh body; drop 'body' or set it to mesh")
+        fields.update(forced or {})
+        spec = make_spec(fields, where, lambda p, w=where: catalog.resolve_data_path(p, w), layout)
+        out.append((str(seq_id), where, extra, spec))
     return out
 
 
-def read_markers(dataset, seq, start: int, stop: int):
-    rig = rig_for(seq)
-    count, part, faults = seq.spec["markers"]
-
-    def record():
-        layout = uuo.layout(rig.body, np.random.default_rng([rig.spec.seed, 3]), count, part)
-        paths = uuo.marker_paths(rig.body, layout, rig.take.posed.vertices[:rig.n_frames])
-        return layout, uuo.capture(paths, faults, np.random.default_rng([rig.spec.seed, 4]))
-
-    layout, captured = _TAKES.get_or_make(seq.fingerprint, record)
-    return uuo.marker_dataset(rig.body, layout, captured, rig.take, rig.spec.fps, start, stop)
+EXTRA_KEYS = ("markers",)  # sequence keys a filming module reads itself (UUO's marker layout)

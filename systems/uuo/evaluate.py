@@ -18,7 +18,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from mocapflow.pipeline.catalog import stage_writing
 from mocapflow.pipeline.errors import PlanError
+from mocapflow.pipeline.evaluate import format_rows
+from mocapflow.pipeline.registry import Evaluator
 from mocapflow.tasks.shared.mesh_body import Phenotype, mesh_body, part_of_bone, pose_mesh
 from mocapflow.tasks.uuo import metrics
 
@@ -78,10 +81,24 @@ def score_take(truth_of: dict, solved) -> dict:
     return out
 
 
+def uuo_stages(catalog) -> list[str]:
+    """The bodies a UUO catalog ends with: those choosing among hypotheses, and baselines no stage reads on."""
+    read = {up for s in catalog.stages.values() for up in s.inputs.values()}
+    return [s.name for s in catalog.stages.values() if s.spec.output == "uuo_body"
+            and ("uuo_body" in s.spec.inputs.values() or s.name not in read)]
+
+
+def applies(catalog) -> bool:
+    return bool(uuo_stages(catalog))
+
+
+def evaluate(catalog, plan, store, per_sequence: dict, thorough: bool = True) -> dict:
+    """The UUO figures of `mocapflow evaluate` (``result["uuo"]``)."""
+    return {"uuo": evaluate_uuo(catalog, plan, store, uuo_stages(catalog), per_sequence)}
+
+
 def evaluate_uuo(catalog, plan, store, stages: list[str], per_sequence: dict) -> dict:
     """Figures per UUO stage: overall (mean over takes), per layout and per take."""
-    from mocapflow.pipeline.evaluate import stage_writing
-
     reference = catalog.evaluation.get("uuo_reference")
     if reference is not None:  # recorded takes: no truth, a labelled reference
         return evaluate_against_reference(catalog, plan, store, stages, str(reference), per_sequence)
@@ -120,7 +137,7 @@ def uuo_headline(result: dict) -> dict:
     """`--json` figures: the first UUO stage's as uuo_*, per layout as uuo_<layout>_mpjpe_mm; other stages
     (ablations, baselines) as uuo_<stage>_mpjpe_mm."""
     out = {}
-    for i, (stage, r) in enumerate(result.items()):
+    for i, (stage, r) in enumerate(result.get("uuo", {}).items()):
         o = r["overall"]
         if "reference" in r:  # recorded takes against their labelled reference
             out.update({f"uuo_real_{stage}_{k}": o[k] for k in ("mpjpe_mm", "m2s_mm", "consistency")})
@@ -136,8 +153,9 @@ def uuo_headline(result: dict) -> dict:
 
 
 def uuo_table(result: dict) -> list[str]:
-    from mocapflow.pipeline.evaluate import _format
-
+    if "uuo" not in result:
+        return []
+    result = result["uuo"]
     if any("reference" in r for r in result.values()):
         return reference_table(result)
     rows = [("UUO stage", "layout", "takes", "MPJPE mm", "part MPJPE", "MPJVE mm/frame", "V2V mm", "m2s mm (truth)",
@@ -149,13 +167,13 @@ def uuo_table(result: dict) -> list[str]:
                          "-" if np.isnan(part) else f"{part:.1f}", f"{lr['mpjve_mm']:.2f}", f"{lr['v2v_mm']:.1f}",
                          f"{lr['m2s_mm']:.1f} ({lr['m2s_truth_mm']:.1f})", f"{lr['labelled']:.0%}",
                          f"{lr['part_right']:.0%}"))
-    lines = _format(rows)
+    lines = format_rows(rows)
     stage_rows = [("UUO stage", "after matching", "pose fit", "IK", "refined")]
     for stage, r in result.items():
         s = r["overall"]["stages_mpjpe_mm"]
         stage_rows.append((stage, *(f"{s[k]:.1f}" if k in s and np.isfinite(s[k]) else "-"
                                     for k in ("matching", "pose_fit", "ik", "refined"))))
-    return lines + ["", "MPJPE (mm) after each solver stage (Table 4)"] + _format(stage_rows)
+    return lines + ["", "MPJPE (mm) after each solver stage (Table 4)"] + format_rows(stage_rows)
 
 
 # ---- recorded takes: the unlabelled solves against the labelled reference (the paper's "labelled markers" row) ----
@@ -243,8 +261,6 @@ def evaluate_against_reference(catalog, plan, store, stages: list[str], referenc
 
 
 def reference_table(result: dict) -> list[str]:
-    from mocapflow.pipeline.evaluate import _format
-
     rows = [("UUO stage", "take", "MPJPE mm", "MPJVE mm/frame", "V2V mm", "m2s mm (reference)", "labels",
              "consistency", "agrees with reference")]
     for stage, r in result.items():
@@ -252,4 +268,7 @@ def reference_table(result: dict) -> list[str]:
             rows.append((stage, take, f"{t['mpjpe_mm']:.1f}", f"{t['mpjve_mm']:.2f}", f"{t['v2v_mm']:.1f}",
                          f"{t['m2s_mm']:.1f} ({t['m2s_reference_mm']:.1f})", str(t.get("labels", "-")),
                          f"{t['consistency']:.0%}", f"{t['agreement']:.0%}"))
-    return [f"against the labelled reference ({next(iter(result.values()))['reference']})"] + _format(rows)
+    return [f"against the labelled reference ({next(iter(result.values()))['reference']})"] + format_rows(rows)
+
+
+EVALUATOR = Evaluator("uuo", applies, evaluate, uuo_headline, uuo_table)

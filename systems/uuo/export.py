@@ -7,7 +7,7 @@ a report page.
   POINT:DESCRIPTIONS keeps each trajectory's id. Point residuals are 0 (solved data, no measurement residual),
   -1 where a trajectory has no sample.
 - BVH: Anny's whole rig as solved (every bone, the phenotype's rest offsets), in the BVH convention of
-  pipeline/export.py (Y up, facing +Z, centimetres, ZXY rotations). A bone's BVH rotation is its world rotation
+  formats/bvh.py (Y up, facing +Z, centimetres, ZXY rotations). A bone's BVH rotation is its world rotation
   from its rest orientation relative to its parent's, so the file's forward kinematics give the solved bone
   heads exactly.
 - report: ``<sequence>/report.html`` with PNGs: the markers on the solved mesh from the front and the side of one
@@ -24,7 +24,11 @@ import numpy as np
 import xarray as xr
 from scipy.spatial.transform import Rotation
 
-from mocapflow.pipeline.report import FONT, WHITE, _colour, bar_chart, line_plot, write_html, write_png
+from mocapflow.formats import bvh, c3d
+from mocapflow.pipeline.catalog import stage_writing
+from mocapflow.pipeline.export import UNIT_SCALE, target, write_atomically
+from mocapflow.pipeline.registry import ExportJob, Exporter
+from mocapflow.pipeline.report import FONT, WHITE, bar_chart, colour, line_plot, write_html, write_png
 from mocapflow.tasks.shared.body import JOINT_NAMES
 from mocapflow.tasks.shared.mesh_body import PARTS, Phenotype, mesh_body, pose_mesh
 
@@ -39,23 +43,20 @@ def marker_labels(solved: xr.Dataset) -> list[str]:
 
 def write_uuo_c3d(solved: xr.Dataset, markers: xr.Dataset, path: Path) -> None:
     """The take's trajectories labelled by the solve, as a float C3D (see the module's text)."""
-    from mocapflow.pipeline.export import UNIT_SCALE, _write, _write_c3d, c3d_scale
-
     xyz = markers["position"].transpose("frame", "marker", "xyz").values.astype(np.float64) * UNIT_SCALE
     if list(markers["marker"].values) != list(solved["marker"].values):
         raise ValueError("the solve's trajectories are not its markers input's")  # internal: the stage's own input
     word4 = np.where(np.isfinite(xyz).all(-1), 0, -1)
-    scale = c3d_scale(xyz, np.zeros(xyz.shape[:2]))
+    scale = c3d.c3d_scale(xyz, np.zeros(xyz.shape[:2]))
     names = marker_labels(solved)
     ids = [str(m) for m in markers["marker"].values]
 
-    _write(path, lambda p: _write_c3d(p, xyz, names, float(markers.attrs["fps"]), scale, word4, descriptions=ids))
+    write_atomically(path, lambda p: c3d.write_points(p, xyz, names, float(markers.attrs["fps"]), scale, word4,
+                                                     descriptions=ids), ".c3d")
 
 
 def rig_bvh_text(solved: xr.Dataset) -> str:
     """BVH text of the solved Anny rig (see the module's text)."""
-    from mocapflow.pipeline.export import bvh_core
-
     body = mesh_body(Phenotype(**solved.attrs["phenotype"]))
     parents = body.bone_parents
     offsets = body.rest_heads - np.where(parents[:, None] >= 0, body.rest_heads[np.maximum(parents, 0)], 0.0)
@@ -66,15 +67,13 @@ def rig_bvh_text(solved: xr.Dataset) -> str:
     local[:, child] = np.swapaxes(world[:, parents[child]], -1, -2) @ world[:, child]
     quats = Rotation.from_matrix(local.reshape(-1, 3, 3)).as_quat().reshape(local.shape[:2] + (4,))
     names = [name.replace(".", "_") for name in body.bone_names]
-    return bvh_core(names, parents, offsets, quats, solved["root"].values.astype(np.float64),
+    return bvh.bvh_text(names, parents, offsets, quats, solved["root"].values.astype(np.float64),
                     float(solved.attrs["fps"]))
 
 
 def write_uuo_bvh(solved: xr.Dataset, path: Path) -> None:
-    from mocapflow.pipeline.export import _write
-
     text = rig_bvh_text(solved)
-    _write(path, lambda p: p.write_text(text))
+    write_atomically(path, lambda p: p.write_text(text), ".bvh")
 
 
 def mesh_view(vertices: np.ndarray, faces: np.ndarray, markers: np.ndarray, marker_parts: list[str], axes: str,
@@ -112,7 +111,7 @@ def mesh_view(vertices: np.ndarray, faces: np.ndarray, markers: np.ndarray, mark
         if part == UNLABELLED:
             cv2.circle(img, at, 4, WHITE, 1, cv2.LINE_AA)
         else:
-            cv2.circle(img, at, 4, _colour(parts.index(part) if part in parts else 0, len(parts)), -1, cv2.LINE_AA)
+            cv2.circle(img, at, 4, colour(parts.index(part) if part in parts else 0, len(parts)), -1, cv2.LINE_AA)
     cv2.putText(img, title, (8, 18), FONT, 0.45, WHITE, 1, cv2.LINE_AA)
     return img
 
@@ -162,3 +161,57 @@ def write_report(folder: Path, sequence: str, stage: str, solved: xr.Dataset, ma
     write_html(page, title=f"UUO solve of {sequence} ({stage})", summary=summary, table="\n".join(lines),
                images=images, files=files)
     return page
+
+
+# ---- the exporters ----------------------------------------------------------------------------------------------
+
+def default_stage(catalog) -> str | None:
+    """The first UUO solve that chooses among hypotheses (the headline one of `mocapflow evaluate`)."""
+    return next((s.name for s in catalog.stages.values() if s.spec.output == "uuo_body"
+                 and "uuo_body" in s.spec.inputs.values()), None)
+
+
+def _markers(job: ExportJob) -> xr.Dataset:
+    """The trajectories the solve labelled: its ``markers`` input."""
+    return job.plan.open(job.store, job.catalog.stages[job.stage].inputs["markers"], job.sequence).load()
+
+
+def export_c3d(job: ExportJob) -> list[Path]:
+    path = target(job.out_dir, f"{job.sequence}.c3d")
+    write_uuo_c3d(job.data, _markers(job), path)
+    return [path]
+
+
+def export_bvh(job: ExportJob) -> list[Path]:
+    path = target(job.out_dir, f"{job.sequence}.bvh")
+    write_uuo_bvh(job.data, path)
+    return [path]
+
+
+def report_needs(catalog, stage: str) -> list[str]:
+    """The labelled reference a recorded take's report is scored against, where the catalog names one."""
+    reference = catalog.evaluation.get("uuo_reference")
+    return [str(reference)] if reference in catalog.stages else []
+
+
+def export_report(job: ExportJob) -> list[Path]:
+    """``<out>/<sequence>/report.html``: against the studio's truth where the take has it, else the labelled reference."""
+    catalog, plan, store = job.catalog, job.plan, job.store
+    truth, against = None, ""
+    raw_stage = stage_writing(catalog, "raw_markers")
+    raw = plan.open(store, raw_stage, job.sequence) if raw_stage else None
+    reference = catalog.evaluation.get("uuo_reference")
+    if raw is not None and "gt_joints" in raw:
+        truth, against = raw["gt_joints"].values.astype(np.float64), "the studio's truth"
+    elif reference in catalog.stages and reference != job.stage:
+        truth = plan.open(store, str(reference), job.sequence)["joints"].values.astype(np.float64)
+        against = f"the labelled reference ({reference})"
+    folder = target(job.out_dir, job.sequence)
+    return [write_report(folder, job.sequence, job.stage, job.data, _markers(job), truth, against, files=[])]
+
+
+EXPORTERS = (
+    Exporter("c3d", ("uuo_body",), export_c3d, default_stage=default_stage),
+    Exporter("bvh", ("uuo_body",), export_bvh, default_stage=default_stage),
+    Exporter("report", ("uuo_body",), export_report, default_stage=default_stage, needs=report_needs),
+)

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapflow.pipeline.errors import InputError
-from mocapflow.pipeline.marker_files import UNITS_M, UPS
+from mocapflow.systems.uuo.marker_files import UNITS_M, UPS
 from mocapflow.tasks.shared.body import JOINT_NAMES
 from mocapflow.tasks.shared.kinematics import Y_UP_TO_Z_UP
 

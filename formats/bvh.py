@@ -1,0 +1,64 @@
+"""BVH motion files as animation tools read them: Y up, centimetres, Euler angles ``Z X Y``.
+
+:func:`bvh_text` writes a skeleton given in mocapflow's Z-up world in metres (offsets from each parent, local
+rotations as quaternions x y z w, the root's position): each leaf is closed by an End Site continuing its bone, the
+root's channels are ``X/Y/Zposition Z/X/Yrotation`` (absolute: its OFFSET is 0 0 0), the others'
+``Z/X/Yrotation``. :func:`read_bvh_joints` reads any BVH file's joints back into that world (the parser is the
+studio's, tasks/studio/bvh.py).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from mocapflow.tasks.studio.bvh import parse_bvh
+
+BVH_SCALE = 100.0  # metres -> centimetres
+Z_UP_TO_Y_UP = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])  # the subject faces +Z
+
+
+def bvh_text(names: list[str], parents: np.ndarray, offsets: np.ndarray, quat: np.ndarray, root: np.ndarray,
+             fps: float) -> str:
+    """BVH text of a skeleton: offsets (joint, 3) m from the parent in mocapflow's Z-up world, local rotations
+    (frame, joint, 4) x y z w, root positions (frame, 3) m; written Y up, centimetres."""
+    offsets = offsets @ Z_UP_TO_Y_UP.T * BVH_SCALE
+    children = {j: [c for c in range(len(names)) if parents[c] == j] for j in range(len(names))}
+    lines, order = ["HIERARCHY"], []  # order: joints as the hierarchy lists them, the MOTION column order
+
+    def emit(j: int, depth: int) -> None:
+        order.append(j)
+        pad = "  " * depth
+        kind = "ROOT" if parents[j] < 0 else "JOINT"
+        chans = "6 Xposition Yposition Zposition Zrotation Xrotation Yrotation" if parents[j] < 0 else \
+            "3 Zrotation Xrotation Yrotation"
+        offset = np.zeros(3) if parents[j] < 0 else offsets[j]  # the root's position is all in its channels
+        lines.extend([f"{pad}{kind} {names[j]}", f"{pad}{{", f"{pad}  OFFSET {_numbers(offset)}",
+                      f"{pad}  CHANNELS {chans}"])
+        for c in children[j]:
+            emit(c, depth + 1)
+        if not children[j]:
+            lines.extend([f"{pad}  End Site", f"{pad}  {{", f"{pad}    OFFSET {_numbers(0.3 * offsets[j])}", f"{pad}  }}"])
+        lines.append(f"{pad}}}")
+
+    emit(int(np.flatnonzero(parents < 0)[0]), 0)
+    local = Z_UP_TO_Y_UP @ Rotation.from_quat(quat.reshape(-1, 4)).as_matrix() @ Z_UP_TO_Y_UP.T
+    euler = Rotation.from_matrix(local).as_euler("ZXY", degrees=True).reshape(quat.shape[:2] + (3,))  # R = Rz Rx Ry
+    motion = np.concatenate([root @ Z_UP_TO_Y_UP.T * BVH_SCALE, euler[:, order].reshape(len(euler), -1)], axis=1)
+    lines += ["MOTION", f"Frames: {len(motion)}", f"Frame Time: {1.0 / fps:.8f}"]
+    lines += [" ".join(f"{v:.5f}" for v in row) for row in motion]
+    return "\n".join(lines) + "\n"
+
+
+def _numbers(v: np.ndarray) -> str:
+    return " ".join(f"{x:.5f}" for x in v)
+
+
+def read_bvh_joints(path: Path) -> tuple[np.ndarray, list[str], float]:
+    """World joint positions (frame, joint, 3) in metres, Z up, of a BVH file, its joint names (no End Sites), rate."""
+    bvh = parse_bvh(path.read_text())
+    _, pos = bvh.forward_kinematics()
+    keep = [i for i, n in enumerate(bvh.names) if not n.endswith("_End")]
+    return pos[:, keep] @ Z_UP_TO_Y_UP / BVH_SCALE, [bvh.names[i] for i in keep], bvh.fps  # row @ M = M^T p

@@ -1,0 +1,25 @@
+"""The checkerboard suit (Chen, Park, Macit, Kavan 2021): coded squares seen by many grey cameras -> labelled
+corners -> triangulated, holes filled.
+
+Everything the system adds to the engine, declared in one place: its task specs (tasks.py), schemas, evaluator
+(evaluate.py), exporters (export.py: c3d, ply) and the reader of its trained networks. Its takes come from the
+studio (systems/studio, kind ``studio_suit``); its drawings for figures are in report.py. The kernels are in
+tasks/suit.
+"""
+
+from mocapflow.pipeline.registry import System
+from mocapflow.schemas import suit
+from mocapflow.systems.suit import evaluate, export, tasks
+from mocapflow.tasks.shared.weights import unpack
+
+SYSTEM = System(
+    name="suit",
+    description="a checkerboard suit of coded squares filmed by grey cameras; labelled corners, triangulated, filled",
+    tasks=tasks.TASKS,
+    schemas=(suit.SUIT_IMAGES, suit.SUIT_CORNERS, suit.SUIT_QUADS, suit.SUIT_CODES, suit.SUIT_LABELS,
+             suit.SUIT_POINTS, suit.SUIT_FILLED, suit.SUIT_NET_WEIGHTS, suit.SUIT_CORNER_SAMPLES,
+             suit.SUIT_QUAD_SAMPLES),
+    evaluators=(evaluate.EVALUATOR,),
+    exporters=export.EXPORTERS,
+    weights={"suit_net_weights": unpack},
+)

@@ -1,0 +1,59 @@
+"""The studio's core: a take, what every system films.
+
+A take is a subject, a motion and the posed mesh of every frame, with the ground truth that follows from them:
+``make_take`` draws the Anny body from the sequence's seed (its own random stream, ``[seed, 2]``), makes the
+template subject of the same height perform the motion (an exercise, or a BVH clip retargeted onto it) and
+skins the whole motion onto the mesh. Each system's filming module then turns a take into that system's raw
+dataset: the DeepMoCap sensors (synth.py, mesh_synth.py), a UUO marker layout (uuo_takes.py), the suit's grey
+cameras (suit_takes.py). Nothing here places reflectors or cameras.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mocapflow.tasks.shared import body
+from mocapflow.tasks.shared.mesh_body import MeshBody, mesh_body, random_phenotype
+from mocapflow.tasks.studio import bvh, mesh_motion, motion
+
+
+@dataclass(frozen=True)
+class Take:
+    spec: object  # synth.SequenceSpec: the motion, frames, fps and seed of the take
+    body: MeshBody  # the subject's mesh body
+    subject: body.Subject  # the template body of the same height that performs the motion
+    motion: motion.Motion  # the template's motion, n_frames + 1 frames (the extra one gives the last frame's flow)
+    mesh: mesh_motion.MeshTake  # the motion skinned onto the mesh, n_frames + 1 frames
+
+    @property
+    def n_frames(self) -> int:
+        return self.mesh.root.shape[0] - 1
+
+
+def mesh_subject(spec) -> tuple[MeshBody, body.Subject]:
+    """The take's Anny body (from its own random stream ``[seed, 2]``) and the template subject of its height."""
+    body_ = mesh_body(random_phenotype(np.random.default_rng([spec.seed, 2]), spec.subject_height))
+    return body_, body.Subject(height=body_.height)
+
+
+def performed_motion(spec, subject: body.Subject, bvh_text: str | None) -> motion.Motion:
+    """The motion ``subject`` performs, n_frames + 1 frames: the BVH clip retargeted (``spec.motion == "bvh"``),
+    else the procedural exercise."""
+    if spec.motion == "bvh":
+        if bvh_text is None:
+            raise ValueError("motion 'bvh' needs the clip's text")
+        frames = None if spec.frames is None else spec.frames + 1
+        return bvh.retarget(bvh.parse_bvh(bvh_text), subject, fps=spec.fps, n_frames=frames, start_s=spec.start_s,
+                            label=spec.label or "bvh", user_map=spec.motion_map)
+    return motion.exercise(spec.motion, subject, n_frames=(spec.frames or 90) + 1, fps=spec.fps, speed=spec.speed,
+                           amplitude=spec.amplitude, repetitions=spec.repetitions, heading_deg=spec.heading_deg,
+                           variation=spec.variation, seed=spec.seed)
+
+
+def make_take(spec, bvh_text: str | None = None) -> Take:
+    """The take ``spec`` describes, on the mesh body."""
+    body_, subject = mesh_subject(spec)
+    mot = performed_motion(spec, subject, bvh_text)
+    return Take(spec, body_, subject, mot, mesh_motion.retarget(body_, subject, mot))
