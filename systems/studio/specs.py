@@ -153,7 +153,7 @@ def check_clip(spec: SequenceSpec, bvh_text: str, source: MotionSource, where: s
                "write that map as YAML and name it in the sequence or its dataset's defaults, motion_map: my_map.yaml "
                "(mocapflow synth: --motion-map my_map.yaml)")
         raise InputError(f"{where}: the skeleton of {source} cannot be retargeted onto the template: {exc}; "
-                         f"{fix} (see the README's 'Motion files')") from exc
+                         f"{fix} (see docs/studio.md, 'Motion files')") from exc
     available = bvh_mod.available_frames(clip, spec.fps, spec.start_s)
     needed = 2 if spec.frames is None else spec.frames + 1  # one more frame gives the last one's scene flow
     if spec.start_s < 0 or available < needed:
