@@ -188,14 +188,49 @@ def parse_bvh(text: str) -> BVH:
     take("Frame")
     take("Time:")
     frame_time = number(*take())
-    values = np.array([number(tok, ln) for tok, ln in it])
+    rest = list(it)
+    values = np.array([number(tok, ln) for tok, ln in rest])
     width = sum(len(c) for c in channels)
-    if n_frames <= 0 or frame_time <= 0:
+    if not (n_frames > 0 and frame_time > 0 and np.isfinite(frame_time)):
         raise BVHError(f"Frames ({n_frames}) and Frame Time ({frame_time}) must be positive")
     if values.size != n_frames * width:
         raise BVHError(f"MOTION holds {values.size} numbers, expected Frames {n_frames} x {width} channels")
-    return BVH(tuple(names), np.array(parents), np.array(offsets, float), tuple(channels), frame_time,
+    clip = BVH(tuple(names), np.array(parents), np.array(offsets, float), tuple(channels), frame_time,
                values.reshape(n_frames, width))
+    _check_numbers(clip, [ln for _, ln in rest])
+    return clip
+
+
+# A translation farther than this many times the skeleton's own size from the origin is no motion capture (a body
+# of 1.7 m: 1.7 km); unit-free, so inches, centimetres and millimetres alike. Rotations beyond MAX_ANGLE_DEG (278
+# turns) are a broken export, not unwrapped Euler angles.
+MAX_TRANSLATION_SIZES = 1e3
+MAX_ANGLE_DEG = 1e5
+
+
+def _check_numbers(clip: BVH, lines: list[int]) -> None:
+    """Raise BVHError naming the first non-finite or absurd OFFSET or MOTION value: its line, frame, joint, channel."""
+    bad = np.flatnonzero(~np.isfinite(clip.offsets).all(axis=1))
+    if len(bad):
+        j = int(bad[0])
+        raise BVHError(f"the OFFSET of {clip.names[j]} is {clip.offsets[j].tolist()}: offsets must be finite numbers; "
+                       "fix the skeleton in the exporter")
+    size = max(float(np.ptp(rest_positions(clip), axis=0).max()), 1e-9)
+    owner = [(j, c) for j, chans in enumerate(clip.channels) for c in chans]  # each column's joint and channel
+    limit = np.array([MAX_ANGLE_DEG if c.endswith("rotation") else MAX_TRANSLATION_SIZES * size for _, c in owner])
+    wrong = ~np.isfinite(clip.data) | (np.abs(clip.data) > limit)
+    if not wrong.any():
+        return
+    frame, col = (int(i) for i in np.argwhere(wrong)[0])
+    j, chan = owner[col]
+    value = float(clip.data[frame, col])
+    what = ("a rotation must be a finite angle in degrees, within +-{:g}".format(MAX_ANGLE_DEG)
+            if chan.endswith("rotation") else
+            f"a position must be finite and within {MAX_TRANSLATION_SIZES:g} times the skeleton's size "
+            f"({MAX_TRANSLATION_SIZES * size:g} of the file's units) of the origin")
+    raise BVHError(f"line {lines[frame * clip.data.shape[1] + col]}: frame {frame} (0 = the first), joint "
+                   f"{clip.names[j]}, channel {chan} is {value!r}, and {wrong.sum()} value(s) in all are so: {what}; "
+                   "re-export the clip, or cut the broken frames out")
 
 
 def format_bvh(clip: BVH) -> str:

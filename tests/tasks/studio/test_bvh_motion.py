@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 
 import numpy as np
 import pytest
@@ -62,6 +63,41 @@ def test_walk_moves_forward_and_jumping_jacks_leave_the_ground():
 def test_malformed_bvh_is_a_clear_error(text, message):
     with pytest.raises(bvh.BVHError, match=message):
         bvh.parse_bvh(text)
+
+
+TWO_JOINTS = ("HIERARCHY\nROOT Hips\n{\nOFFSET 0 0 0\nCHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation "
+              "Yrotation\nJOINT Knee\n{\nOFFSET 0 -40 0\nCHANNELS 3 Zrotation Xrotation Yrotation\nEnd Site\n{\n"
+              "OFFSET 0 -40 0\n}\n}\n}\nMOTION\nFrames: 3\nFrame Time: 0.1\n")  # 80 units tall: positions within 8e4
+
+
+def two_joint_clip(bad_column: int, value: str) -> tuple[str, int]:
+    """The clip's text with frame 2's ``bad_column`` set to ``value``, and the line it is on."""
+    rows = ["0 90 0 0 0 0 0 0 0"] * 3
+    row = rows[2].split()
+    row[bad_column] = value
+    rows[2] = " ".join(row)
+    text = TWO_JOINTS + "\n".join(rows) + "\n"
+    return text, len(TWO_JOINTS.splitlines()) + 3
+
+
+@pytest.mark.parametrize("column,value,where", [
+    (7, "nan", "joint Knee, channel Xrotation is nan"),
+    (0, "1e308", "joint Hips, channel Xposition is 1e+308"),
+    (5, "-inf", "joint Hips, channel Yrotation is -inf"),
+    (1, "90000", "joint Hips, channel Yposition is 90000.0"),  # beyond 1000 skeleton sizes (8e4)
+    (6, "2e5", "joint Knee, channel Zrotation is 200000.0"),  # beyond 1e5 degrees
+])
+def test_a_non_finite_or_absurd_motion_value_is_refused_naming_its_line_frame_joint_and_channel(column, value, where):
+    text, line = two_joint_clip(column, value)
+    with pytest.raises(bvh.BVHError, match=rf"^line {line}: frame 2 \(0 = the first\), {re.escape(where)}, and 1 value"):
+        bvh.parse_bvh(text)
+    ok, _ = two_joint_clip(column, "70000" if column < 3 else "9e4")  # within the bounds: read as written
+    assert bvh.parse_bvh(ok).data[2, column] == float("70000" if column < 3 else "9e4")
+
+
+def test_a_non_finite_offset_is_refused_naming_its_joint():
+    with pytest.raises(bvh.BVHError, match=r"the OFFSET of Knee is \[0.0, nan, 0.0\]: offsets must be finite"):
+        bvh.parse_bvh(two_joint_clip(0, "0")[0].replace("OFFSET 0 -40 0\nCHANNELS", "OFFSET 0 nan 0\nCHANNELS"))
 
 
 def test_non_cmu_skeleton_is_rejected():
