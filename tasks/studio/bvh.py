@@ -6,7 +6,8 @@ the smallest rotation that makes the template bone point where the BVH bone poin
 rest pose is a T-pose (Mixamo's) thus transfers exactly; another rest pose (CMU's splayed legs) is
 absorbed by the correction. The template keeps its own bone lengths (so they are constant), the root
 translation is scaled by the ratio of leg lengths (so the file's unit drops out: inches, centimetres or
-metres alike), the clip is centred on the capture centre, and a constant height offset puts the lowest
+metres alike), the frames filmed (the window ``start_s``/``n_frames`` cuts, after resampling; the whole clip's
+samples when it is filmed whole) are centred on the capture centre, and a constant height offset puts the lowest
 foot contact on the floor. Files are Y up (the format's convention); the facing comes from the rest pose.
 
 Which BVH joint drives which template joint is a joint map: CMU's two cgspeed namings (``CMU_MAP``,
@@ -435,8 +436,12 @@ def retarget(bvh: BVH, subject: Subject, *, fps: float = 30.0, n_frames: int | N
             local[:, j] = np.swapaxes(glob[:, parent], 1, 2) @ glob[:, j]
     scale = _leg_length(offsets) / _leg_length_bvh(pos[0], index[hip], index[knee], index[ankle])
     root = pos[:, index[mapping["Hips"][1]]] * scale
-    root[:, :2] -= root[:, :2].mean(axis=0)
+    whole = n_frames is None and start_s == 0
+    if whole:
+        root[:, :2] -= root[:, :2].mean(axis=0)
     local, root = _resample(local, root, bvh.fps, fps, n_frames, start_s)
+    if not whole:  # a window of the clip: centre the frames filmed, not the whole clip (a travelling clip wanders off)
+        root[:, :2] -= root[:, :2].mean(axis=0)
     root = root + np.array([0, 0, offsets[0, 2] - root[:, 2].mean()])
     root[:, 2] -= lowest_foot_point(local, root, subject).min()
     return Motion(local, root, fps, label)

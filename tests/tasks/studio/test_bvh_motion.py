@@ -10,7 +10,7 @@ import pytest
 from conftest import SHARED
 from shared_data import cmu_clips
 from mocapflow.tasks.shared import body, kinematics
-from mocapflow.tasks.studio import bvh, motion
+from mocapflow.tasks.studio import bvh, cameras, motion
 
 CLIPS = cmu_clips()
 
@@ -48,6 +48,20 @@ def test_walk_moves_forward_and_jumping_jacks_leave_the_ground():
     assert walk.root_pos[-1, 1] - walk.root_pos[0, 1] > 2.0
     jj = bvh.retarget(bvh.parse_bvh((SHARED / "motions" / "cmu_14_14_jumping_jacks.bvh").read_text()), subject)
     assert motion.lowest_foot_point(jj.local_rot, jj.root_pos, subject).max() > 0.05
+
+
+@pytest.mark.needs_shared
+def test_a_window_of_a_travelling_clip_is_centred_where_it_is_filmed():
+    subject = body.Subject(1.7)
+    walk = bvh.parse_bvh((SHARED / "motions" / "cmu_12_01_walk.bvh").read_text())
+    window = bvh.retarget(walk, subject, fps=30, n_frames=61, start_s=0.0)
+    np.testing.assert_allclose(window.root_pos[:, :2].mean(axis=0), [0, 0], atol=1e-9)
+    whole = bvh.retarget(walk, subject, fps=30)  # the same frames, centred on the whole walk (the old way)
+    np.testing.assert_allclose(whole.local_rot[:61], window.local_rot, atol=1e-12)  # only the placement differs
+    assert whole.root_pos[:61, 1].mean() < -1.0  # the walk's first two seconds: over a metre behind the centre
+    seen = cameras.outside_share(cameras.layout(), joints(window, subject))
+    assert seen.max() < 0.01  # the default ring sees the subject (a toe may graze an image's edge)
+    assert cameras.outside_share(cameras.layout(), joints(whole, subject)[:61]).max() > 0.25  # as it did not
 
 
 @pytest.mark.parametrize("text,message", [

@@ -9,6 +9,7 @@ from mocapflow.tasks.shared import body, kinematics
 from mocapflow.tasks.studio import bvh
 from motion_files import USER_MAP, mixamo_text
 
+
 def template_joints(motion, subject):
     return kinematics.forward_kinematics(motion.local_rot, motion.root_pos, body.rest_offsets(subject), body.PARENTS)
 
@@ -96,3 +97,28 @@ def test_a_skeleton_that_is_not_y_up_is_refused():
     lying = mixamo_text().replace("OFFSET 0 -45 0", "OFFSET 0 0 45").replace("OFFSET 0 -43 0", "OFFSET 0 0 43")
     with pytest.raises(bvh.BVHError, match=r"not upright along \+Y .* export the clip Y up"):
         bvh.joint_map(bvh.parse_bvh(lying))
+
+
+def travelling(clip: bvh.BVH, frames: int, metres: float) -> bvh.BVH:
+    """``clip``'s T-pose walked ``metres`` forward (+Z, the file's facing) over ``frames`` frames, after a leading
+    T-pose frame (dropped by retarget)."""
+    data = np.tile(clip.data[1], (frames + 1, 1))
+    data[1:, 2] = np.linspace(0, metres * 100, frames)  # the root's Zposition, centimetres
+    return bvh.BVH(clip.names, clip.parents, clip.offsets, clip.channels, clip.frame_time, data)
+
+
+def test_a_window_is_centred_on_its_own_frames_and_a_whole_clip_on_all_of_them():
+    subject = body.Subject(1.75)
+    clip = travelling(bvh.parse_bvh(mixamo_text()), 121, 8.0)  # 4 s at 30 fps, 8 m forward
+    leg = np.linalg.norm(body.rest_offsets(subject)[[body.JOINT_INDEX["LeftKnee"], body.JOINT_INDEX["LeftAnkle"]]],
+                         axis=1).sum()
+    scale = leg / 88.0  # the template's leg over the file's (45 + 43 cm)
+    whole = bvh.retarget(clip, subject, fps=30.0)
+    np.testing.assert_allclose(whole.root_pos[[0, -1], 1], [-400 * scale, 400 * scale], atol=1e-9)
+    for start_s, n in ((0.0, 31), (2.5, 31), (1.0, 90)):
+        window = bvh.retarget(clip, subject, fps=30.0, n_frames=n, start_s=start_s)
+        np.testing.assert_allclose(window.root_pos[:, :2].mean(axis=0), [0, 0], atol=1e-9)
+        k = int(round(start_s * 30))  # the same frames, moved by where their middle was in the whole clip
+        np.testing.assert_allclose(window.root_pos[:, :2] - whole.root_pos[k:k + n, :2],
+                                   [[0, -whole.root_pos[k:k + n, 1].mean()]] * n, atol=1e-9)
+        np.testing.assert_allclose(window.root_pos[:, 2], whole.root_pos[k:k + n, 2], atol=1e-12)
