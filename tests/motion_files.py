@@ -1,4 +1,5 @@
-"""Small motion files written by hand for the tests: a Mixamo-style BVH clip (and, below, an ASF/AMC pair)."""
+"""Small motion files written by hand for the tests: a Mixamo-style BVH clip (and, below, an ASF/AMC pair and a
+clip shaped like Bandai Namco's research set)."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ import re
 import warnings
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 # A Mixamo-style skeleton, written by hand: zero rotation is a T-pose (arms along +-X), Y up, facing +Z, centimetres.
 # Its bones point where the template's do at rest (the neck leans back 1 in 27, the foot runs 11.5 forward, 3 down).
@@ -239,8 +241,6 @@ def _lying_bones():
 def lying_text(lying: bool = True) -> str:
     """The clip as Bandai Namco's set writes it (``lying``), or as the same motion of the same skeleton standing at
     zero rotation with three rotation channels per joint (its End Sites of zero length too)."""
-    from scipy.spatial.transform import Rotation  # noqa: PLC0415  (only these clips need it)
-
     bones = _lying_bones()
     stand = Rotation.from_euler("z", 90 if lying else 0, degrees=True)  # the zero pose turned up: X -> Y
     children = {}
