@@ -1,8 +1,13 @@
-"""Small motion files written by hand for the tests: a Mixamo-style BVH clip (and, below, an ASF/AMC pair)."""
+"""Small motion files written by hand for the tests: a Mixamo-style BVH clip (and, below, an ASF/AMC pair and a
+clip shaped like Bandai Namco's research set)."""
 
 from __future__ import annotations
 
 import re
+import warnings
+
+import numpy as np
+from scipy.spatial.transform import Rotation
 
 # A Mixamo-style skeleton, written by hand: zero rotation is a T-pose (arms along +-X), Y up, facing +Z, centimetres.
 # Its bones point where the template's do at rest (the neck leans back 1 in 27, the foot runs 11.5 forward, 3 down).
@@ -202,3 +207,71 @@ def cmu_amc_text() -> str:
         lines += [str(k), "root " + " ".join(map(str, frame.get("root", (0, 90, 0, 0, 0, 0))))]
         lines += [f"{name} " + " ".join(map(str, frame.get(name, (0,) * len(dof)))) for name, *_, dof in bones if dof]
     return "\n".join(lines) + "\n"
+
+
+# A skeleton shaped like the Bandai Namco research motion set's: every joint has six channels (a non-root joint's
+# position channels hold its offset), every End Site has zero length, and the zero pose lies along +X (the root's
+# rotation stands the subject up: the clip itself is Y up). Written here standing (a T-pose, Y up, facing +Z, its
+# left at +X, centimetres): (joint, parent, offset); the right side mirrors the left.
+LYING_BONES = [("joint_Root", None, (0, 0, 0)), ("Hips", "joint_Root", (0, 95, 0)), ("Spine", "Hips", (0, 10, 0)),
+               ("Chest", "Spine", (0, 15, -0.5)), ("Neck", "Chest", (0, 25, -0.5)), ("Head", "Neck", (0, 10, 0.5)),
+               ("Shoulder_L", "Chest", (7, 20, -0.5)), ("UpperArm_L", "Shoulder_L", (10, 0, 0)),
+               ("LowerArm_L", "UpperArm_L", (28, 0, 0)), ("Hand_L", "LowerArm_L", (25, 0, 0)),
+               ("UpperLeg_L", "Hips", (9, -6, 0)), ("LowerLeg_L", "UpperLeg_L", (0, -42, 0)),
+               ("Foot_L", "LowerLeg_L", (0, -41, 0)), ("Toes_L", "Foot_L", (0, -5, 12))]
+LYING_MAP = {"Hips": "Hips", "SpineBase": "Spine", "Neck": "Neck", "Head": "Head",
+             **{f"{side}{joint}": f"{part}_{side[0]}" for side in ("Left", "Right")
+                for joint, part in (("Shoulder", "UpperArm"), ("Elbow", "LowerArm"), ("Wrist", "Hand"),
+                                    ("Hip", "UpperLeg"), ("Knee", "LowerLeg"), ("Ankle", "Foot"))}}
+# Frames, as each joint's rotation in the standing skeleton (scipy rotation vectors, degrees, the file's axes): a
+# relaxed T-pose (elbows bent 20 degrees forward), the right knee bent 90 degrees, a step 40 cm forward turned 90
+# degrees to the left (about +Y), the left arm raised 60 degrees.
+LYING_FRAMES = [{"LowerArm_L": (0, -20, 0), "LowerArm_R": (0, 20, 0)},
+                {"LowerArm_L": (0, -20, 0), "LowerArm_R": (0, 20, 0), "LowerLeg_R": (90, 0, 0)},
+                {"root": (0, 0, 40), "joint_Root": (0, 90, 0)},
+                {"UpperArm_L": (0, 0, 60)}]
+
+
+def _lying_bones():
+    mirrored = [(n.replace("_L", "_R"), p.replace("_L", "_R"), (-x, y, z))
+                for n, p, (x, y, z) in LYING_BONES if n.endswith("_L")]
+    return LYING_BONES + mirrored
+
+
+def lying_text(lying: bool = True) -> str:
+    """The clip as Bandai Namco's set writes it (``lying``), or as the same motion of the same skeleton standing at
+    zero rotation with three rotation channels per joint (its End Sites of zero length too)."""
+    bones = _lying_bones()
+    stand = Rotation.from_euler("z", 90 if lying else 0, degrees=True)  # the zero pose turned up: X -> Y
+    children = {}
+    for name, parent, _ in bones:
+        children.setdefault(parent, []).append(name)
+    order, lines = [], ["HIERARCHY"]
+
+    def write(name, offset, depth):
+        pad, six = "  " * depth, lying or depth == 0
+        zero_pose = np.round(stand.inv().apply(offset), 9) + 0.0  # exact: 95, not 95 and 2e-14 beside it
+        lines.extend([pad + ("ROOT " if depth == 0 else "JOINT ") + name, pad + "{",
+                      f"{pad}  OFFSET " + " ".join(f"{v!r}" for v in zero_pose.tolist()),
+                      f"{pad}  CHANNELS {6 if six else 3} " + ("Xposition Yposition Zposition " if six else "")
+                      + "Zrotation Yrotation Xrotation"])
+        order.append((name, zero_pose, six))
+        for child in children.get(name, []):
+            write(child, next(o for n, _, o in bones if n == child), depth + 1)
+        if name not in children:
+            lines.extend([f"{pad}  End Site", f"{pad}  {{", f"{pad}    OFFSET 0 0 0", f"{pad}  }}"])
+        lines.append(pad + "}")
+
+    write("joint_Root", (0, 0, 0), 0)
+    rows = []
+    for frame in LYING_FRAMES:
+        row = []
+        for name, zero_pose, six in order:
+            turn = Rotation.from_rotvec(frame.get(name, (0, 0, 0)), degrees=True)
+            local = turn * stand if name == "joint_Root" else stand.inv() * turn * stand  # Rz^T L Rz (parent's axes)
+            position = frame.get("root", (0, 0, 0)) if name == "joint_Root" else zero_pose
+            with warnings.catch_warnings():  # at gimbal lock scipy picks one of the equal decompositions
+                warnings.filterwarnings("ignore", message="Gimbal lock detected")
+                row += (list(position) if six else []) + local.as_euler("ZYX", degrees=True).tolist()
+        rows.append(" ".join(f"{float(v)!r}" for v in row))
+    return "\n".join(lines) + f"\nMOTION\nFrames: {len(rows)}\nFrame Time: {1 / 30!r}\n" + "\n".join(rows) + "\n"

@@ -36,6 +36,29 @@ def cmu_clips() -> list[Path]:
     return found or [MOTIONS / name for name in CMU_CLIPS]
 
 
+def reads_shared(path: Path) -> bool:
+    """Whether the catalog at ``path`` names files of the shared folder (``.../shared/data/...``): its datasets
+    cannot be discovered in a plain clone."""
+    return "shared/data/" in path.read_text()
+
+
+def catalog_param(root: Path, name: str):
+    """``name`` as a pytest parameter, marked ``needs_shared`` when the catalog ``root / name`` reads the shared
+    folder (see reads_shared)."""
+    path = root / name
+    marks = [pytest.mark.needs_shared] if path.is_file() and reads_shared(path) else []
+    return pytest.param(name, marks=marks, id=name)
+
+
+def skip_unless_beside_checkout(what: str) -> None:
+    """Skip a test of ``what`` (a shipped catalog, which names ``../shared`` beside the checkout) where
+    ``$MOCAPFLOW_SHARED_DATA`` points the tests at another copy: the catalog would not find it."""
+    beside = ROOT.parent / "shared" / "data"
+    if not beside.is_dir() or beside.resolve() != SHARED.resolve():
+        pytest.skip(f"{what} reads ../shared/data beside the checkout ({beside}), not the copy the tests read "
+                    f"({SHARED}); put the data there to run it")
+
+
 def missing() -> str | None:
     """What is missing of the shared data the tests read, or None."""
     if not MOTIONS.is_dir():

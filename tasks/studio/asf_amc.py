@@ -36,6 +36,7 @@ AXES = "xyz"
 ROTATIONS = ("rx", "ry", "rz")
 TRANSLATIONS = ("tx", "ty", "tz")
 CMU_FPS = 120.0
+MAX_TRANSLATION_SIZES = 1e3  # a root farther than this many skeleton sizes from the origin is a broken value
 
 
 class ASFError(ValueError):
@@ -95,6 +96,8 @@ def _numbers(n: int, tokens: list[str], count: int, what: str) -> np.ndarray:
         raise ASFError(f"line {n}: {what} must be {count} numbers, found {tokens[:count]}") from None
     if len(values) != count:
         raise ASFError(f"line {n}: {what} must be {count} numbers, found {tokens}")
+    if not np.isfinite(values).all():
+        raise ASFError(f"line {n}: {what} must be finite numbers, found {tokens[:count]}; fix the file's export")
     return values
 
 
@@ -229,12 +232,14 @@ def parse_amc(text: str, asf: ASF) -> np.ndarray:
     width = {b.name: len(b.dof) for b in asf.bones}
     columns = dict(zip(width, np.cumsum([0] + list(width.values()))[:-1]))
     total = sum(width.values())
-    unit, frames, filled = asf.angle_unit, [], []
+    unit, frames, filled, frame_numbers = asf.angle_unit, [], [], []
+    limit = MAX_TRANSLATION_SIZES * max(_size(asf), 1e-9)
     for n, tokens in _lines(text):
         if tokens[0].startswith(":"):
             flag = tokens[0].lower()
             unit = {":degrees": "deg", ":radians": "rad"}.get(flag, unit)
         elif len(tokens) == 1 and tokens[0].isdigit():
+            frame_numbers.append(tokens[0])
             frames.append(np.zeros(total))
             filled.append(set())
         elif not frames:
@@ -243,11 +248,8 @@ def parse_amc(text: str, asf: ASF) -> np.ndarray:
             raise ASFError(f"AMC line {n}: bone {tokens[0]!r} is not in the skeleton; is this the take's ASF?")
         else:
             name = tokens[0]
-            frames[-1][columns[name]:columns[name] + width[name]] = _numbers(n, tokens[1:], width[name],
-                                                                              f"bone {name}'s values")
-            if len(tokens) - 1 != width[name]:
-                raise ASFError(f"AMC line {n}: bone {name} has {width[name]} dof in the ASF, found "
-                               f"{len(tokens) - 1} values")
+            values = _amc_values(n, tokens, asf, width[name], frame_numbers[-1], limit)
+            frames[-1][columns[name]:columns[name] + width[name]] = values
             filled[-1].add(name)
     if not frames:
         raise ASFError("the AMC holds no frame")
@@ -259,6 +261,34 @@ def parse_amc(text: str, asf: ASF) -> np.ndarray:
     if unit == "deg":
         angles = [columns[b.name] + i for b in asf.bones for i, d in enumerate(b.dof) if d in ROTATIONS]
         values[:, angles] = np.radians(values[:, angles])
+    return values
+
+
+def _size(asf: ASF) -> float:
+    """The rest skeleton's largest extent along an axis, in the file's units."""
+    ends = np.zeros((len(asf.bones), 3))
+    for j, bone in enumerate(asf.bones):  # parents come first
+        ends[j] = bone.vector + (ends[asf.parents[j]] if asf.parents[j] >= 0 else 0)
+    return float(np.ptp(np.vstack([ends, np.zeros(3)]), axis=0).max())
+
+
+def _amc_values(n: int, tokens: list[str], asf: ASF, count: int, frame: str, limit: float) -> np.ndarray:
+    """A bone line's values, each finite and (a translation) within ``limit`` of the origin, else ASFError naming
+    the line, the AMC frame, the bone and the degree of freedom."""
+    name = tokens[0]
+    try:
+        values = np.array([float(t) for t in tokens[1:]])
+    except ValueError:
+        raise ASFError(f"AMC line {n}: bone {name}'s values must be {count} numbers, found {tokens[1:]}") from None
+    if len(values) != count:
+        raise ASFError(f"AMC line {n}: bone {name} has {count} dof in the ASF, found {len(values)} values")
+    dof = next(b.dof for b in asf.bones if b.name == name)
+    for value, d in zip(values.tolist(), dof):
+        if not np.isfinite(value) or (d in TRANSLATIONS and abs(value) > limit):
+            bound = (f"finite and within {limit:g} of the origin ({MAX_TRANSLATION_SIZES:g} times the skeleton's "
+                     "size)" if d in TRANSLATIONS else "a finite angle")
+            raise ASFError(f"AMC line {n}: frame {frame}, bone {name}, dof {d} is {value!r}: it must be {bound}; "
+                           "re-export the take, or cut the broken frames out")
     return values
 
 

@@ -1,13 +1,17 @@
 """BVH motion: parsing, forward kinematics, and retargeting onto the template body.
 
 Retargeting transfers each mapped bone's global rotation change from the file's own rest pose (every
-rotation channel at zero; the template's rest pose is a T-pose, arms along -X/+X), then corrects it by
+rotation channel at zero, or a frame of the clip where that zero pose does not stand: ``rest_frame``, see
+rest_pose; the template's rest pose is a T-pose, arms along -X/+X), then corrects it by
 the smallest rotation that makes the template bone point where the BVH bone points. A skeleton whose
 rest pose is a T-pose (Mixamo's) thus transfers exactly; another rest pose (CMU's splayed legs) is
 absorbed by the correction. The template keeps its own bone lengths (so they are constant), the root
 translation is scaled by the ratio of leg lengths (so the file's unit drops out: inches, centimetres or
-metres alike), the clip is centred on the capture centre, and a constant height offset puts the lowest
+metres alike), the frames filmed (the window ``start_s``/``n_frames`` cuts, after resampling; the whole clip's
+samples when it is filmed whole) are centred on the capture centre, and a constant height offset puts the lowest
 foot contact on the floor. Files are Y up (the format's convention); the facing comes from the rest pose.
+A bone ending at an End Site of zero length points along the bone into it (Bandai Namco's research set writes
+only such End Sites); any joint may carry position channels (they are its offset, frame by frame).
 
 Which BVH joint drives which template joint is a joint map: CMU's two cgspeed namings (``CMU_MAP``,
 ``CMU_MAP_ALT``), Mixamo's (``MIXAMO_NAMES``, with or without a ``mixamorig:``-style prefix), the CMU
@@ -188,14 +192,49 @@ def parse_bvh(text: str) -> BVH:
     take("Frame")
     take("Time:")
     frame_time = number(*take())
-    values = np.array([number(tok, ln) for tok, ln in it])
+    rest = list(it)
+    values = np.array([number(tok, ln) for tok, ln in rest])
     width = sum(len(c) for c in channels)
-    if n_frames <= 0 or frame_time <= 0:
+    if not (n_frames > 0 and frame_time > 0 and np.isfinite(frame_time)):
         raise BVHError(f"Frames ({n_frames}) and Frame Time ({frame_time}) must be positive")
     if values.size != n_frames * width:
         raise BVHError(f"MOTION holds {values.size} numbers, expected Frames {n_frames} x {width} channels")
-    return BVH(tuple(names), np.array(parents), np.array(offsets, float), tuple(channels), frame_time,
+    clip = BVH(tuple(names), np.array(parents), np.array(offsets, float), tuple(channels), frame_time,
                values.reshape(n_frames, width))
+    _check_numbers(clip, [ln for _, ln in rest])
+    return clip
+
+
+# A translation farther than this many times the skeleton's own size from the origin is no motion capture (a body
+# of 1.7 m: 1.7 km); unit-free, so inches, centimetres and millimetres alike. Rotations beyond MAX_ANGLE_DEG (278
+# turns) are a broken export, not unwrapped Euler angles.
+MAX_TRANSLATION_SIZES = 1e3
+MAX_ANGLE_DEG = 1e5
+
+
+def _check_numbers(clip: BVH, lines: list[int]) -> None:
+    """Raise BVHError naming the first non-finite or absurd OFFSET or MOTION value: its line, frame, joint, channel."""
+    bad = np.flatnonzero(~np.isfinite(clip.offsets).all(axis=1))
+    if len(bad):
+        j = int(bad[0])
+        raise BVHError(f"the OFFSET of {clip.names[j]} is {clip.offsets[j].tolist()}: offsets must be finite numbers; "
+                       "fix the skeleton in the exporter")
+    size = max(float(np.ptp(rest_positions(clip), axis=0).max()), 1e-9)
+    owner = [(j, c) for j, chans in enumerate(clip.channels) for c in chans]  # each column's joint and channel
+    limit = np.array([MAX_ANGLE_DEG if c.endswith("rotation") else MAX_TRANSLATION_SIZES * size for _, c in owner])
+    wrong = ~np.isfinite(clip.data) | (np.abs(clip.data) > limit)
+    if not wrong.any():
+        return
+    frame, col = (int(i) for i in np.argwhere(wrong)[0])
+    j, chan = owner[col]
+    value = float(clip.data[frame, col])
+    what = ("a rotation must be a finite angle in degrees, within +-{:g}".format(MAX_ANGLE_DEG)
+            if chan.endswith("rotation") else
+            f"a position must be finite and within {MAX_TRANSLATION_SIZES:g} times the skeleton's size "
+            f"({MAX_TRANSLATION_SIZES * size:g} of the file's units) of the origin")
+    raise BVHError(f"line {lines[frame * clip.data.shape[1] + col]}: frame {frame} (0 = the first), joint "
+                   f"{clip.names[j]}, channel {chan} is {value!r}, and {wrong.sum()} value(s) in all are so: {what}; "
+                   "re-export the clip, or cut the broken frames out")
 
 
 def format_bvh(clip: BVH) -> str:
@@ -225,14 +264,15 @@ def format_bvh(clip: BVH) -> str:
     return "\n".join(lines) + "\n" + rows.getvalue()
 
 
-def world_positions(bvh: BVH, user_map: Mapping[str, str] | None = None) -> np.ndarray:
+def world_positions(bvh: BVH, user_map: Mapping[str, str] | None = None, rest_frame: RestFrame = "auto") -> np.ndarray:
     """The clip's joint positions in the studio's axes (Z up, facing +Y), in the file's units, its added T-pose
     frame dropped, as ``retarget`` sees them.  # (frame, joint, 3)"""
-    mapping = joint_map(bvh, user_map)
+    mapping = joint_map(bvh, user_map, rest_frame)
     index = {n: i for i, n in enumerate(bvh.names)}
     data = bvh.data[1:] if _starts_with_tpose(bvh) else bvh.data
     _, pos = BVH(bvh.names, bvh.parents, bvh.offsets, bvh.channels, bvh.frame_time, data).forward_kinematics()
-    world = _facing(bvh, index[mapping["LeftHip"][1]], index[mapping["RightHip"][1]]) @ Y_UP_TO_Z_UP
+    _, rest = rest_pose(bvh, mapping, rest_frame)
+    world = _facing(rest, index[mapping["LeftHip"][1]], index[mapping["RightHip"][1]]) @ Y_UP_TO_Z_UP
     return pos @ world.T
 
 
@@ -251,16 +291,17 @@ KNOWN_SKELETONS = (Skeleton("CMU cgspeed", triples=CMU_MAP, signature=CMU_SIGNAT
                    Skeleton("Mixamo", names=MIXAMO_NAMES), Skeleton("CMU ASF", names=CMU_ASF_NAMES))
 
 
-def joint_map(bvh: BVH, user_map: Mapping[str, str] | None = None) -> dict:
+def joint_map(bvh: BVH, user_map: Mapping[str, str] | None = None, rest_frame: RestFrame = "auto") -> dict:
     """template joint -> (BVH joint whose rotation it follows, BVH bone start, BVH bone end), "inherit" (the neck),
     absent for the end joints (hands, feet).
 
     From ``user_map`` ({template joint: BVH joint}, keys among MAP_KEYS, every one of REQUIRED_KEYS) when given,
-    else from the first of KNOWN_SKELETONS the file's joints satisfy. Raises BVHError naming the joints missing.
+    else from the first of KNOWN_SKELETONS the file's joints satisfy. Raises BVHError naming the joints missing, a
+    bone without length, or a rest pose (see rest_pose) that does not stand.
     """
     mapping = _from_user_map(bvh, user_map) if user_map is not None else _known(bvh)
-    _check_lengths(bvh, mapping)
-    _check_y_up(bvh, mapping)
+    _, rest = rest_pose(bvh, mapping, rest_frame)
+    _check_lengths(bvh, mapping, rest)
     return mapping
 
 
@@ -324,8 +365,26 @@ def _triples(bvh: BVH, table: Mapping[str, tuple[str, ...]]) -> dict:
             raise BVHError(f"{end} ({bvh.names[stop]}) is not below {joint} ({bvh.names[start]}) in the skeleton; "
                            "map them to a joint and one of its descendants")
         follow = start if joint == "Hips" else int(bvh.parents[stop])
-        out[joint] = (bvh.names[follow], bvh.names[start], bvh.names[stop])
+        out[joint] = _without_empty_end(bvh, (follow, start, stop))
     return out
+
+
+def _without_empty_end(bvh: BVH, triple: tuple[int, int, int]) -> tuple[str, str, str]:
+    """The triple's names; where its bone ends at an End Site of zero length (Bandai Namco's set has only such), the
+    bone points instead to the start's one child joint of some length, else along the bone into the start (the
+    head continues the neck, the hand the forearm), still following the start's rotation."""
+    follow, start, stop = triple
+    size = max(float(np.ptp(rest_positions(bvh), axis=0).max()), 1e-9)
+    if bvh.channels[stop] or np.any(bvh.parents == stop) or np.linalg.norm(bvh.offsets[stop]) > 1e-6 * size:
+        return bvh.names[follow], bvh.names[start], bvh.names[stop]
+    children = [int(c) for c in np.flatnonzero(bvh.parents == start)
+                if c != stop and np.linalg.norm(bvh.offsets[c]) > 1e-6 * size]
+    if len(children) == 1:
+        return bvh.names[start], bvh.names[start], bvh.names[children[0]]
+    if bvh.parents[start] < 0:
+        raise BVHError(f"the bone of {bvh.names[start]} ends at an End Site of zero length, and the root has no bone "
+                       "into it; map a joint and a child of it some distance away")
+    return bvh.names[start], bvh.names[int(bvh.parents[start])], bvh.names[start]
 
 
 def _only_child(bvh: BVH, joint: int, key: str) -> int:
@@ -352,8 +411,7 @@ def rest_positions(bvh: BVH) -> np.ndarray:
     return rest
 
 
-def _check_lengths(bvh: BVH, mapping: dict) -> None:
-    rest = rest_positions(bvh)
+def _check_lengths(bvh: BVH, mapping: dict, rest: np.ndarray) -> None:
     size = np.ptp(rest, axis=0).max()
     for joint, m in mapping.items():
         if m != "inherit" and np.linalg.norm(rest[bvh.names.index(m[2])] - rest[bvh.names.index(m[1])]) <= 1e-6 * size:
@@ -361,27 +419,88 @@ def _check_lengths(bvh: BVH, mapping: dict) -> None:
                            "direction; map the joints to a bone that does")
 
 
-def _check_y_up(bvh: BVH, mapping: dict) -> None:
-    """BVH files are Y up: the rest pose's head must be above its ankles along +Y."""
-    rest = rest_positions(bvh)
+# The rest pose retargeting measures rotations from: None = every rotation channel at zero (the format's own), an
+# int = that MOTION frame (0 = the first), "auto" = the zero pose where it stands upright along +Y, else frame 0.
+# A clip that stands along +Y in most of its frames is Y up: the error then names a frame to take (rest_pose).
+RestFrame = int | str | None
+
+
+def rest_pose(bvh: BVH, mapping: dict, rest_frame: RestFrame = "auto") -> tuple[np.ndarray | None, np.ndarray]:
+    """The rest pose's global rotations (None for the zero pose: the identity) and joint positions, in the file's
+    axes; BVHError when it does not stand upright along +Y, saying what would.  # (joint, 3, 3), (joint, 3)"""
+    if rest_frame is None or rest_frame == "auto":
+        zero = rest_positions(bvh)
+        if _stands(_up(bvh, mapping, zero[None]))[0]:
+            return None, zero
+        if rest_frame is None:
+            raise BVHError(_not_upright(bvh, mapping, "the zero pose (every rotation channel at zero)", zero))
+        return _frame_rest(bvh, mapping, 0, "frame 0 ('auto': the zero pose does not stand either)")
+    if isinstance(rest_frame, str) or not 0 <= rest_frame < bvh.data.shape[0]:
+        raise BVHError(f"rest_frame {rest_frame!r} is none of None (the zero pose), 'auto' or a frame of the clip "
+                       f"(0-{bvh.data.shape[0] - 1})")
+    return _frame_rest(bvh, mapping, int(rest_frame), f"frame {rest_frame}")
+
+
+def _frame_rest(bvh: BVH, mapping: dict, k: int, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """Frame ``k``'s global rotations and positions as the rest pose, or BVHError when it does not stand."""
+    rot, pos = BVH(bvh.names, bvh.parents, bvh.offsets, bvh.channels, bvh.frame_time,
+                   bvh.data[k:k + 1]).forward_kinematics()
+    if not _stands(_up(bvh, mapping, pos))[0]:
+        raise BVHError(_not_upright(bvh, mapping, what, pos[0]))
+    return rot[0], pos[0]
+
+
+UPRIGHT = 0.7  # a pose stands when its head is above its ankles within about 45 degrees of +Y (cos 45.6 = 0.7)
+
+
+def _stands(up: np.ndarray) -> np.ndarray:
+    """Whether each head-minus-ankles vector points up along +Y.  # (pose, 3) -> (pose,) bool"""
+    return up[:, 1] > UPRIGHT * np.linalg.norm(up, axis=1)
+
+
+def _up(bvh: BVH, mapping: dict, pos: np.ndarray) -> np.ndarray:
+    """Head minus the ankles' midpoint per pose.  # (pose, joint, 3) -> (pose, 3)"""
     index = {n: i for i, n in enumerate(bvh.names)}
-    ankles = np.mean([rest[index[mapping[f"{side}Ankle"][1]]] for side in SIDES], axis=0)
-    up = rest[index[mapping["Head"][1]]] - ankles
-    if not up[1] > 0.7 * np.linalg.norm(up):
-        raise BVHError(f"the rest pose is not upright along +Y (head minus ankles: {np.round(up, 2).tolist()}); "
-                       "BVH files are Y up: export the clip Y up")
+    head = mapping["Head"]
+    head = head[2] if head[2] == head[0] else head[1]  # a bone continued from the neck ends at the head
+    ankles = np.mean([pos[:, index[mapping[f"{side}Ankle"][1]]] for side in SIDES], axis=0)
+    return pos[:, index[head]] - ankles
+
+
+def _not_upright(bvh: BVH, mapping: dict, what: str, rest: np.ndarray) -> str:
+    """Why the rest pose cannot be used, and the fix: a frame where the clip stands, or exporting it Y up."""
+    up = _up(bvh, mapping, rest[None])[0]
+    _, pos = bvh.forward_kinematics()
+    ups = _up(bvh, mapping, pos)
+    standing = np.flatnonzero(_stands(ups))
+    head = f"the rest pose, {what}, is not upright along +Y (head minus ankles: {np.round(up, 2).tolist()})"
+    if 2 * len(standing) >= len(ups):  # a clip that stands most of the time is Y up; its rest pose is not
+        return (f"{head}, but the clip stands upright along +Y in {len(standing)} of its {len(ups)} frames: take the "
+                f"rest pose from one of them, rest_frame: {int(standing[0])} (the first; 'auto' takes the zero pose "
+                "where it stands, else frame 0)")
+    median = np.median(ups, axis=0)
+    axis = int(np.argmax(np.abs(median)))
+    return (f"{head}, and the clip stands along +Y in {len(standing)} of its {len(ups)} frames only (its head is "
+            "above its ankles along "
+            f"{'+-'[int(median[axis] < 0)]}{'XYZ'[axis]}, median head minus ankles {np.round(median, 2).tolist()}); "
+            "BVH files are Y up: export the clip Y up")
 
 
 def retarget(bvh: BVH, subject: Subject, *, fps: float = 30.0, n_frames: int | None = None,
-             start_s: float = 0.0, label: str = "bvh", user_map: Mapping[str, str] | None = None) -> Motion:
-    """``bvh``'s motion on the template body of ``subject``, resampled to ``fps``; ``user_map``: see joint_map."""
+             start_s: float = 0.0, label: str = "bvh", user_map: Mapping[str, str] | None = None,
+             rest_frame: RestFrame = "auto") -> Motion:
+    """``bvh``'s motion on the template body of ``subject``, resampled to ``fps``; ``user_map``: see joint_map;
+    ``rest_frame``: the pose rotations are measured from (see rest_pose)."""
     index = {n: i for i, n in enumerate(bvh.names)}
-    mapping = joint_map(bvh, user_map)
+    mapping = joint_map(bvh, user_map, rest_frame)
     hip, knee, ankle = (mapping[j][1] for j in ("LeftHip", "LeftKnee", "LeftAnkle"))
     data = bvh.data[1:] if _starts_with_tpose(bvh) else bvh.data
     rot, pos = BVH(bvh.names, bvh.parents, bvh.offsets, bvh.channels, bvh.frame_time, data).forward_kinematics()
-    world = _facing(bvh, index[hip], index[mapping["RightHip"][1]]) @ Y_UP_TO_Z_UP
-    rot = world @ rot @ world.T  # rest global rotations are the identity
+    rest_rot, rest = rest_pose(bvh, mapping, rest_frame)
+    if rest_rot is not None:  # each joint's turn from the rest frame, in world axes: G_f G_r^T
+        rot = rot @ np.swapaxes(rest_rot, -1, -2)
+    world = _facing(rest, index[hip], index[mapping["RightHip"][1]]) @ Y_UP_TO_Z_UP
+    rot = world @ rot @ world.T  # rest global rotations are now the identity
     pos = pos @ world.T
     offsets = rest_offsets(subject)
     glob = np.tile(np.eye(3), (rot.shape[0], len(JOINT_NAMES), 1, 1))
@@ -400,8 +519,12 @@ def retarget(bvh: BVH, subject: Subject, *, fps: float = 30.0, n_frames: int | N
             local[:, j] = np.swapaxes(glob[:, parent], 1, 2) @ glob[:, j]
     scale = _leg_length(offsets) / _leg_length_bvh(pos[0], index[hip], index[knee], index[ankle])
     root = pos[:, index[mapping["Hips"][1]]] * scale
-    root[:, :2] -= root[:, :2].mean(axis=0)
+    whole = n_frames is None and start_s == 0
+    if whole:
+        root[:, :2] -= root[:, :2].mean(axis=0)
     local, root = _resample(local, root, bvh.fps, fps, n_frames, start_s)
+    if not whole:  # a window of the clip: centre the frames filmed, not the whole clip (a travelling clip wanders off)
+        root[:, :2] -= root[:, :2].mean(axis=0)
     root = root + np.array([0, 0, offsets[0, 2] - root[:, 2].mean()])
     root[:, 2] -= lowest_foot_point(local, root, subject).min()
     return Motion(local, root, fps, label)
@@ -412,9 +535,8 @@ def _starts_with_tpose(bvh: BVH) -> bool:
     return bvh.data.shape[0] > 1 and np.allclose(bvh.data[0, rotations], 0.0)
 
 
-def _facing(bvh: BVH, left_hip: int, right_hip: int) -> np.ndarray:
-    """Rotation about Z that turns the BVH rest pose to face +Y (its left side to -X)."""
-    rest = rest_positions(bvh)
+def _facing(rest: np.ndarray, left_hip: int, right_hip: int) -> np.ndarray:
+    """Rotation about Z that turns the BVH rest pose (its joint positions) to face +Y (its left side to -X)."""
     left = Y_UP_TO_Z_UP @ (rest[left_hip] - rest[right_hip])
     angle = np.arctan2(left[1], left[0])
     return Rotation.from_euler("z", np.pi - angle).as_matrix()

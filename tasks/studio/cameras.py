@@ -13,7 +13,7 @@ A layout's sensor is aimed at a target with its x axis level, then turned about 
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -194,3 +194,35 @@ def check_sees(cam: Camera, point) -> None:
     if not z[0] > 0.3 or not (0 <= uv[0, 0] < cam.width and 0 <= uv[0, 1] < cam.height):
         raise LayoutError(f"sensor {cam.name!r} does not see the capture centre {np.round(point, 2).tolist()} "
                          f"(it projects to {np.round(uv[0], 1).tolist()} at depth {z[0]:.2f} m); aim it at the subject")
+
+
+def outside_share(cams: Sequence[Camera], points: np.ndarray) -> np.ndarray:
+    """Per camera, the share of the finite ``points`` it cannot see: behind it or outside its image.
+
+    A point is in view when it is in front of the camera (z > 0), its distorted pixel lies in the image, and its
+    undistorted direction lies within the image's (the box of its pixel rays' x/z, y/z): OpenCV's distortion
+    polynomial is fitted to the field of view and can fold a point far outside it back into the image (Brown-Conrady
+    with k1 < 0: r_d = r (1 + k1 r^2) shrinks, then turns back, past r^2 = -1 / (3 k1)). Points that are not finite
+    (an unseen reflector) are left out; a camera's share is NaN when none is finite.
+    points: (frame, n, 3) world -> (camera,) in [0, 1]
+    """
+    flat = np.asarray(points, float).reshape(-1, 3)
+    flat = flat[np.isfinite(flat).all(axis=1)]
+    if not len(flat):
+        return np.full(len(cams), np.nan)
+    return np.array([1.0 - _seen(cam, flat).mean() for cam in cams])
+
+
+def _seen(cam: Camera, points: np.ndarray) -> np.ndarray:
+    """Whether ``cam`` sees each of ``points`` (see outside_share).  (n, 3) -> (n,) bool"""
+    uv, z = cam.project(points)
+    in_image = (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+    rays = cam.pixel_rays()  # (y, x, 3) undistorted unit rays through the pixel centres
+    tangents = rays[..., :2] / rays[..., 2:]
+    lo, hi = tangents.reshape(-1, 2).min(axis=0), tangents.reshape(-1, 2).max(axis=0)
+    local = cam.to_camera(points)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        direction = local[:, :2] / local[:, 2:]
+    margin = (hi - lo) / np.array([cam.width, cam.height])  # half a pixel either side of the outer centres
+    in_field = np.all((direction >= lo - margin) & (direction <= hi + margin), axis=1)
+    return (z > 0) & in_image & in_field

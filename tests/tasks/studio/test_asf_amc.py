@@ -143,6 +143,11 @@ def test_radians_in_the_asf_or_the_amc_give_the_same_take():
     (ASF, amc().replace("lfemur 90.0 0 0\n", ""), r"AMC frame 5 lacks bones \['lfemur'\]"),
     (ASF, amc().replace("lowerback", "upperback"), "bone 'upperback' is not in the skeleton"),
     (ASF, ":FULLY-SPECIFIED\n", "the AMC holds no frame"),
+    # Broken numbers are refused where they are read, naming the line, the frame, the bone and the dof.
+    (ASF, amc().replace("lhumerus 90.0", "lhumerus nan"), r"AMC line 13: frame 2, bone lhumerus, dof rx is nan"),
+    (ASF, amc().replace("root 1 2 3", "root 1e308 2 3"),
+     r"AMC line 17: frame 3, bone root, dof tx is 1e\+308: it must be finite and within"),
+    (ASF.replace("length 20", "length inf"), None, r"line \d+: bone lhumerus's length must be finite numbers"),
 ])
 def test_malformed_asf_and_amc_are_clear_errors(asf, amc_text, message):
     with pytest.raises(asf_amc.ASFError, match=message):

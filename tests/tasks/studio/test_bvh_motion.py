@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 
 import numpy as np
 import pytest
@@ -9,7 +10,7 @@ import pytest
 from conftest import SHARED
 from shared_data import cmu_clips
 from mocapflow.tasks.shared import body, kinematics
-from mocapflow.tasks.studio import bvh, motion
+from mocapflow.tasks.studio import bvh, cameras, motion
 
 CLIPS = cmu_clips()
 
@@ -49,6 +50,20 @@ def test_walk_moves_forward_and_jumping_jacks_leave_the_ground():
     assert motion.lowest_foot_point(jj.local_rot, jj.root_pos, subject).max() > 0.05
 
 
+@pytest.mark.needs_shared
+def test_a_window_of_a_travelling_clip_is_centred_where_it_is_filmed():
+    subject = body.Subject(1.7)
+    walk = bvh.parse_bvh((SHARED / "motions" / "cmu_12_01_walk.bvh").read_text())
+    window = bvh.retarget(walk, subject, fps=30, n_frames=61, start_s=0.0)
+    np.testing.assert_allclose(window.root_pos[:, :2].mean(axis=0), [0, 0], atol=1e-9)
+    whole = bvh.retarget(walk, subject, fps=30)  # the same frames, centred on the whole walk (the old way)
+    np.testing.assert_allclose(whole.local_rot[:61], window.local_rot, atol=1e-12)  # only the placement differs
+    assert whole.root_pos[:61, 1].mean() < -1.0  # the walk's first two seconds: over a metre behind the centre
+    seen = cameras.outside_share(cameras.layout(), joints(window, subject))
+    assert seen.max() < 0.01  # the default ring sees the subject (a toe may graze an image's edge)
+    assert cameras.outside_share(cameras.layout(), joints(whole, subject)[:61]).max() > 0.25  # as it did not
+
+
 @pytest.mark.parametrize("text,message", [
     ("", r"unexpected end of file \(expected HIERARCHY\)"),
     ("MOTION\n", "expected 'HIERARCHY', found 'MOTION'"),
@@ -62,6 +77,41 @@ def test_walk_moves_forward_and_jumping_jacks_leave_the_ground():
 def test_malformed_bvh_is_a_clear_error(text, message):
     with pytest.raises(bvh.BVHError, match=message):
         bvh.parse_bvh(text)
+
+
+TWO_JOINTS = ("HIERARCHY\nROOT Hips\n{\nOFFSET 0 0 0\nCHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation "
+              "Yrotation\nJOINT Knee\n{\nOFFSET 0 -40 0\nCHANNELS 3 Zrotation Xrotation Yrotation\nEnd Site\n{\n"
+              "OFFSET 0 -40 0\n}\n}\n}\nMOTION\nFrames: 3\nFrame Time: 0.1\n")  # 80 units tall: positions within 8e4
+
+
+def two_joint_clip(bad_column: int, value: str) -> tuple[str, int]:
+    """The clip's text with frame 2's ``bad_column`` set to ``value``, and the line it is on."""
+    rows = ["0 90 0 0 0 0 0 0 0"] * 3
+    row = rows[2].split()
+    row[bad_column] = value
+    rows[2] = " ".join(row)
+    text = TWO_JOINTS + "\n".join(rows) + "\n"
+    return text, len(TWO_JOINTS.splitlines()) + 3
+
+
+@pytest.mark.parametrize("column,value,where", [
+    (7, "nan", "joint Knee, channel Xrotation is nan"),
+    (0, "1e308", "joint Hips, channel Xposition is 1e+308"),
+    (5, "-inf", "joint Hips, channel Yrotation is -inf"),
+    (1, "90000", "joint Hips, channel Yposition is 90000.0"),  # beyond 1000 skeleton sizes (8e4)
+    (6, "2e5", "joint Knee, channel Zrotation is 200000.0"),  # beyond 1e5 degrees
+])
+def test_a_non_finite_or_absurd_motion_value_is_refused_naming_its_line_frame_joint_and_channel(column, value, where):
+    text, line = two_joint_clip(column, value)
+    with pytest.raises(bvh.BVHError, match=rf"^line {line}: frame 2 \(0 = the first\), {re.escape(where)}, and 1 value"):
+        bvh.parse_bvh(text)
+    ok, _ = two_joint_clip(column, "70000" if column < 3 else "9e4")  # within the bounds: read as written
+    assert bvh.parse_bvh(ok).data[2, column] == float("70000" if column < 3 else "9e4")
+
+
+def test_a_non_finite_offset_is_refused_naming_its_joint():
+    with pytest.raises(bvh.BVHError, match=r"the OFFSET of Knee is \[0.0, nan, 0.0\]: offsets must be finite"):
+        bvh.parse_bvh(two_joint_clip(0, "0")[0].replace("OFFSET 0 -40 0\nCHANNELS", "OFFSET 0 nan 0\nCHANNELS"))
 
 
 def test_non_cmu_skeleton_is_rejected():

@@ -7,7 +7,8 @@ import pytest
 
 from mocapflow.tasks.shared import body, kinematics
 from mocapflow.tasks.studio import bvh
-from motion_files import USER_MAP, mixamo_text
+from motion_files import LYING_MAP, USER_MAP, lying_text, mixamo_text
+
 
 def template_joints(motion, subject):
     return kinematics.forward_kinematics(motion.local_rot, motion.root_pos, body.rest_offsets(subject), body.PARENTS)
@@ -96,3 +97,83 @@ def test_a_skeleton_that_is_not_y_up_is_refused():
     lying = mixamo_text().replace("OFFSET 0 -45 0", "OFFSET 0 0 45").replace("OFFSET 0 -43 0", "OFFSET 0 0 43")
     with pytest.raises(bvh.BVHError, match=r"not upright along \+Y .* export the clip Y up"):
         bvh.joint_map(bvh.parse_bvh(lying))
+
+
+def travelling(clip: bvh.BVH, frames: int, metres: float) -> bvh.BVH:
+    """``clip``'s T-pose walked ``metres`` forward (+Z, the file's facing) over ``frames`` frames, after a leading
+    T-pose frame (dropped by retarget)."""
+    data = np.tile(clip.data[1], (frames + 1, 1))
+    data[1:, 2] = np.linspace(0, metres * 100, frames)  # the root's Zposition, centimetres
+    return bvh.BVH(clip.names, clip.parents, clip.offsets, clip.channels, clip.frame_time, data)
+
+
+def test_a_window_is_centred_on_its_own_frames_and_a_whole_clip_on_all_of_them():
+    subject = body.Subject(1.75)
+    clip = travelling(bvh.parse_bvh(mixamo_text()), 121, 8.0)  # 4 s at 30 fps, 8 m forward
+    leg = np.linalg.norm(body.rest_offsets(subject)[[body.JOINT_INDEX["LeftKnee"], body.JOINT_INDEX["LeftAnkle"]]],
+                         axis=1).sum()
+    scale = leg / 88.0  # the template's leg over the file's (45 + 43 cm)
+    whole = bvh.retarget(clip, subject, fps=30.0)
+    np.testing.assert_allclose(whole.root_pos[[0, -1], 1], [-400 * scale, 400 * scale], atol=1e-9)
+    for start_s, n in ((0.0, 31), (2.5, 31), (1.0, 90)):
+        window = bvh.retarget(clip, subject, fps=30.0, n_frames=n, start_s=start_s)
+        np.testing.assert_allclose(window.root_pos[:, :2].mean(axis=0), [0, 0], atol=1e-9)
+        k = int(round(start_s * 30))  # the same frames, moved by where their middle was in the whole clip
+        np.testing.assert_allclose(window.root_pos[:, :2] - whole.root_pos[k:k + n, :2],
+                                   [[0, -whole.root_pos[k:k + n, 1].mean()]] * n, atol=1e-9)
+        np.testing.assert_allclose(window.root_pos[:, 2], whole.root_pos[k:k + n, 2], atol=1e-12)
+
+
+def test_a_clip_lying_at_zero_rotation_takes_its_first_frame_as_rest_and_bones_from_its_joints():
+    clip = bvh.parse_bvh(lying_text())  # shaped like Bandai Namco's set: six channels, empty End Sites, lying along X
+    m = bvh.joint_map(clip, LYING_MAP)
+    assert m["Head"] == ("Head", "Neck", "Head")  # its End Site has no length: the head continues the neck
+    assert m["LeftWrist"] == ("Hand_L", "LowerArm_L", "Hand_L") and m["LeftAnkle"] == ("Foot_L", "Foot_L", "Toes_L")
+    subject = body.Subject(1.75)
+    motion = bvh.retarget(clip, subject, user_map=LYING_MAP)  # rest_frame "auto": the zero pose lies, so frame 0
+    _, pos = template_joints(motion, subject)
+    j = body.JOINT_INDEX
+    feet = pos[:, [j["LeftAnkle"], j["RightAnkle"]], 2].max(axis=1)
+    assert (pos[:, j["Head"], 2] - feet > 1.1).all()  # upright in every frame, the bent knee's foot 43 cm up included
+    offsets = body.rest_offsets(subject)
+    rest = template_joints(bvh.Motion(np.tile(np.eye(3), (1, 20, 1, 1)), offsets[:1], 30.0, "rest"), subject)[1][0]
+    assert abs(pos[0, j["Head"], 2] - motion.root_pos[0, 2] - (rest[j["Head"], 2] - offsets[0, 2])) < 0.02
+    bones = np.linalg.norm(pos[:, 1:] - pos[:, body.PARENTS[1:]], axis=-1)
+    np.testing.assert_allclose(bones, np.broadcast_to(np.linalg.norm(offsets[1:], axis=1), bones.shape), atol=1e-9)
+    np.testing.assert_allclose(unit(pos[0, j["LeftHip"]] - pos[0, j["RightHip"]]), [-1, 0, 0], atol=1e-9)
+    np.testing.assert_allclose(unit(pos[2, j["LeftHip"]] - pos[2, j["RightHip"]]), [0, -1, 0], atol=1e-9)  # turned
+    leg = np.linalg.norm(offsets[[j["LeftKnee"], j["LeftAnkle"]]], axis=1).sum()
+    np.testing.assert_allclose(motion.root_pos[2, :2] - motion.root_pos[0, :2], [0, 40 * leg / 83], atol=1e-9)
+    # The same motion of the same skeleton standing at zero rotation, measured from its frame 0: the same take.
+    standing = bvh.retarget(bvh.parse_bvh(lying_text(lying=False)), subject, user_map=LYING_MAP, rest_frame=0)
+    np.testing.assert_allclose(motion.local_rot, standing.local_rot, atol=1e-9)
+    np.testing.assert_allclose(motion.root_pos, standing.root_pos, atol=1e-9)
+
+
+def test_a_rest_frame_is_checked_and_a_lying_zero_pose_names_the_frame_to_take():
+    clip = bvh.parse_bvh(lying_text())
+    with pytest.raises(bvh.BVHError, match=r"the zero pose .* is not upright along \+Y \(head minus ankles: "
+                                           r"\[149.0, 0.0, -0.5\]\), but the clip stands upright along \+Y in 4 of "
+                                           r"its 4 frames: take the rest pose from one of them, rest_frame: 0") as err:
+        bvh.joint_map(clip, LYING_MAP, rest_frame=None)
+    assert "export" not in str(err.value)  # the clip is Y up already
+    for bad in (4, -1, "first"):
+        with pytest.raises(bvh.BVHError, match=rf"rest_frame {bad!r} is none of None .* a frame of the clip \(0-3\)"):
+            bvh.joint_map(clip, LYING_MAP, rest_frame=bad)
+    subject = body.Subject(1.7)
+    standing = bvh.parse_bvh(mixamo_text())  # stands at zero rotation: "auto" takes the zero pose, as None does
+    for a, b in zip(bvh.retarget(standing, subject).local_rot, bvh.retarget(standing, subject, rest_frame=None).local_rot):
+        assert np.array_equal(a, b)
+
+
+def test_a_non_root_joints_position_channels_are_its_offset():
+    clip = bvh.parse_bvh(lying_text())
+    column = sum(len(c) for c in clip.channels[:clip.names.index("Foot_L")])  # Foot_L's Xposition: its shin, lying
+    data = clip.data.copy()
+    data[:, column] *= 2  # a shin of 82 cm in every frame (its OFFSET still says 41)
+    longer = bvh.BVH(clip.names, clip.parents, clip.offsets, clip.channels, clip.frame_time, data)
+    subject = body.Subject(1.75)
+    motion = bvh.retarget(longer, subject, user_map=LYING_MAP)
+    j = body.JOINT_INDEX
+    leg = np.linalg.norm(body.rest_offsets(subject)[[j["LeftKnee"], j["LeftAnkle"]]], axis=1).sum()
+    np.testing.assert_allclose(motion.root_pos[2, :2] - motion.root_pos[0, :2], [0, 40 * leg / (42 + 82)], atol=1e-9)

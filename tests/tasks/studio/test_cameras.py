@@ -127,3 +127,31 @@ def test_a_studio_sequence_rolls_its_random_ring_and_keeps_every_other_draw():
         SequenceSpec("elbow_flexion", camera_roll_deg=-1.0)
     with pytest.raises(ValueError, match="rolls a random ring's sensors"):
         SequenceSpec("elbow_flexion", camera_roll_deg=2.0)  # no random ring to roll
+
+
+def forward_camera(dist=(0.0, 0.0, 0.0, 0.0, 0.0)) -> cameras.Camera:
+    """A 100 x 80 pinhole at the origin looking along +Y (x right = world +X, y down = world -Z)."""
+    pose = np.eye(4)
+    pose[:3, :3] = [[1, 0, 0], [0, 0, 1], [0, -1, 0]]  # columns: the camera x, y, z axes in the world
+    return cameras.Camera("front", 50.0, 50.0, 49.5, 39.5, tuple(dist), pose, 100, 80)
+
+
+def test_the_share_of_points_a_camera_cannot_see_counts_those_outside_its_image_and_behind_it():
+    cam = forward_camera()  # sees |x| < 1 and |z| < 0.8 at 1 m
+    points = np.array([[[0, 1, 0], [0.9, 1, 0.7], [1.2, 1, 0], [0, -1, 0]],  # in, in, right of the image, behind
+                       [[0, 2, 0], [0, 2, 1.7], [np.nan, 2, 0], [0, 3, -2.6]]])  # in, above, unseen, below
+    np.testing.assert_allclose(cameras.outside_share([cam], points), [4 / 7])
+    np.testing.assert_allclose(cameras.outside_share([cam, cam], points[:, :2]), [0.25, 0.25])
+    assert np.isnan(cameras.outside_share([cam], np.full((1, 2, 3), np.nan))).all()
+    ring = cameras.layout()  # the default ring sees the capture centre; 5 m off to the side, two of them do not
+    centre = np.array([[cameras.CAPTURE_CENTRE]])
+    np.testing.assert_allclose(cameras.outside_share(ring, centre), [0, 0, 0])
+    assert cameras.outside_share(ring, centre + [5.0, 0, 0]).sum() >= 2
+
+
+def test_a_point_the_distortion_folds_back_into_the_image_is_outside():
+    cam = forward_camera(dist=(-0.5, 0.0, 0.0, 0.0, 0.0))  # r_d = r (1 - 0.5 r^2): folds back past r = 0.82
+    far = np.array([[[-1.6, 1, 0]]])  # 58 degrees off axis: r_d = -1.6 (1 - 1.28) = 0.45, inside the image
+    uv, _ = cam.project(far[0])
+    assert 0 <= uv[0, 0] < cam.width and 0 <= uv[0, 1] < cam.height
+    np.testing.assert_allclose(cameras.outside_share([cam], far), [1.0])
