@@ -37,3 +37,8 @@ class PlanError(MocapflowError):
 
 class IntegrityError(StorageError):
     """A stored artifact's bytes differ from what was committed (a chunk deleted, truncated or altered)."""
+
+
+class InputWarning(UserWarning):
+    """Input that is usable but likely not what was meant (a subject leaving a camera's view). Raised with
+    ``warnings.warn`` anywhere a partition is computed; the engine carries it to the run's console and log."""

@@ -11,7 +11,8 @@ and `mocapflow synth` (a sequence written as a raw-sequence zarr store).
           walk:  {motion: ../shared/data/motions/cmu_12_01_walk.bvh, seed: 7}
 
 The sequences' fields are the studio's (systems/studio/specs.py); ``body: mesh`` films the take of
-tasks/studio/take.py, ``capsule`` (the default) the template's primitives.
+tasks/studio/take.py, ``capsule`` (the default) the template's primitives. ``out_of_view`` (warn, refuse or off)
+says what a subject leaving a sensor's view does (specs.check_in_view).
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ from __future__ import annotations
 from mocapflow.pipeline.datasets import SequenceInfo
 from mocapflow.pipeline.storage import check, init_zarr, write_zarr_region
 from mocapflow.schemas import get_schema
-from mocapflow.systems.studio.specs import fingerprint, frame_count, read_layout, read_motion, sequence_specs
+from mocapflow.systems.studio.specs import (check_in_view, fingerprint, frame_count, read_layout, read_motion,
+                                            sequence_specs, view_check)
 from mocapflow.tasks.shared.cache import BoundedCache
 from mocapflow.tasks.studio.synth import Rig, SequenceSpec, build_rig, synthesize
 
@@ -37,7 +39,7 @@ def view_names(spec: SequenceSpec) -> tuple[str, ...]:
 class StudioReader:
     """Sequences synthesized by the studio and filmed by the DeepMoCap sensors, in the raw-sequence schema."""
 
-    options = ("sequences", "defaults", "layout")
+    options = ("sequences", "defaults", "layout", "out_of_view")
 
     @staticmethod
     def discover(catalog, dataset) -> list[SequenceInfo]:
@@ -45,10 +47,11 @@ class StudioReader:
         if dataset.options.get("layout"):
             layout = read_layout(catalog.resolve_data_path(str(dataset.options["layout"]), dataset.where),
                                  dataset.where)
+        check = view_check(dataset)
         out = []
         for seq_id, _, _, (spec, text, source) in sequence_specs(catalog, dataset, "studio", layout=layout):
             out.append(SequenceInfo(seq_id, view_names(spec), frame_count(spec, text), fingerprint(spec, text),
-                                    {"spec": spec, "source": source}))
+                                    {"spec": spec, "source": source, "out_of_view": check}))
         return out
 
     @staticmethod
@@ -60,7 +63,11 @@ def rig_for(info) -> Rig:
     """The sequence's rig, built once per worker process (cameras' rays and the room are reused)."""
     def build() -> Rig:
         source = info.spec["source"]
-        return build_rig(info.spec["spec"], read_motion(source, f"sequence {info.id}") if source else None)
+        rig = build_rig(info.spec["spec"], read_motion(source, f"sequence {info.id}") if source else None)
+        joints = rig.joint_pos if isinstance(rig, Rig) else rig.take.posed.heads[:, rig.body.joint_bones()]
+        check_in_view(info.id, [view.cam for view in rig.views], joints[:rig.n_frames],
+                      info.spec.get("out_of_view", "warn"))
+        return rig
 
     return _RIGS.get_or_make(info.fingerprint, build)
 

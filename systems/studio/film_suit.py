@@ -31,7 +31,7 @@ from mocapflow.pipeline.errors import CatalogError
 from mocapflow.pipeline.hashing import digest
 from mocapflow.pipeline.registry import coerce, did_you_mean
 from mocapflow.schemas.raw import DIST_COEFS
-from mocapflow.systems.studio.specs import fingerprint, frame_count, sequence_specs, take_for
+from mocapflow.systems.studio.specs import check_in_view, fingerprint, frame_count, sequence_specs, take_for, view_check
 from mocapflow.tasks.shared.cache import BoundedCache
 from mocapflow.tasks.shared.mesh_body import Phenotype, mesh_body
 from mocapflow.tasks.shared.suit_pattern import SUITS, Suit, make_suit
@@ -63,12 +63,13 @@ def _settings(opts: Mapping[str, Any], where: str) -> tuple[str, suit_takes.Suit
 class StudioSuitReader:
     """Checkerboard-suit takes filmed in the studio by a ring of grey cameras, as suit_images with ground truth."""
 
-    options = ("sequences", "defaults", "suit", "cameras", "look")
+    options = ("sequences", "defaults", "suit", "cameras", "look", "out_of_view")
 
     @staticmethod
     def discover(catalog, dataset) -> list[SequenceInfo]:
         name, cams, look = _settings(dataset.options, dataset.where)
         views = tuple(suit_takes.camera_names(cams.count))
+        check = view_check(dataset)
         out = []
         # views = 1: the spec's Kinect ring is not filmed (the suit's cameras are); kept so the take's fingerprint stays
         for seq_id, _, _, (spec, text, source) in sequence_specs(catalog, dataset, "studio_suit", mesh_only=True,
@@ -76,7 +77,8 @@ class StudioSuitReader:
             fp = digest({"take": fingerprint(spec, text), "suit": name, "cameras": dataclasses.asdict(cams),
                          "look": dataclasses.asdict(look), "studio": suit_takes.SUIT_STUDIO_VERSION})
             out.append(SequenceInfo(seq_id, views, frame_count(spec, text), fp,
-                                    {"spec": spec, "source": source, "suit": name, "cameras": cams, "look": look}))
+                                    {"spec": spec, "source": source, "suit": name, "cameras": cams, "look": look,
+                                     "out_of_view": check}))
         return out
 
     @staticmethod
@@ -92,8 +94,11 @@ def rig_for(seq) -> tuple[Take, suit_takes.SuitRig]:
     def build():
         info = seq.spec
         shot = take_for(seq)
-        return shot, suit_takes.suit_rig(shot.body, reference_suit(info["suit"]), info["cameras"], info["look"],
-                                         info["spec"].seed)
+        rig = suit_takes.suit_rig(shot.body, reference_suit(info["suit"]), info["cameras"], info["look"],
+                                  info["spec"].seed)
+        check_in_view(seq.id, rig.cameras, shot.mesh.posed.heads[:shot.n_frames, shot.body.joint_bones()],
+                      info.get("out_of_view", "warn"))
+        return shot, rig
 
     return _RIGS.get_or_make(seq.fingerprint, build)
 

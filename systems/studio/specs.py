@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import typing
+import warnings
 from dataclasses import dataclass
 from importlib.metadata import version
 from pathlib import Path
@@ -27,13 +28,14 @@ from typing import Any, Callable, Mapping
 
 import yaml
 
-from mocapflow.pipeline.errors import CatalogError, InputError
+from mocapflow.pipeline.errors import CatalogError, InputError, InputWarning
 from mocapflow.pipeline.hashing import digest
 from mocapflow.pipeline.registry import coerce, did_you_mean
 from mocapflow.tasks.shared.cache import BoundedCache
 from mocapflow.tasks.studio import asf_amc
 from mocapflow.tasks.studio import bvh as bvh_mod
 from mocapflow.tasks.studio.cameras import layout as camera_layout
+from mocapflow.tasks.studio.cameras import outside_share
 from mocapflow.tasks.studio import motion as motion_mod
 from mocapflow.tasks.studio.motion import EXERCISES
 from mocapflow.tasks.studio.mesh_synth import MESH_STUDIO_VERSION
@@ -203,6 +205,8 @@ def fingerprint(spec: SequenceSpec, bvh_text: str | None) -> str:
     fields = {k: v for k, v in dataclasses.asdict(spec).items()
               if k not in LATER_FIELDS or v != SPEC_FIELDS[k].default}
     content = {"spec": fields, "bvh": bvh_hash, "studio": STUDIO_VERSION}
+    if bvh_text and (spec.frames is not None or spec.start_s):  # a clip cut to a window is centred on it (bvh.py)
+        content["centred_on"] = "window"
     if spec.variation:
         content["variation"] = variation_ranges()
     if spec.body == "mesh":
@@ -249,3 +253,36 @@ def sequence_specs(catalog, dataset, kind: str, *, mesh_only: bool = False, forc
 
 
 EXTRA_KEYS = ("markers",)  # sequence keys a filming module reads itself (UUO's marker layout)
+
+
+# ---- the subject in the cameras' view ----------------------------------------------------------------------------
+VIEW_CHECKS = ("warn", "refuse", "off")  # a studio dataset's ``out_of_view``: what a subject leaving a view does
+OUT_OF_VIEW_SHARE = 0.05  # a camera missing more than this share of the subject's joint-frames is reported
+
+
+def view_check(dataset) -> str:
+    """A studio dataset's ``out_of_view`` setting, checked: ``warn`` (default), ``refuse`` or ``off``."""
+    value = str(dataset.options.get("out_of_view", "warn"))
+    if value not in VIEW_CHECKS:
+        raise CatalogError(f"{dataset.where}.out_of_view: {value!r} is not one of {list(VIEW_CHECKS)}; warn (the "
+                           "default) reports a subject leaving a camera's view, refuse fails its sequence")
+    return value
+
+
+def check_in_view(seq_id: str, cameras, joints, setting: str) -> None:
+    """Warn (``InputWarning``) or refuse (``InputError``) when a camera cannot see more than OUT_OF_VIEW_SHARE of the
+    subject's joint-frames ``joints`` (frame, joint, 3): a travelling clip walking out of the volume, a camera
+    aimed away. The check covers the whole take, once per worker."""
+    if setting == "off":
+        return
+    share = outside_share(cameras, joints)
+    bad = {cam.name: float(s) for cam, s in zip(cameras, share) if s > OUT_OF_VIEW_SHARE}
+    if not bad:
+        return
+    shares = ", ".join(f"{name} {100 * s:.0f} %" for name, s in sorted(bad.items()))
+    message = (f"sequence {seq_id!r}: the subject leaves the view of {len(bad)} camera(s) (joint-frames outside: "
+               f"{shares}); film a shorter window (frames, start_s), move the cameras, or set the dataset's "
+               "out_of_view: off")
+    if setting == "refuse":
+        raise InputError(message)
+    warnings.warn(message, InputWarning, stacklevel=2)

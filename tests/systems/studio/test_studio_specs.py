@@ -12,7 +12,7 @@ import xarray as xr
 from conftest import SHARED, last_json, mocapflow, read_artifacts
 from mocapflow.pipeline.errors import InputError
 from mocapflow.pipeline.hashing import digest
-from mocapflow.systems.studio.specs import fingerprint, make_spec
+from mocapflow.systems.studio.specs import LATER_FIELDS, fingerprint, make_spec
 from mocapflow.tasks.shared.body import JOINT_INDEX, Subject
 from mocapflow.tasks.studio import bvh
 from motion_files import USER_MAP, mixamo_text
@@ -116,6 +116,18 @@ def test_later_fields_enter_the_fingerprint_only_when_set():
     assert fingerprint(SequenceSpec("classic_squat", seed=3, random_layout=True, camera_roll_deg=2.0), None) != \
         fingerprint(SequenceSpec("classic_squat", seed=3, random_layout=True), None)
     assert fingerprint(SequenceSpec("classic_squat", seed=3, ir_bloom_px=3), None) != fingerprint(plain, None)
+
+
+def test_a_clip_cut_to_a_window_is_fingerprinted_as_centred_on_it():
+    clip = "HIERARCHY ..."  # only its hash enters the fingerprint
+    whole = SequenceSpec("bvh", frames=None)
+    fields = {k: v for k, v in dataclasses.asdict(whole).items() if k not in LATER_FIELDS}
+    bvh_hash = hashlib.sha256(clip.encode()).hexdigest()
+    assert fingerprint(whole, clip) == digest({"spec": fields, "bvh": bvh_hash, "studio": STUDIO_VERSION})
+    for cut in (SequenceSpec("bvh", frames=40), SequenceSpec("bvh", frames=None, start_s=1.0)):
+        fields = {k: v for k, v in dataclasses.asdict(cut).items() if k not in LATER_FIELDS}
+        assert fingerprint(cut, clip) == digest({"spec": fields, "bvh": bvh_hash, "studio": STUDIO_VERSION,
+                                                 "centred_on": "window"})
 
 
 @pytest.mark.needs_shared
