@@ -147,13 +147,16 @@ DEFAULT_IMAGE = (424, 512)  # (height, width) where a sequence does not state it
 
 
 def check_ceiling(plan: Plan, ceiling: int) -> None:
-    """PlanError for the first partition that would allocate more than ``ceiling`` bytes (storage.max_partition_bytes),
-    before any worker starts."""
+    """PlanError naming the biggest partition when it would allocate more than ``ceiling`` bytes
+    (storage.max_partition_bytes), before any worker starts."""
     sequences = {seq.id: seq for seq in plan.sequences}
-    for item in plan.items.values():
-        need = partition_bytes(item, sequences)
+    sizes = [(partition_bytes(item, sequences), n, item) for n, item in enumerate(plan.items.values())]
+    if sizes:
+        need, _, item = max(sizes, key=lambda s: (s[0], -s[1]))
         if need > ceiling:
-            raise PlanError(f"partition {item.partition.id} would hold about {need} bytes ({need / 2**30:.1f} GiB: "
+            over = sum(1 for size, _, _ in sizes if size > ceiling)
+            raise PlanError(f"partition {item.partition.id} (the biggest of {over} over the ceiling) would hold about "
+                            f"{need} bytes ({need / 2**30:.1f} GiB: "
                             f"frames x views x {'image size' if _images(item) else 'values'} x {BYTES_PER_VALUE} B), over "
                             f"the ceiling of {ceiling} bytes (storage.max_partition_bytes); shorten the sequence, or "
                             f"raise the ceiling in the catalog's storage section or with --set "
