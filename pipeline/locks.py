@@ -145,6 +145,13 @@ class LeasedLock:
             claims = self._claim_waiting(self.me["token"])
         except FileNotFoundError:
             return  # the version folder was deleted meanwhile
+        except OSError as exc:
+            if not no_space(exc):
+                raise
+            # no room for a claim (a full disk); a live lock is never taken over, so deleting ours is safe
+            if _token(self._read(self.path)) == self.me["token"]:
+                self.fs.rm_file(self.path)
+            return
         if claims is None:
             log.warning("%s: a contender held the claim on %s for %.0f s; left the lock to expire",
                         self.label, self.path, CLAIM_WAIT_S)
