@@ -381,7 +381,7 @@ def compute_missing(items, store, *, workers: int, what: str, processes: bool = 
                     report: Callable[[str], None] | None = None) -> list[WorkItem]:
     """Run the ``items`` not yet complete in ``store`` and return them; raise PlanError naming the first
     failures (``what``: the purpose, e.g. "cannot export"). ``report``: see run_items."""
-    with store.run_lease(what, held_versions(items)) as run_id:  # gc deletes nothing it reads or writes
+    with store.run_lease(f"inputs ({what})", held_versions(items)) as run_id:  # gc deletes none of them
         todo = [i for i in items if not store.is_complete(i.partition.stage, i.key)]
         results = run_items(todo, workers=workers, processes=processes, progress=sys.stderr.isatty(), report=report,
                             run_id=run_id)

@@ -151,7 +151,11 @@ class Store:
         deletes; a run starting meanwhile waits for that gc to end before it looks at any version (each writes
         its lease before reading the other's, so one of the two always sees the other)."""
         lease = RunLease(self.fs, self._runs_folder(), self.local, label, kind, versions, run_id)
-        lease.start()
+        try:
+            lease.start()
+        except OSError as exc:
+            raise StorageError(f"cannot write the run lease {lease.path} in {self.root} ({exc.strerror or exc}); "
+                               f"free space there or make it writable, and run again") from exc
         try:
             if kind == "run":
                 self._wait_for_gc(lease.run_id)

@@ -20,7 +20,7 @@ import xarray as xr
 
 from conftest import PLUGINS, env_with_plugins, last_json, mocapflow, read_artifacts
 from mocapflow.pipeline.catalog import COUNT_LIMITS, MAX_EXPANDED_NODES, load_catalog
-from mocapflow.pipeline.errors import CatalogError, IntegrityError, PlanError
+from mocapflow.pipeline.errors import CatalogError, IntegrityError
 from mocapflow.pipeline.locks import HOST_ENV, LEASE_ENV
 from mocapflow.pipeline.plan import build_plan
 from mocapflow.pipeline.storage import Store
