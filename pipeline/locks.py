@@ -14,6 +14,13 @@ The holder's renewals and its release take the same claim on their own token, so
 never interleave: whichever comes second sees the other's result. A claim whose maker died (a claim lives a
 few milliseconds) is stale by the same rules and is claimed in turn (``<claim>-<token>``).
 
+A lock also names the run it was taken for and the scheduler's name of the worker (``run_id``, ``worker``): when
+the scheduler retries the task of a worker it lost, the retry, of the same run, asks the scheduler whether that
+worker still lives and takes its lock over at once if not, on any host (``working_for``). A lock whose fields are
+impossible (a lease that is not a positive number, a renewal further ahead than a lease) is stale, with a warning;
+so is a lock or claim file still unreadable a second after it was created (its writer failed, e.g. on a full disk,
+where no claim is left behind).
+
 Locally this rests on ``O_CREAT | O_EXCL`` and ``os.replace`` (atomic on POSIX, on NFSv3+ and on SMB).
 An object store needs conditional writes for the same guarantee: create-if-absent for the claim and the lock
 (S3 ``If-None-Match: *``, GCS ``ifGenerationMatch=0``) and compare-and-swap on the lock's version (S3
