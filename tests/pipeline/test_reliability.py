@@ -79,7 +79,8 @@ def test_gc_keeps_every_version_a_running_run_holds_and_says_why(toy_project):
     run = subprocess.Popen(CLI + ["run", "--json"], cwd=project, env={**env_with_plugins(), "TOY_HOLD_WHILE": str(hold)},
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        wait_for(lambda: list((project / "storage").glob("scaled/*/.lock")), what="a scaled lock")
+        # both workers hold a scaled version, begun (its lineage written), inside its first region
+        wait_for(lambda: len(list((project / "storage").glob("scaled/*/lineage.json"))) == 2, what="two scaled versions")
         versions = sorted(p.parent for p in (project / "storage").glob("*/*/lineage.json"))
         gc = mocapflow("gc", "--catalog", other, cwd=project).stdout
     finally:
@@ -87,7 +88,9 @@ def test_gc_keeps_every_version_a_running_run_holds_and_says_why(toy_project):
     out, err = run.communicate(timeout=300)
     assert run.returncode == 0, err
     kept = [line for line in gc.splitlines() if line.startswith("kept ")]
-    assert len(kept) == len(versions) >= 3, gc  # frames (complete, read) and the scaled versions being written
+    # frames (complete, read) and both scaled versions being written
+    assert sorted(line.split()[1] for line in kept) == [f"{v.parent.name}/{v.name}" for v in versions], gc
+    assert len(versions) == 3
     assert all("in use by run" in line and f"pid {run.pid}" in line for line in kept), gc
     assert f"0 unreferenced version(s) deleted, {len(versions)} kept because a live run holds them" in gc
     assert all(v.is_dir() for v in versions)
