@@ -19,7 +19,7 @@ from mocapflow.pipeline.errors import MocapflowError, PlanError
 from mocapflow.pipeline.evaluate import evaluate as run_evaluation
 from mocapflow.pipeline.evaluate import evaluation_plan, headline, table
 from mocapflow.pipeline.export import export_files
-from mocapflow.pipeline.plan import Partition, Plan, WorkItem, build_plan, select, status
+from mocapflow.pipeline.plan import Partition, Plan, WorkItem, build_plan, held_versions, select, status
 from mocapflow.pipeline.registry import did_you_mean
 from mocapflow.pipeline.report import build_report
 from mocapflow.pipeline.runlog import run_log
@@ -97,6 +97,8 @@ def run(catalog_path, overrides, sequences, only, until, dry_run, workers, threa
     store = Store(catalog.root)
     plan = build_plan(catalog, sequences)
     items = select(plan, catalog, store, only=only, until=until)
+    if not dry_run:  # held until the command ends: gc deletes nothing this run reads or writes
+        run_id = click.get_current_context().with_resource(store.run_lease(f"run {catalog_path}", held_versions(items)))
     cached = [i for i in items if store.is_complete(i.partition.stage, i.key)]
     todo = [i for i in items if i not in cached]
     if dry_run:
@@ -108,7 +110,7 @@ def run(catalog_path, overrides, sequences, only, until, dry_run, workers, threa
         return
     log_path = _run_log(store, "run")
     results = run_items(todo, workers=workers, processes=not threads, address=address, keep_going=keep_going,
-                        progress=not no_progress and sys.stderr.isatty(), report=_stage_lines())
+                        progress=not no_progress and sys.stderr.isatty(), report=_stage_lines(), run_id=run_id)
     by_status = {s: [r for r in results if r.status == s] for s in ("executed", "cached", "failed", "skipped")}
     elapsed = time.perf_counter() - started
     found_complete = len(by_status["cached"])  # complete when a worker reached them (another run wrote them)
@@ -276,21 +278,39 @@ def _diff(old, new, prefix=""):
 @set_option
 @click.option("--dry-run", is_flag=True, help="list what would be deleted")
 def gc(catalog_path, overrides, dry_run):
-    """Delete stored versions that the current catalog no longer references."""
+    """Delete stored versions that the current catalog no longer references, except those a live run holds."""
     catalog = load_catalog(catalog_path, overrides)
     store = Store(catalog.root)
     plan = build_plan(catalog)
     keep = {(i.partition.stage, i.key) for i in plan.items.values()}
-    doomed = [v for stage in store.stages_on_disk() for v in store.versions(stage) if (v.stage, v.key) not in keep]
-    for v in doomed:
-        click.echo(f"{'would delete' if dry_run else 'deleting'} {v.stage}/{v.key} ({v.partition})")
-        if not dry_run:
-            try:
-                with store.lock(v.stage, v.key, f"gc {v.partition}"):
-                    store.remove_version(v.stage, v.key)
-            except MocapflowError as exc:
-                click.echo(f"  kept: {exc}", err=True)
-    click.echo(f"{len(doomed)} unreferenced version(s){' found' if dry_run else ' deleted'}, {len(keep)} kept")
+    with store.run_lease(f"gc {catalog_path}", [], kind="gc"):  # runs starting now wait until it ends
+        doomed = [v for stage in store.stages_on_disk() for v in store.versions(stage) if (v.stage, v.key) not in keep]
+        held = store.held_versions()
+        deleted, kept = 0, 0
+        for v in doomed:
+            why = held.get((v.stage, v.key)) or (None if dry_run else _gc_delete(store, v))
+            if why is None:
+                deleted += 1
+                click.echo(f"{'would delete' if dry_run else 'deleted'} {v.stage}/{v.key} ({v.partition})")
+            else:
+                kept += 1
+                click.echo(f"{'would keep' if dry_run else 'kept'} {v.stage}/{v.key} ({v.partition}): in use by {why}")
+    click.echo(f"{deleted} unreferenced version(s) {'to delete' if dry_run else 'deleted'}, {kept} kept because a "
+               f"live run holds them, {len(keep)} referenced by the catalog")
+
+
+def _gc_delete(store: Store, v) -> str | None:
+    """Delete an unreferenced version unless a run holds it (asked again under its lock); None when deleted, else
+    what holds it."""
+    try:
+        with store.lock(v.stage, v.key, f"gc {v.partition}"):
+            held = store.held_versions().get((v.stage, v.key))
+            if held is not None:
+                return held
+            store.remove_version(v.stage, v.key)
+    except MocapflowError as exc:
+        return f"a lock: {exc}"
+    return None
 
 
 @main.command()

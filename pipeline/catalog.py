@@ -21,7 +21,18 @@ from mocapflow.pipeline.errors import CatalogError
 from mocapflow.schemas import ArtifactSchema, UnknownSchema, get_schema
 
 TOP_KEYS = ("data_roots", "plugins", "storage", "datasets", "stages", "evaluation")
-STORAGE_KEYS = ("root", "region_frames")
+STORAGE_KEYS = ("root", "region_frames", "max_partition_bytes")
+
+# Limits at the door, checked before anything is built from the catalog. A catalog is a few kilobytes of hand-written
+# YAML: the size and alias limits refuse an alias bomb (each level repeating the one below) before it is expanded.
+MAX_CATALOG_BYTES = 1 << 20
+MAX_ALIASES = 1000
+MAX_EXPANDED_NODES = 100_000  # nodes of the document with every alias expanded
+# What a dataset may state (studio ``defaults`` / ``sequences`` fields, a markers ``count``): far above any real take
+# (a million frames is nine hours at 30 fps), far below what exhausts a worker.
+COUNT_LIMITS = {"frames": 1_000_000, "views": 64, "width": 16384, "height": 16384, "count": 100_000,
+                "markers": 100_000}
+DEFAULT_MAX_PARTITION_BYTES = 64 << 30  # storage.max_partition_bytes: what one partition may allocate (plan.py)
 STAGE_KEYS = ("task", "params", "inputs", "dataset", "region_frames")
 DEFAULT_REGION_FRAMES = 32
 
@@ -63,6 +74,7 @@ class Catalog:
     datasets: Mapping[str, DatasetConfig]
     stages: Mapping[str, StageConfig]  # in topological order
     evaluation: Mapping[str, Any] = field(default_factory=dict)
+    max_partition_bytes: int = DEFAULT_MAX_PARTITION_BYTES
 
     def ancestors(self, stage: str) -> list[str]:
         """``stage`` and everything it depends on, in topological order."""
@@ -92,6 +104,7 @@ def load_catalog(path: str | os.PathLike, overrides: tuple[str, ...] = ()) -> Ca
     except OSError as exc:
         raise CatalogError(f"cannot read catalog {path}: {exc.strerror}; pass --catalog PATH") from exc
     try:
+        check_document(text, path)
         data = yaml.safe_load(text) or {}
         lines = _line_index(yaml.compose(text, Loader=yaml.SafeLoader))
     except yaml.YAMLError as exc:
@@ -100,6 +113,44 @@ def load_catalog(path: str | os.PathLike, overrides: tuple[str, ...] = ()) -> Ca
         raise CatalogError(f"{path}: the catalog must be a mapping with keys {list(TOP_KEYS)}")
     data = apply_overrides(data, overrides, lines)
     return _Validator(path, lines).catalog(data)
+
+
+def check_document(text: str, path: Path) -> None:
+    """CatalogError unless ``text`` is within the document limits: its size, its aliases and the size of the
+    document with every alias expanded (counted from the parser's events, without expanding anything)."""
+    if len(text.encode()) > MAX_CATALOG_BYTES:
+        raise CatalogError(f"{path} (line {text.count(chr(10)) + 1}): the catalog is {len(text.encode())} bytes, over "
+                           f"the limit of {MAX_CATALOG_BYTES} bytes; a catalog names data, it does not hold it: move "
+                           "the values into files it names")
+    sizes: dict[str, int] = {}  # anchor -> nodes of its value, aliases expanded
+    stack: list[list] = []  # open collections: [anchor, nodes so far]
+    aliases = expanded = 0
+    for event in yaml.parse(text, Loader=yaml.SafeLoader):
+        if isinstance(event, yaml.AliasEvent):
+            aliases += 1
+            nodes = sizes.get(event.anchor, 1)
+            expanded += nodes
+            if aliases > MAX_ALIASES or expanded > MAX_EXPANDED_NODES:
+                what = (f"{aliases} aliases, over the limit of {MAX_ALIASES}" if aliases > MAX_ALIASES else
+                        f"alias *{event.anchor} makes the expanded document over {MAX_EXPANDED_NODES} values (the "
+                        f"limit; this alias alone is {nodes})")
+                raise CatalogError(f"{path} (line {event.start_mark.line + 1}): {what}; write the values out, or use "
+                                   "fewer nested aliases")
+        elif isinstance(event, (yaml.MappingStartEvent, yaml.SequenceStartEvent)):
+            stack.append([event.anchor, 1])
+            continue
+        elif isinstance(event, (yaml.MappingEndEvent, yaml.SequenceEndEvent)):
+            anchor, nodes = stack.pop()
+            if anchor:
+                sizes[anchor] = nodes
+        elif isinstance(event, yaml.ScalarEvent):
+            nodes = 1
+            if event.anchor:
+                sizes[event.anchor] = 1
+        else:
+            continue
+        if stack:
+            stack[-1][1] += nodes
 
 
 def apply_overrides(data: dict, overrides: tuple[str, ...], lines: dict) -> dict:
@@ -171,6 +222,8 @@ class _Validator:
         root = self.storage_root(str(storage.get("root", "storage/")))
         region = storage.get("region_frames", DEFAULT_REGION_FRAMES)
         self.positive_int(region, "storage", "region_frames")
+        ceiling = self.positive_int(storage.get("max_partition_bytes", DEFAULT_MAX_PARTITION_BYTES), "storage",
+                                    "max_partition_bytes")
         roots = data.get("data_roots") or ["."]
         if not isinstance(roots, list):
             raise CatalogError(f"{self.where('data_roots')}: expected a list of folders, got {roots!r}")
@@ -178,7 +231,7 @@ class _Validator:
         datasets = self.datasets(self.mapping(data.get("datasets"), "datasets"))
         stages = self.stages(self.mapping(data.get("stages"), "stages"), datasets, region)
         evaluation = self.mapping(data.get("evaluation"), "evaluation")
-        return Catalog(self.path, root, data_roots, plugins, datasets, stages, evaluation)
+        return Catalog(self.path, root, data_roots, plugins, datasets, stages, evaluation, ceiling)
 
     def storage_root(self, root: str) -> str:
         """The storage root: a local folder (resolved against the catalog; not a file) or a URL of a filesystem
@@ -218,8 +271,24 @@ class _Validator:
                     raise CatalogError(f"{self.where('datasets', name, key)}: unknown option {key!r} for a {kind!r} "
                                        f"dataset{registry.did_you_mean(str(key), options)}; its options are "
                                        f"{['kind', *options]}")
+            self.counts(body, "datasets", name)
             out[name] = DatasetConfig(name, kind, body, self.where("datasets", name))
         return out
+
+    def counts(self, value, *keys) -> None:
+        """Every count a dataset states (``COUNT_LIMITS``' keys, at any depth: studio ``defaults`` and ``sequences``,
+        a markers ``count``) within its limit."""
+        if isinstance(value, dict):
+            for key, child in value.items():
+                limit = COUNT_LIMITS.get(str(key))
+                if limit is not None and isinstance(child, (int, float)) and not isinstance(child, bool) \
+                        and child > limit:
+                    raise CatalogError(f"{self.where(*keys, key)}: {key}={child!r} is over the limit of {limit}; "
+                                       f"split the take into shorter sequences, or lower {key}")
+                self.counts(child, *keys, key)
+        elif isinstance(value, list):
+            for n, child in enumerate(value):
+                self.counts(child, *keys, n)
 
     def stages(self, raw: dict, datasets: dict, default_region: int) -> dict[str, StageConfig]:
         parsed: dict[str, StageConfig] = {}

@@ -29,6 +29,7 @@ import xarray as xr
 from mocapflow.pipeline import registry
 from mocapflow.pipeline.datasets import read_frames
 from mocapflow.pipeline.errors import MocapflowError, StorageError
+from mocapflow.pipeline.locks import no_space
 from mocapflow.pipeline.models import load_weights
 from mocapflow.pipeline.plan import WorkItem, now
 from mocapflow.pipeline.storage import Store
@@ -100,6 +101,13 @@ def _locked(item: WorkItem, store: Store, produce) -> Result:
                       regions=written)
     except MocapflowError as exc:
         return Result(pid, "failed", error=str(exc), seconds=time.perf_counter() - started)
+    except OSError as exc:
+        if no_space(exc):
+            return Result(pid, "failed", error=f"storage root {item.root} is full ({exc.strerror}): partition {pid} "
+                          "was not written; free space there (or point storage.root elsewhere) and run again; "
+                          "the written regions are kept", seconds=time.perf_counter() - started)
+        return Result(pid, "failed", error=f"{type(exc).__name__}: {exc}", detail=traceback.format_exc(),
+                      seconds=time.perf_counter() - started)
     except Exception as exc:  # a task's own bug: report it with its traceback, keep the run alive
         return Result(pid, "failed", error=f"{type(exc).__name__}: {exc}", detail=traceback.format_exc(),
                       seconds=time.perf_counter() - started)
@@ -158,8 +166,9 @@ def _unit_member(item: WorkItem, unit: Unit, store: Store, loader: "_UnitInputs"
                                unit.stop, seconds=time.perf_counter() - started)
             loader.keep(item, out)
             written = 1
-        committed = unit.last and _commit_if_whole(item, store)
-        return written, bool(written or committed)
+        if unit.last and not _commit_if_whole(item, store):
+            raise StorageError(_uncommitted(item, store))
+        return written, bool(written or unit.last)
 
     return _locked(item, store, produce)
 
@@ -268,9 +277,17 @@ def _produce(item: WorkItem, store: Store) -> int:
         written += 1
         log.debug("%s: frames %d-%d written", item.partition.id, start, stop)
     if not _commit_if_whole(item, store):
-        raise StorageError(f"{item.partition.id}: a region is still missing after every region was written "
-                           f"(storage root {item.root}); another process may be deleting it: rerun the stage")
+        raise StorageError(_uncommitted(item, store))
     return written
+
+
+def _uncommitted(item: WorkItem, store: Store) -> str:
+    """Why ``item``'s partition could not be committed after its last region: the regions missing."""
+    stage, key = item.partition.stage, item.key
+    missing = [f"{a}-{b}" for a, b in spans(item) if not store.region_done(stage, key, a, b)]
+    return (f"partition {item.partition.id} was not committed: frames {', '.join(missing[:4])}"
+            f"{' ...' if len(missing) > 4 else ''} of {store.version_dir(stage, key)} are missing after its last "
+            f"region was written (another process deleted them meanwhile); run again to write them")
 
 
 def _compute_region(item: WorkItem, store: Store, start: int, stop: int, load=None) -> xr.Dataset:

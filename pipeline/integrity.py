@@ -1,5 +1,9 @@
 """Digests of stored chunks: recorded as they are written, checked as they are read.
 
+The metadata decides what a reader gets as much as the chunks do (a codec's endianness turns every value into
+garbage), so the commit also records the digest of every ``zarr.json`` (the group's, with its attributes, and each
+array's), and reads and `mocapflow verify` check them like chunks.
+
 Every chunk a region write stores is recorded as ``"<bytes>:<crc32c>"`` of its stored (compressed) bytes, keyed
 by its zarr key (``value/c/0/4/0/0``), in the region's marker; the commit gathers them into ``digests.json``.
 A read checks each chunk it fetches against its record, so a chunk that was deleted (zarr would read fill
@@ -79,10 +83,11 @@ class Where:
     root: str
 
     def damaged(self, chunk: str, problem: str) -> IntegrityError:
+        what = f"chunk {chunk} of array {array_of(chunk)!r}" if is_chunk(chunk) else f"metadata {chunk}"
         return IntegrityError(
-            f"artifact {self.stage}/{self.key} (partition {self.partition}) in {self.root}: chunk {chunk} of array "
-            f"{array_of(chunk)!r} {problem}; the stored data changed after it was committed: run `mocapflow verify "
-            f"{self.stage}` to mark the damaged versions, then `mocapflow run` to recompute them")
+            f"artifact {self.stage}/{self.key} (partition {self.partition}) in {self.root}: {what} {problem}; the "
+            f"stored data changed after it was committed: run `mocapflow verify {self.stage}` to mark the damaged "
+            f"versions, then `mocapflow run` to recompute them")
 
 
 def chunk_problem(data, want: str) -> str | None:

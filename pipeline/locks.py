@@ -14,6 +14,13 @@ The holder's renewals and its release take the same claim on their own token, so
 never interleave: whichever comes second sees the other's result. A claim whose maker died (a claim lives a
 few milliseconds) is stale by the same rules and is claimed in turn (``<claim>-<token>``).
 
+A lock also names the run it was taken for and the scheduler's name of the worker (``run_id``, ``worker``): when
+the scheduler retries the task of a worker it lost, the retry, of the same run, asks the scheduler whether that
+worker still lives and takes its lock over at once if not, on any host (``working_for``). A lock whose fields are
+impossible (a lease that is not a positive number, a renewal further ahead than a lease) is stale, with a warning;
+so is a lock or claim file still unreadable a second after it was created (its writer failed, e.g. on a full disk,
+where no claim is left behind).
+
 Locally this rests on ``O_CREAT | O_EXCL`` and ``os.replace`` (atomic on POSIX, on NFSv3+ and on SMB).
 An object store needs conditional writes for the same guarantee: create-if-absent for the claim and the lock
 (S3 ``If-None-Match: *``, GCS ``ifGenerationMatch=0``) and compare-and-swap on the lock's version (S3
@@ -26,14 +33,20 @@ clocks must agree to well within the lease (NTP keeps them within milliseconds).
 
 from __future__ import annotations
 
+import contextvars
+import errno
 import json
 import logging
+import math
 import multiprocessing
 import os
 import socket
 import threading
 import time
 import uuid
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Callable, Iterator
 
 import psutil
 
@@ -42,6 +55,7 @@ from mocapflow.pipeline.errors import LockError, StorageError
 log = logging.getLogger(__name__)
 
 LEASE_ENV = "MOCAPFLOW_LOCK_LEASE_S"
+HOST_ENV = "MOCAPFLOW_HOSTNAME"  # the host name locks record (tests simulate a second host with it)
 # 60 s lease, renewed every 10 s: a holder misses five renewals in a row before anyone may take its lock over,
 # which rides out a long garbage-collection pause, a swapping host or an NFS server that stalls for tens of seconds
 # (a hard mount retries every 6 s by default), while a partition whose worker died on another host waits at most a
@@ -50,6 +64,38 @@ DEFAULT_LEASE_S = 60.0
 HEARTBEATS_PER_LEASE = 6
 CLAIM_WAIT_S = 2.0  # how long a holder waits for a contender's claim on its lock (held for milliseconds)
 UNREADABLE = "unreadable"  # the token of a lock file whose contents cannot be parsed
+# A lock or claim file is created empty and written at once; one still unreadable after this long was left by a
+# writer that failed (a full disk) or died in between, and is stale.
+UNREADABLE_GRACE_S = 1.0
+
+
+def hostname() -> str:
+    """This host's name as locks record it: ``$MOCAPFLOW_HOSTNAME`` or the system's."""
+    return os.environ.get(HOST_ENV) or socket.gethostname()
+
+
+@dataclass(frozen=True)
+class RunContext:
+    """Who takes locks in this thread: the run (``run_id``), the scheduler's name for this worker (``worker``), and
+    how to ask the scheduler which workers still live (``live_workers``: their names)."""
+
+    run_id: str
+    worker: str | None = None
+    live_workers: Callable[[], set[str]] | None = None
+
+
+_CONTEXT: contextvars.ContextVar[RunContext | None] = contextvars.ContextVar("mocapflow_run", default=None)
+
+
+@contextmanager
+def working_for(context: RunContext) -> Iterator[None]:
+    """Locks taken in the enclosed code carry ``context``'s run and worker; a lock of this run held by a worker that
+    the scheduler reports dead is taken over at once (the scheduler retries its task on another worker)."""
+    token = _CONTEXT.set(context)
+    try:
+        yield
+    finally:
+        _CONTEXT.reset(token)
 
 
 def lease_seconds() -> float:
@@ -106,6 +152,13 @@ class LeasedLock:
             claims = self._claim_waiting(self.me["token"])
         except FileNotFoundError:
             return  # the version folder was deleted meanwhile
+        except OSError as exc:
+            if not no_space(exc):
+                raise
+            # no room for a claim (a full disk); a live lock is never taken over, so deleting ours is safe
+            if _token(self._read(self.path)) == self.me["token"]:
+                self.fs.rm_file(self.path)
+            return
         if claims is None:
             log.warning("%s: a contender held the claim on %s for %.0f s; left the lock to expire",
                         self.label, self.path, CLAIM_WAIT_S)
@@ -181,14 +234,22 @@ class LeasedLock:
             time.sleep(0.01)
 
     def _stale(self, path: str, holder: dict) -> bool:
-        """Whether ``holder`` (read from ``path``) has lost its claim: dead on this host, or its lease ran out."""
-        if holder.get("host") == socket.gethostname() and not process_alive(holder):
+        """Whether ``holder`` (read from ``path``) has lost its claim: dead on this host, fenced by its own run (a
+        worker the scheduler reports dead), impossible (see ``impossible``), or its lease ran out."""
+        if not holder:  # unreadable: created but never written (a full disk, a writer that died in between)
+            return time.time() - self._mtime(path) > UNREADABLE_GRACE_S
+        if holder.get("host") == hostname() and not process_alive(holder):
+            return True
+        problem = impossible(holder)
+        if problem is not None:
+            log.warning("%s: the lock %s of %s is malformed (%s); treating it as stale", self.label, path,
+                        describe(holder), problem)
             return True
         renewed = _number(holder, "renewed")
-        if renewed is None:  # unreadable, or written by an older release: the file's modification time
+        if renewed is None:  # written by an older release: the file's modification time
             renewed = self._mtime(path)
         lease = _number(holder, "lease_s") or lease_seconds()
-        return time.time() - renewed > lease
+        return time.time() - renewed > lease or _fenced(self.label, path, holder)
 
     # ---- files -----------------------------------------------------------------------------
     def _create(self, path: str, info: dict) -> bool:
@@ -199,8 +260,12 @@ class LeasedLock:
                 fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
             except FileExistsError:
                 return False
-            with os.fdopen(fd, "wb") as fh:
-                fh.write(data)
+            try:
+                with os.fdopen(fd, "wb") as fh:
+                    fh.write(data)
+            except OSError:  # a full disk: leave no empty claim or lock behind
+                _unlink_quietly(path)
+                raise
             return True
         if self.fs.exists(path):  # best effort: fsspec has no create-if-absent (see the module's docstring)
             return False
@@ -214,8 +279,12 @@ class LeasedLock:
             self.fs.pipe_file(path, data)
             return
         tmp = f"{path}.{info['token']}.tmp"
-        with open(tmp, "wb") as fh:
-            fh.write(data)
+        try:
+            with open(tmp, "wb") as fh:
+                fh.write(data)
+        except OSError:
+            _unlink_quietly(tmp)
+            raise
         os.replace(tmp, path)
 
     def _read(self, path: str) -> dict | None:
@@ -250,10 +319,69 @@ def holder_info(label: str, lease_s: float) -> dict:
     lease."""
     me = psutil.Process()
     parent = multiprocessing.parent_process()
-    return {"host": socket.gethostname(), "pid": os.getpid(), "started": me.create_time(),
+    context = _CONTEXT.get()
+    info = {"host": hostname(), "pid": os.getpid(), "started": me.create_time(),
             "run_pid": parent.pid if parent is not None else os.getpid(),
             "since": time.strftime("%Y-%m-%dT%H:%M:%S"), "run": label, "token": uuid.uuid4().hex,
             "lease_s": lease_s}
+    if context is not None:
+        info.update(run_id=context.run_id, worker=context.worker)
+    return info
+
+
+def impossible(holder: dict) -> str | None:
+    """What makes a lock's fields impossible (a lease that is not a positive finite number, a renewal time that is
+    not finite or lies further ahead than a lease: no clock that agrees within the lease writes one), or None."""
+    lease, renewed = holder.get("lease_s"), holder.get("renewed")
+    if lease is not None:
+        value = _number(holder, "lease_s")
+        if value is None or not math.isfinite(value) or value <= 0:
+            return f"lease_s {lease!r} is not a positive number of seconds"
+    if renewed is not None:
+        value = _number(holder, "renewed")
+        if value is None or not math.isfinite(value):
+            return f"renewed {renewed!r} is not a time"
+        ahead = value - time.time()
+        if ahead > (_number(holder, "lease_s") or lease_seconds()):
+            return f"renewed {ahead:.0f} s in the future"
+    return None
+
+
+def _fenced(label: str, path: str, holder: dict) -> bool:
+    """Whether ``holder`` is a worker of this thread's own run that the run's scheduler reports dead (the scheduler
+    then retries its task, here): its lock is taken over at once, on any host."""
+    context = _CONTEXT.get()
+    worker = holder.get("worker")
+    if context is None or context.live_workers is None or not worker or holder.get("run_id") != context.run_id:
+        return False
+    if worker == context.worker:
+        return False
+    try:
+        live = context.live_workers()
+    except (OSError, RuntimeError, ValueError) as exc:  # no answer: leave it to the lease
+        log.warning("%s: could not ask the scheduler whether worker %s lives (%s)", label, worker, exc)
+        return False
+    if worker in live:
+        return False
+    log.warning("%s: the lock %s is held by worker %s of this run, which the scheduler reports dead; taking it over",
+                label, path, worker)
+    return True
+
+
+def _unlink_quietly(path: str) -> None:
+    try:
+        os.unlink(path)
+    except FileNotFoundError:
+        return
+
+
+def no_space(exc: BaseException) -> bool:
+    """Whether ``exc`` (or an error it was raised from) is a full disk or quota."""
+    while exc is not None:
+        if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            return True
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 def process_alive(holder: dict) -> bool:
@@ -296,3 +424,103 @@ def _number(holder: dict, field: str) -> float | None:
         return float(holder[field])
     except (KeyError, TypeError, ValueError):
         return None
+
+
+# ---- run leases ------------------------------------------------------------------------------------------------
+class RunLease:
+    """A run's (or a gc's) lease on the versions it reads and writes, for its whole life: ``<folder>/<id>.json``
+    naming its holder (as a lock does), ``kind`` ("run" or "gc") and ``versions`` ([stage, key] pairs), renewed
+    from a daemon thread like a lock and deleted at its end. ``mocapflow gc`` deletes no version a live lease
+    holds; a lease is dead as a lock is stale (its process gone on this host, its lease run out, impossible
+    fields)."""
+
+    def __init__(self, fs, folder: str, local: bool, label: str, kind: str, versions: list[tuple[str, str]],
+                 run_id: str | None = None, lease_s: float | None = None):
+        self.fs, self.local = fs, local
+        self.me = holder_info(label, lease_seconds() if lease_s is None else lease_s)
+        self.me.update(kind=kind, run_id=run_id or self.me["token"][:12],
+                       versions=[[str(stage), str(key)] for stage, key in versions])
+        self.path = f"{folder.rstrip('/')}/{self.me['run_id']}.json"
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    @property
+    def run_id(self) -> str:
+        return str(self.me["run_id"])
+
+    def start(self) -> None:
+        self.fs.makedirs(self.path.rsplit("/", 1)[0], exist_ok=True)
+        self._write()
+        self._thread = threading.Thread(target=self._beat, name=f"run lease {self.run_id}", daemon=True)
+        self._thread.start()
+
+    def end(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        try:
+            self.fs.rm_file(self.path)
+        except FileNotFoundError:
+            return
+
+    def _write(self) -> None:
+        data = _encode(self.me)
+        if not self.local:
+            self.fs.pipe_file(self.path, data)
+            return
+        tmp = f"{self.path}.tmp"
+        try:
+            with open(tmp, "wb") as fh:
+                fh.write(data)
+        except OSError:
+            _unlink_quietly(tmp)
+            raise
+        os.replace(tmp, self.path)
+
+    def _beat(self) -> None:
+        interval = float(self.me["lease_s"]) / HEARTBEATS_PER_LEASE
+        while not self._stop.wait(interval):
+            try:
+                self._write()
+            except OSError as exc:
+                log.warning("run %s: could not renew its lease %s (%s); retrying in %.1f s", self.run_id, self.path,
+                            exc, interval)
+
+
+def read_run_leases(fs, folder: str) -> tuple[list[dict], list[str]]:
+    """The live run leases in ``folder`` (each with its ``path``), and the paths of the dead ones."""
+    try:
+        paths = [p for p in fs.glob(f"{folder.rstrip('/')}/*.json")]
+    except FileNotFoundError:
+        return [], []
+    live, dead = [], []
+    for path in sorted(paths):
+        try:
+            info = json.loads(fs.cat_file(path))
+        except FileNotFoundError:
+            continue  # ended meanwhile
+        except ValueError:
+            info = {}
+        if not isinstance(info, dict):
+            info = {}
+        (dead if lease_dead(fs, path, info) else live).append({**info, "path": path} if info else {"path": path})
+    return live, [i["path"] for i in dead]
+
+
+def lease_dead(fs, path: str, info: dict) -> bool:
+    """Whether the run lease ``info`` (read from ``path``) is dead, by the rules of a stale lock."""
+    if not info:
+        try:
+            age = time.time() - fs.modified(path).timestamp()
+        except (FileNotFoundError, NotImplementedError):
+            return True
+        return age > UNREADABLE_GRACE_S
+    if info.get("host") == hostname() and not process_alive(info):
+        return True
+    problem = impossible(info)
+    if problem is not None:
+        log.warning("run lease %s of %s is malformed (%s); treating it as dead", path, describe(info), problem)
+        return True
+    renewed = _number(info, "renewed")
+    lease = _number(info, "lease_s") or lease_seconds()
+    return renewed is None or time.time() - renewed > lease

@@ -14,6 +14,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
+import numpy as np
 import xarray as xr
 
 from mocapflow.pipeline import registry
@@ -137,7 +138,59 @@ def build_plan(catalog: Catalog, sequences: str | None = None) -> Plan:
         for stage in per_dataset:
             item = _dataset_item(catalog, stage, dataset_name, seqs, all_keys, weights[stage.name])
             plan.items[item.partition.id] = item
+    check_ceiling(plan, catalog.max_partition_bytes)
     return plan
+
+
+BYTES_PER_VALUE = 4  # float32, the widest per-pixel value the image stages hold
+DEFAULT_IMAGE = (424, 512)  # (height, width) where a sequence does not state its own: the Kinect v2 depth sensor
+
+
+def check_ceiling(plan: Plan, ceiling: int) -> None:
+    """PlanError naming the biggest partition when it would allocate more than ``ceiling`` bytes
+    (storage.max_partition_bytes), before any worker starts."""
+    sequences = {seq.id: seq for seq in plan.sequences}
+    sizes = [(partition_bytes(item, sequences), n, item) for n, item in enumerate(plan.items.values())]
+    if sizes:
+        need, _, item = max(sizes, key=lambda s: (s[0], -s[1]))
+        if need > ceiling:
+            over = sum(1 for size, _, _ in sizes if size > ceiling)
+            raise PlanError(f"partition {item.partition.id} (the biggest of {over} over the ceiling) would hold about "
+                            f"{need} bytes ({need / 2**30:.1f} GiB: "
+                            f"frames x views x {'image size' if _images(item) else 'values'} x {BYTES_PER_VALUE} B), over "
+                            f"the ceiling of {ceiling} bytes (storage.max_partition_bytes); shorten the sequence, or "
+                            f"raise the ceiling in the catalog's storage section or with --set "
+                            f"storage.max_partition_bytes={need}")
+
+
+def partition_bytes(item: WorkItem, sequences: Mapping[str, SequenceInfo]) -> int:
+    """What ``item`` holds at once, estimated: the frames it holds (a region and its halo, or the whole sequence for
+    a whole-sequence task, every sequence for a per-dataset one) x its views x the image size (1 where none of its
+    artifacts is an image) x ``BYTES_PER_VALUE``."""
+    spec, seq = item.spec, item.sequence
+    pixels = int(np.prod(_image_size(seq))) if _images(item) else 1
+    if spec.partition == "dataset":
+        members = [sequences[s] for s in seq.spec.get("sequences", []) if s in sequences]
+        return sum(s.n_frames * max(1, len(s.views)) for s in members) * pixels * BYTES_PER_VALUE
+    frames = seq.n_frames if spec.whole_sequence else min(seq.n_frames, item.stage.region_frames + sum(spec.halo))
+    views = 1 if item.partition.view is not None else max(1, len(seq.views))
+    return frames * views * pixels * BYTES_PER_VALUE
+
+
+def _images(item: WorkItem) -> bool:
+    """Whether ``item`` writes or reads an image (an array with y and x dims)."""
+    schemas = [item.stage.schema, *(up.schema for up in item.upstream.values())]
+    return any("y" in var.dims and "x" in var.dims for schema in schemas for var in schema.variables.values())
+
+
+def _image_size(seq: SequenceInfo) -> tuple[int, int]:
+    """(height, width) as the sequence's reader states them, else ``DEFAULT_IMAGE``."""
+    spec = seq.spec
+    get = spec.get if isinstance(spec, Mapping) else (lambda name, default=None: getattr(spec, name, default))
+    height, width = get("height", None), get("width", None)
+    if isinstance(height, int) and isinstance(width, int) and height > 0 and width > 0:
+        return height, width
+    return DEFAULT_IMAGE
 
 
 def _discover_all(catalog: Catalog, sequences: str | None) -> dict[str, list[SequenceInfo]]:
@@ -288,6 +341,17 @@ def status(item: WorkItem, store: Store, versions_by_stage: dict) -> str:
         return "partial"
     others = [v for v in versions_by_stage.get(stage, []) if v.partition == item.partition.id and v.key != item.key]
     return "stale" if others else "missing"
+
+
+def held_versions(items: list[WorkItem]) -> list[tuple[str, str]]:
+    """Every version (stage, key) that running ``items`` writes or reads, in order, each once."""
+    out: dict[tuple[str, str], None] = {}
+    for item in items:
+        out[(item.partition.stage, item.key)] = None
+        for up in item.upstream.values():
+            for keys in (up.by_sequence.values() if up.by_sequence is not None else [up.keys]):
+                out.update({(up.stage, key): None for key in keys.values()})
+    return list(out)
 
 
 def now() -> str:

@@ -34,6 +34,44 @@ class _LogFile(logging.FileHandler):
         stream.write(self.header + "\n")
         return stream
 
+    failed = False  # the file could not be written (a full disk): records go to stderr instead
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if self.failed:
+            self._to_stderr(record)
+            return
+        super().emit(record)
+
+    def handleError(self, record: logging.LogRecord) -> None:
+        """One line on stderr, then this record and the next ones there (never logging's own traceback)."""
+        error = sys.exc_info()[1]
+        self.failed = True
+        self._drop_stream()
+        sys.stderr.write(f"mocapflow: cannot write the run log {self.baseFilename} ({error}); logging to stderr "
+                         "instead\n")
+        self._to_stderr(record)
+
+    def close(self) -> None:
+        try:
+            super().close()
+        except OSError:  # flushing the last records to a full disk
+            self.failed = True
+            self.stream = None
+
+    def _drop_stream(self) -> None:
+        stream, self.stream = self.stream, None
+        if stream is not None:
+            try:
+                stream.close()
+            except OSError:
+                return
+
+    def _to_stderr(self, record: logging.LogRecord) -> None:
+        try:
+            sys.stderr.write(self.format(record) + "\n")
+        except (OSError, ValueError):
+            return
+
 
 @contextmanager
 def run_log(store: Store, command: str) -> Iterator[str]:

@@ -35,7 +35,8 @@ from tqdm import tqdm
 from mocapflow.pipeline import registry
 from mocapflow.pipeline.errors import PlanError
 from mocapflow.pipeline.execute import Result, Unit, run_partition, run_unit, spans
-from mocapflow.pipeline.plan import WorkItem
+from mocapflow.pipeline.locks import RunContext, working_for
+from mocapflow.pipeline.plan import WorkItem, held_versions
 
 log = logging.getLogger(__name__)
 
@@ -118,12 +119,13 @@ def _warm_imports(items: list[WorkItem]) -> None:
 
 def run_items(items: list[WorkItem], *, workers: int = 2, address: str | None = None, processes: bool = True,
               keep_going: bool = False, progress: bool = True, units: bool = True,
-              report: Callable[[str], None] | None = None) -> list[Result]:
+              report: Callable[[str], None] | None = None, run_id: str | None = None) -> list[Result]:
     """Run ``items`` (topologically ordered) and return one Result per item, in order. ``processes``: local
     workers are processes (else threads of this process); ``units``: run the stages that work region by region
     as units (the default); False: every partition as one task. Each stage whose partitions have all finished
     is logged (INFO) as one line, also handed to ``report`` (the CLI prints it where there is no progress bar);
-    each task, its worker and its partitions are logged too."""
+    each task, its worker and its partitions are logged too. ``run_id``: the run's id (its run lease's), which its
+    workers' locks carry: a retry of a task whose worker died takes that worker's locks over at once."""
     if not items:
         return []
     if not address and not processes:  # worker processes, local or remote, import for themselves
@@ -137,7 +139,7 @@ def run_items(items: list[WorkItem], *, workers: int = 2, address: str | None = 
         with dask_client(workers, address, processes=processes) as client:
             log.info("running %d partition(s) of %d stage(s) as %d task(s) on %s", len(items), len(stages.left),
                      len(graph), address or f"{workers} local worker {'processes' if processes else 'threads'}")
-            for task, results in _dispatch(client, graph, uuid.uuid4().hex[:8]):
+            for task, results in _dispatch(client, graph, run_id or uuid.uuid4().hex[:12]):
                 for r in results:
                     reports.setdefault(r.partition, []).append(r)
                 if task.finishes:
@@ -239,10 +241,10 @@ def _dispatch(client, graph: list[_Task], run_id: str) -> Iterator[tuple[_Task, 
                 task = graph[n]
                 upstream = [done[u] for u in task.after]
                 if isinstance(task.work, Unit):
-                    fut = client.submit(_on_worker, run_unit, task.work, *upstream, key=f"{task.work.id}-{run_id}",
-                                        pure=False)
+                    fut = client.submit(_on_worker, run_id, run_unit, task.work, *upstream,
+                                        key=f"{task.work.id}-{run_id}", pure=False)
                 else:
-                    fut = client.submit(_on_worker, run_partition, task.work, *upstream,
+                    fut = client.submit(_on_worker, run_id, run_partition, task.work, *upstream,
                                         key=f"{task.work.partition.id}-{task.work.key}-{run_id}", pure=False)
                 log.debug("submitted %s", _task_name(task))
                 running[fut] = n
@@ -322,12 +324,27 @@ def _reads_any(item: WorkItem, targets: set[str], ids: dict, seen: set | None = 
     return False
 
 
-def _on_worker(fn, *args):
-    """Run ``fn(*args)`` on a Dask worker; returns (the worker's name and address, what ``fn`` returned)."""
+def _on_worker(run_id: str, fn, *args):
+    """Run ``fn(*args)`` for run ``run_id`` on a Dask worker, its locks carrying the run and the worker (a retry of
+    this task after the worker died takes them over: locks.working_for); returns (the worker's name and address,
+    what ``fn`` returned)."""
     from distributed import get_worker
 
     worker = get_worker()
-    return f"{worker.name} ({worker.address})", fn(*args)
+    with working_for(RunContext(run_id, worker.address, _live_workers)):
+        out = fn(*args)
+    return f"{worker.name} ({worker.address})", out
+
+
+def _live_workers() -> set[str]:
+    """The addresses of the workers the scheduler holds now (asked from a task)."""
+    from distributed import get_client
+
+    return set(get_client().run_on_scheduler(_scheduler_workers))
+
+
+def _scheduler_workers(dask_scheduler=None) -> list[str]:
+    return list(dask_scheduler.workers)
 
 
 def _task_name(task: _Task) -> str:
@@ -364,8 +381,10 @@ def compute_missing(items, store, *, workers: int, what: str, processes: bool = 
                     report: Callable[[str], None] | None = None) -> list[WorkItem]:
     """Run the ``items`` not yet complete in ``store`` and return them; raise PlanError naming the first
     failures (``what``: the purpose, e.g. "cannot export"). ``report``: see run_items."""
-    todo = [i for i in items if not store.is_complete(i.partition.stage, i.key)]
-    results = run_items(todo, workers=workers, processes=processes, progress=sys.stderr.isatty(), report=report)
+    with store.run_lease(f"inputs ({what})", held_versions(items)) as run_id:  # gc deletes none of them
+        todo = [i for i in items if not store.is_complete(i.partition.stage, i.key)]
+        results = run_items(todo, workers=workers, processes=processes, progress=sys.stderr.isatty(), report=report,
+                            run_id=run_id)
     if any(not r.ok for r in results):
         raise PlanError(f"{what}:\n" + "\n".join(failure_report(results)))
     return todo

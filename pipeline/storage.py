@@ -11,6 +11,8 @@ Layout of one artifact version (one stage partition under one cache key)::
     <root>/<stage>/<key>/_COMPLETE         every region is committed; lineage is in the zarr attrs
     <root>/<stage>/<key>/_DAMAGED          `mocapflow verify` found damaged chunks; their regions are to be written again
     <root>/<stage>/<key>/.lock             held while a run writes this version (a lease: pipeline/locks.py)
+    <root>/runs/<run id>.json              a live run's lease on every version it reads or writes (and a gc's
+                                           presence), renewed while it runs: `mocapflow gc` deletes none of them
 
 A version is read only when ``_COMPLETE`` exists; a region is trusted only when its marker
 exists, so a run killed at any point resumes at region granularity and never reads a partial
@@ -31,7 +33,7 @@ import numpy as np
 import xarray as xr
 
 from mocapflow.pipeline.errors import LockError, SchemaError, StorageError
-from mocapflow.pipeline.locks import LeasedLock
+from mocapflow.pipeline.locks import LeasedLock, RunLease, describe, read_run_leases
 from mocapflow.schemas import ArtifactSchema, SchemaViolation
 from mocapflow.tasks.shared.cache import BoundedCache
 
@@ -68,6 +70,8 @@ class VersionInfo:
 
 
 LOG_FOLDER = "logs"  # each run's log file, <root>/logs/run-<time>.log (runlog.py)
+RUNS_FOLDER = "runs"  # each live run's lease on the versions it holds, <root>/runs/<run id>.json
+GC_WAIT_POLL_S = 0.2  # how often a starting run looks again whether a gc still runs
 
 
 class Store:
@@ -120,16 +124,74 @@ class Store:
         except FileNotFoundError:
             return []
         names = sorted(e["name"].rstrip("/").split("/")[-1] for e in entries if e["type"] == "directory")
-        # The runs' log files (runlog.py) share the root; their folder is a stage only where it holds versions.
-        return [n for n in names
-                if n != LOG_FOLDER or self.fs.glob(f"{self.base.rstrip('/')}/{LOG_FOLDER}/*/lineage.json")]
+        # The runs' log files (runlog.py) and leases share the root; their folders are stages only where they hold
+        # versions.
+        return [n for n in names if n not in (LOG_FOLDER, RUNS_FOLDER)
+                or self.fs.glob(f"{self.base.rstrip('/')}/{n}/*/lineage.json")]
 
     def _put(self, path: str, data: bytes) -> None:
         self.fs.makedirs(path.rsplit("/", 1)[0], exist_ok=True)
         self.fs.pipe_file(path, data)
 
     def remove_version(self, stage: str, key: str) -> None:
+        """Delete a version, its completion marker first (a reader sees it complete or absent, never half gone)."""
+        if self.fs.exists(self._marker(stage, key, "_COMPLETE")):
+            self.fs.rm_file(self._marker(stage, key, "_COMPLETE"))
         self.fs.rm(self.version_dir(stage, key), recursive=True)
+
+    # ---- run leases ----------------------------------------------------------------------
+    def _runs_folder(self) -> str:
+        return f"{self.base.rstrip('/')}/{RUNS_FOLDER}"
+
+    @contextmanager
+    def run_lease(self, label: str, versions: list[tuple[str, str]], kind: str = "run",
+                  run_id: str | None = None) -> Iterator[str]:
+        """Hold ``versions`` (stage, key) for the enclosed run, whose id it yields: `mocapflow gc` deletes none of
+        them while the lease lives (pipeline/locks.py, RunLease). ``kind="gc"``: a gc's presence, held while it
+        deletes; a run starting meanwhile waits for that gc to end before it looks at any version (each writes
+        its lease before reading the other's, so one of the two always sees the other)."""
+        lease = RunLease(self.fs, self._runs_folder(), self.local, label, kind, versions, run_id)
+        try:
+            lease.start()
+        except OSError as exc:
+            raise StorageError(f"cannot write the run lease {lease.path} in {self.root} ({exc.strerror or exc}); "
+                               f"free space there or make it writable, and run again") from exc
+        try:
+            if kind == "run":
+                self._wait_for_gc(lease.run_id)
+            yield lease.run_id
+        finally:
+            lease.end()
+
+    def live_leases(self, kind: str | None = None) -> list[dict]:
+        """The live run leases (of ``kind``); dead ones are deleted on the way."""
+        live, dead = read_run_leases(self.fs, self._runs_folder())
+        for path in dead:
+            log.info("deleting the dead run lease %s", path)
+            try:
+                self.fs.rm_file(path)
+            except FileNotFoundError:
+                continue
+        return [info for info in live if kind is None or info.get("kind") == kind]
+
+    def held_versions(self) -> dict[tuple[str, str], str]:
+        """(stage, key) -> the live run holding it, described, for every version a live run lease holds."""
+        held: dict[tuple[str, str], str] = {}
+        for info in self.live_leases("run"):
+            for stage, key in info.get("versions", []):
+                held.setdefault((stage, key), f"run {info.get('run_id')} ({describe(info)})")
+        return held
+
+    def _wait_for_gc(self, run_id: str) -> None:
+        logged = False
+        while True:
+            gcs = [info for info in self.live_leases("gc") if info.get("run_id") != run_id]
+            if not gcs:
+                return
+            if not logged:
+                log.warning("waiting for `mocapflow gc` (%s) to finish before reading %s", describe(gcs[0]), self.root)
+                logged = True
+            time.sleep(GC_WAIT_POLL_S)
 
     # ---- writing -------------------------------------------------------------------------
     def begin(self, stage: str, key: str, lineage: dict) -> None:
@@ -184,7 +246,8 @@ class Store:
         group = zarr.open_group(self._zarr_target(stage, key), mode="r+", zarr_format=3)
         group.attrs["mocapflow_lineage"] = json.loads(json.dumps(lineage))
         self._put(self._marker(stage, key, "lineage.json"), json.dumps(lineage, indent=1).encode())
-        self._put(self._marker(stage, key, "digests.json"), json.dumps(self._collect_digests(stage, key)).encode())
+        recorded = {**self._collect_digests(stage, key), "meta": self._metadata_digests(stage, key)}
+        self._put(self._marker(stage, key, "digests.json"), json.dumps(recorded).encode())
         self._put(self._marker(stage, key, "_COMPLETE"), str(time.time()).encode())
         if self.fs.exists(self._marker(stage, key, "_DAMAGED")):
             self.fs.rm_file(self._marker(stage, key, "_DAMAGED"))
@@ -196,6 +259,10 @@ class Store:
         stamp = self._completed(stage, key)
         begun = partial and stamp is None and self.fs.exists(self._marker(stage, key, "_init"))
         if stamp is None and not begun:
+            if not self.fs.exists(self.version_dir(stage, key)):
+                raise StorageError(f"artifact {stage}/{key} is gone from {self.root}: it was deleted while this run "
+                                   f"needed it (a `mocapflow gc` of a release without run leases, or by hand); run "
+                                   f"again to recompute it")
             raise StorageError(f"artifact {stage}/{key} is not complete in {self.root}; "
                                f"run `mocapflow run --until {stage}` to produce it")
         target = self._zarr_target(stage, key)
@@ -252,6 +319,17 @@ class Store:
         regions = {path.rstrip("/").split("/")[-1]: _region_record(self.fs.cat_file(path)).get("chunks", {})
                    for path in self.fs.glob(self._marker(stage, key, "_regions/*"))}
         return {"init": init, "regions": regions}
+
+    def _metadata_digests(self, stage: str, key: str) -> dict[str, str]:
+        """The digest of every metadata file of a version's zarr group (its own and each array's ``zarr.json``:
+        dtypes, codecs, shapes, attributes), keyed like chunks."""
+        from mocapflow.pipeline.integrity import digest, is_chunk
+
+        base = f"{self.version_dir(stage, key)}/data.zarr"
+        names = [path[len(base) + 1:] for path in self.fs.find(base)]
+        paths = {name: f"{base}/{name}" for name in names if not is_chunk(name)}
+        stored = self.fs.cat(list(paths.values())) if paths else {}
+        return {name: digest(stored[path]) for name, path in sorted(paths.items())}
 
     def check_chunks(self, stage: str, key: str, groups: dict[str, dict[str, str]]) -> list[Damage]:
         """The chunks of ``groups`` (``"init"`` or a region ``"A-B"`` -> {chunk: digest}) whose stored bytes are
@@ -310,8 +388,9 @@ class Store:
         return self.fs.exists(self._marker(stage, key, "_DAMAGED"))
 
     def _forget(self, stage: str, key: str, damage: list[Damage]) -> None:
-        """Delete the markers of the damaged regions (all of them and ``_init`` if the template is damaged)."""
-        if any(d.group == "init" for d in damage):
+        """Delete the markers of the damaged regions (all of them and ``_init`` if the template or the metadata is
+        damaged)."""
+        if any(d.group in ("init", "meta") for d in damage):
             for name in ("_init", "_regions"):
                 if self.fs.exists(self._marker(stage, key, name)):
                     self.fs.rm(self._marker(stage, key, name), recursive=True)
@@ -510,8 +589,9 @@ def _region_record(data: bytes) -> dict:
 
 
 def _chunk_groups(recorded: dict) -> dict[str, dict[str, str]]:
-    """``"init"`` and each region -> {chunk: digest}, from ``Store.digests``."""
-    return {"init": recorded.get("init", {}), **recorded.get("regions", {})}
+    """``"init"``, each region and ``"meta"`` (the metadata, recorded at the commit) -> {zarr key: digest}, from
+    ``Store.digests``."""
+    return {"init": recorded.get("init", {}), **recorded.get("regions", {}), "meta": recorded.get("meta", {})}
 
 
 def _protocols(fs) -> tuple[str, ...]:
