@@ -19,6 +19,7 @@ import os
 import socket
 import time
 import traceback
+import warnings
 from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from typing import Iterator
@@ -28,7 +29,7 @@ import xarray as xr
 
 from mocapflow.pipeline import registry
 from mocapflow.pipeline.datasets import read_frames
-from mocapflow.pipeline.errors import MocapflowError, StorageError
+from mocapflow.pipeline.errors import InputWarning, MocapflowError, StorageError
 from mocapflow.pipeline.locks import no_space
 from mocapflow.pipeline.models import load_weights
 from mocapflow.pipeline.plan import WorkItem, now
@@ -46,6 +47,7 @@ class Result:
     detail: str = ""
     seconds: float = 0.0
     regions: int = 0
+    warnings: tuple[str, ...] = ()  # InputWarnings raised while computing it (a reader's, a task's)
 
     @property
     def ok(self) -> bool:
@@ -93,12 +95,14 @@ def _locked(item: WorkItem, store: Store, produce) -> Result:
         registry.import_plugins(item.plugins)
         if store.is_complete(stage, key):
             return Result(pid, "cached")
-        with store.lock(stage, key, pid):
+        with store.lock(stage, key, pid), warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", InputWarning)
             if store.is_complete(stage, key):
                 return Result(pid, "cached")
             written, changed = produce(started)
+        said = tuple(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, InputWarning)))
         return Result(pid, "executed" if changed else "cached", seconds=time.perf_counter() - started,
-                      regions=written)
+                      regions=written, warnings=said)
     except MocapflowError as exc:
         return Result(pid, "failed", error=str(exc), seconds=time.perf_counter() - started)
     except OSError as exc:

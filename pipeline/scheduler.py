@@ -150,7 +150,10 @@ def run_items(items: list[WorkItem], *, workers: int = 2, address: str | None = 
                     break
     finally:
         bar.close()
-    return [_summary(i.partition.id, reports.get(i.partition.id, []), tasks_of[i.partition.id]) for i in items]
+    results = [_summary(i.partition.id, reports.get(i.partition.id, []), tasks_of[i.partition.id]) for i in items]
+    for message in dict.fromkeys(w for r in results for w in r.warnings):  # a reader's or a task's, said once
+        log.warning(message)
+    return results
 
 
 class _StageLines:
@@ -374,7 +377,8 @@ def _summary(pid: str, reports: list[Result], tasks: int) -> Result:
             return next(r for r in reports if r.status == status)
     executed = any(r.status == "executed" for r in reports)
     return Result(pid, "executed" if executed else "cached", seconds=sum(r.seconds for r in reports),
-                  regions=sum(r.regions for r in reports))
+                  regions=sum(r.regions for r in reports),
+                  warnings=tuple(dict.fromkeys(w for r in reports for w in r.warnings)))
 
 
 def compute_missing(items, store, *, workers: int, what: str, processes: bool = True,

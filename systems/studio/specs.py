@@ -262,7 +262,8 @@ OUT_OF_VIEW_SHARE = 0.05  # a camera missing more than this share of the subject
 
 def view_check(dataset) -> str:
     """A studio dataset's ``out_of_view`` setting, checked: ``warn`` (default), ``refuse`` or ``off``."""
-    value = str(dataset.options.get("out_of_view", "warn"))
+    raw = dataset.options.get("out_of_view", "warn")
+    value = "off" if raw is False else str(raw)  # YAML reads a bare off as false
     if value not in VIEW_CHECKS:
         raise CatalogError(f"{dataset.where}.out_of_view: {value!r} is not one of {list(VIEW_CHECKS)}; warn (the "
                            "default) reports a subject leaving a camera's view, refuse fails its sequence")

@@ -283,3 +283,47 @@ def test_an_amc_take_with_its_asf_skeleton_is_a_studio_motion(tmp_path):
     ]:
         with pytest.raises(error, match=message):
             make_spec(raw, "seq", resolve)
+
+
+CLOSE_SENSOR = """\
+storage: {{root: storage/}}
+datasets:
+  studio:
+    kind: studio
+    layout: close.yaml
+    {check}
+    defaults: {{frames: 2, noise: 0.5}}
+    sequences:
+      squat: {{motion: classic_squat, seed: 3, subject_height: 1.80}}
+stages:
+  frames: {{task: ingest}}
+"""
+
+
+@pytest.mark.parametrize("check", ["", "out_of_view: warn", "out_of_view: refuse", "out_of_view: off"])
+def test_a_subject_leaving_a_sensors_view_is_reported_or_refused(tmp_path, check):
+    # one sensor 1.1 m in front of a 1.8 m subject sees the chest, not the head and feet
+    (tmp_path / "close.yaml").write_text("sensors:\n  - {name: near, position: [0, 1.1, 1.0], target: [0, 0, 1.0]}\n")
+    (tmp_path / "catalog.yaml").write_text(CLOSE_SENSOR.format(check=check))
+    proc = mocapflow("run", cwd=tmp_path, check=False)
+    said = "sequence 'squat': the subject leaves the view of 1 camera(s) (joint-frames outside: near"
+    if check == "out_of_view: refuse":
+        assert proc.returncode == 1 and said in proc.stdout + proc.stderr
+    elif check == "out_of_view: off":
+        assert proc.returncode == 0 and "leaves the view" not in proc.stderr
+    else:
+        assert proc.returncode == 0 and said in proc.stderr  # the worker's warning, said by the driver
+        assert "set the dataset's out_of_view: off" in proc.stderr
+
+
+def test_a_subject_in_every_view_is_not_reported(tmp_path):
+    (tmp_path / "catalog.yaml").write_text(CLOSE_SENSOR.format(check="").replace("    layout: close.yaml\n", ""))
+    proc = mocapflow("run", cwd=tmp_path)
+    assert "leaves the view" not in proc.stderr
+
+
+def test_an_unknown_view_check_is_refused_at_load(tmp_path):
+    (tmp_path / "close.yaml").write_text("sensors:\n  - {name: near, position: [0, 1.1, 1.0], target: [0, 0, 1.0]}\n")
+    (tmp_path / "catalog.yaml").write_text(CLOSE_SENSOR.format(check="out_of_view: maybe"))
+    proc = mocapflow("run", "--dry-run", cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and "out_of_view: 'maybe' is not one of ['warn', 'refuse', 'off']" in proc.stderr
