@@ -56,7 +56,7 @@ def test_a_fourth_system_runs_evaluates_and_exports_through_the_cli(tmp_path):
     # straight line passing through the average unchanged
     assert 2.5 < figures["toy_rmse_mm"] < 5.5
     out = mocapflow(env, tmp_path, "export", "--format", "csv", "--out", "csv", "--workers", "1")
-    assert sorted(line.split()[-1] for line in out.splitlines()) == [str(tmp_path / "csv" / f"{s}.csv")
+    assert sorted(line.split()[-1] for line in out.splitlines()) == [str(Path("csv") / f"{s}.csv")
                                                                       for s in ("fast", "slow")]
     rows = np.loadtxt(tmp_path / "csv" / "slow.csv", delimiter=",", skiprows=1)
     assert rows.shape == (40, 4)
