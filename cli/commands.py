@@ -70,6 +70,11 @@ def _run_log(store: Store, command: str) -> str:
     return click.get_current_context().with_resource(run_log(store, command))
 
 
+def _log_said(log_path: str | None, store: Store) -> str:
+    """Where the run's log is, for the console's last line."""
+    return f"log {log_path}" if log_path else f"no log (the storage root {store.root} is read-only)"
+
+
 def _stage_lines():
     """Where stdout is not a terminal (a pipe, a CI log), a line per finished stage, else nothing."""
     return None if sys.stdout.isatty() else click.echo
@@ -97,10 +102,13 @@ def run(catalog_path, overrides, sequences, only, until, dry_run, workers, threa
     store = Store(catalog.root)
     plan = build_plan(catalog, sequences)
     items = select(plan, catalog, store, only=only, until=until)
-    if not dry_run:  # held until the command ends: gc deletes nothing this run reads or writes
+    run_id = None
+    if not dry_run and store.writable():  # held until the command ends: gc deletes nothing this run reads or writes
         run_id = click.get_current_context().with_resource(store.run_lease(f"run {catalog_path}", held_versions(items)))
     cached = [i for i in items if store.is_complete(i.partition.stage, i.key)]
     todo = [i for i in items if i not in cached]
+    if not dry_run and todo and run_id is None:  # a read-only store: only a run served from its cache reports
+        raise store.refuse_writes(f"{len(todo)} partition(s) are to be computed, e.g. {todo[0].partition.id}")
     if dry_run:
         cells = {i.partition.id: ("cached" if i in cached else "run") for i in items}
         click.echo(_matrix(plan, [s for s in catalog.stages if any(i.partition.stage == s for i in items)], cells))
@@ -117,7 +125,7 @@ def run(catalog_path, overrides, sequences, only, until, dry_run, workers, threa
     summary = (f"{len(by_status['executed'])} executed, {len(cached) + found_complete} cached, "
                f"{len(by_status['failed'])} failed, {len(by_status['skipped'])} skipped in {elapsed:.2f} s")
     logging.getLogger(__name__).info("%s", summary)
-    click.echo(f"{summary}; log {log_path}")
+    click.echo(f"{summary}; {_log_said(log_path, store)}")
     for r in by_status["failed"] + by_status["skipped"]:  # the log holds every one, root failures first
         logging.getLogger(__name__).info("%s %s: %s", r.status.upper(), r.partition, r.error)
         if r.detail:
@@ -379,7 +387,7 @@ def train(catalog_path, overrides, sequences, stage, out, workers, threads, as_j
     data = export_weights(store, item, Path(out))
     sha = hashlib.sha256(data).hexdigest()
     click.echo(f"wrote {out} ({len(data) / 1e6:.2f} MB, sha256 {sha[:16]}) from {item.partition.id} "
-               f"(key {item.key[:12]}) in {time.perf_counter() - started:.1f} s; log {log_path}")
+               f"(key {item.key[:12]}) in {time.perf_counter() - started:.1f} s; {_log_said(log_path, store)}")
     if as_json:
         click.echo(json.dumps({"weights": str(out), "sha256": sha, "bytes": len(data), "key": item.key,
                                "seconds": round(time.perf_counter() - started, 3)}))
@@ -449,7 +457,7 @@ def demo(out_dir, motions, frames, workers, threads, as_json):
     click.echo(text)
     for path in written:
         click.echo(f"wrote {path}")
-    click.echo(f"log {summary.pop('log')}")
+    click.echo(_log_said(summary.pop("log", None), Store(str(Path(out_dir) / "storage"))))
     if as_json:
         click.echo(json.dumps(summary))
 

@@ -384,7 +384,13 @@ def _summary(pid: str, reports: list[Result], tasks: int) -> Result:
 def compute_missing(items, store, *, workers: int, what: str, processes: bool = True,
                     report: Callable[[str], None] | None = None) -> list[WorkItem]:
     """Run the ``items`` not yet complete in ``store`` and return them; raise PlanError naming the first
-    failures (``what``: the purpose, e.g. "cannot export"). ``report``: see run_items."""
+    failures (``what``: the purpose, e.g. "cannot export"). ``report``: see run_items. A store this process cannot
+    write is read as it is: nothing to compute and no lease (gc cannot delete there either), else a StorageError."""
+    if not store.writable():
+        todo = [i for i in items if not store.is_complete(i.partition.stage, i.key)]
+        if todo:
+            raise store.refuse_writes(f"{len(todo)} partition(s) are missing ({what}), e.g. {todo[0].partition.id}")
+        return []
     with store.run_lease(f"inputs ({what})", held_versions(items)) as run_id:  # gc deletes none of them
         todo = [i for i in items if not store.is_complete(i.partition.stage, i.key)]
         results = run_items(todo, workers=workers, processes=processes, progress=sys.stderr.isatty(), report=report,
