@@ -408,13 +408,14 @@ def train(catalog_path, overrides, sequences, stage, out, workers, threads, as_j
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="folder for <sequence>.<format>")
 @click.option("--up", type=click.Choice(["y", "z"]), default=None,
               help="trc only: the file's up axis [default: y, as OpenSim reads TRC; z keeps the studio's Z-up world]")
+@click.option("--force", is_flag=True, help="overwrite files already in --out")
 @workers_option
 @threads_option
-def export(catalog_path, overrides, sequences, fmt, stage, out_dir, up, workers, threads):
+def export(catalog_path, overrides, sequences, fmt, stage, out_dir, up, force, workers, threads):
     """Write markers as C3D or TRC, poses as BVH, or a UUO report, one per sequence (computes missing partitions
-    first)."""
+    first); files already in --out are refused unless --force."""
     for path in export_files(load_catalog(catalog_path, overrides), sequences, fmt, stage, Path(out_dir), workers,
-                             processes=not threads, up=up):
+                             processes=not threads, up=up, force=force):
         click.echo(f"wrote {path}")
 
 
@@ -513,7 +514,8 @@ def synth(out_dir, motions, views, frames, fps, seed, subject_height, noise, lay
                **({"motion_map": motion_map} if motion_map and motion not in EXERCISES else {})}
         if motion.lower().endswith(".amc"):
             raw.update({k: v for k, v in (("skeleton", skeleton), ("amc_fps", amc_fps)) if v is not None})
-        spec, text, _ = make_spec(raw, f"--motion {motion}", lambda p: Path(p).resolve(), layout)
+        spec, text, _ = make_spec(raw, f"--motion {motion}", lambda p: Path(p).resolve(), layout,
+                                  skeleton_hint="pass --skeleton subject.asf")
         name = Path(motion).stem if text is not None else motion
         target = out / f"{name}.zarr"
         if target.exists() and not force:
@@ -529,10 +531,10 @@ def synth(out_dir, motions, views, frames, fps, seed, subject_height, noise, lay
 
 
 def _matrix(plan: Plan, stages: list[str], cells: dict[str, str]) -> str:
-    """Rows: stages; columns: sequence/view. A per-sequence stage fills every view column of its sequence,
-    a per-dataset stage every column of its dataset."""
-    columns = [(s.id, v) for s in plan.sequences for v in s.views]
-    header = ["stage"] + [f"{s}/{v}" for s, v in columns]
+    """Rows: stages; columns: sequence/view, or the sequence where it has no views (marker files). A per-sequence
+    stage fills every view column of its sequence, a per-dataset stage every column of its dataset."""
+    columns = [(s.id, v) for s in plan.sequences for v in (s.views or [None])]
+    header = ["stage"] + [s if v is None else f"{s}/{v}" for s, v in columns]
     rows = [header]
     for stage in stages:
         row = [stage]

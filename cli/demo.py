@@ -92,7 +92,8 @@ def run_demo(out: Path, options: DemoOptions, *, workers: int, processes: bool =
     result = evaluate(catalog, plan, store)
     text = table(result)
     files = [path for fmt in ("bvh", "c3d")
-             for path in export_files(catalog, None, fmt, None, out / "export", workers, processes=processes)]
+             for path in export_files(catalog, None, fmt, None, out / "export", workers, processes=processes,
+                                          force=True)]  # the demo's own files, rewritten
     page, images, _ = build_report(catalog, plan, store, out / "report", title="mocapflow demo",
                                    summary={"partitions computed": len(computed)}, files=files,
                                    result=result)
