@@ -102,3 +102,36 @@ def test_every_marker_of_a_take_gets_its_own_colour(count):
     assert len(colours) == count and len(set(colours)) == count
     if count <= 20:
         assert colours == palette[:count]  # the categorical palette while it has a colour for each
+
+
+def test_export_refuses_an_existing_file_unless_forced(tmp_path):
+    from test_toy_system import CATALOG, installed
+
+    env = installed(tmp_path)
+    (tmp_path / "catalog.yaml").write_text(CATALOG.format(noise=5))
+
+    def export(*extra):
+        return subprocess.run([sys.executable, "-m", "mocapflow.cli.commands", "export", "--format", "csv", "--out",
+                               "csv", "--workers", "1", "--threads", *extra], cwd=tmp_path, env=env,
+                              capture_output=True, text=True, timeout=300)
+
+    assert export().returncode == 0
+    (tmp_path / "csv" / "fast.csv").write_text("mine\n")
+    refused = export()
+    assert refused.returncode == 2 and (tmp_path / "csv" / "fast.csv").read_text() == "mine\n"
+    assert refused.stderr.strip() == "error: csv/fast.csv exists (and 1 more of the files to write); pass --force to " \
+                                     "overwrite, or choose another --out", refused.stderr
+    assert export("--force").returncode == 0 and (tmp_path / "csv" / "fast.csv").read_text().startswith("frame,x")
+    assert sorted(p.name for p in (tmp_path / "csv").iterdir()) == ["fast.csv", "slow.csv"]  # no staging left
+
+
+def test_a_studio_sequence_reads_its_own_layout_file(tmp_path):
+    (tmp_path / "wide.yaml").write_text("ring: {count: 4, radius: 3.5, height: 1.2}\n")
+    catalog = (STUDIO.replace("FPS", "30.0").replace("SQUAT", "{motion: classic_squat, views: 4, layout: LAYOUT}"))
+    (tmp_path / "catalog.yaml").write_text(catalog.replace("LAYOUT", "wide.yaml"))
+    status = mocapflow("status", cwd=tmp_path).stdout.splitlines()[0].split()
+    assert [c for c in status if c.startswith("squat/")] == [f"squat/kinect{i}" for i in range(4)]
+    (tmp_path / "catalog.yaml").write_text(catalog.replace("LAYOUT", "{ring: {count: 4}}"))
+    proc = mocapflow("status", cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and "datasets.recordings.sequences.squat.layout: expected a camera layout file" \
+        in proc.stderr, proc.stderr
