@@ -70,6 +70,11 @@ def _run_log(store: Store, command: str) -> str:
     return click.get_current_context().with_resource(run_log(store, command))
 
 
+def _log_said(log_path: str | None, store: Store) -> str:
+    """Where the run's log is, for the console's last line."""
+    return f"log {log_path}" if log_path else f"no log (the storage root {store.root} is read-only)"
+
+
 def _stage_lines():
     """Where stdout is not a terminal (a pipe, a CI log), a line per finished stage, else nothing."""
     return None if sys.stdout.isatty() else click.echo
@@ -97,10 +102,13 @@ def run(catalog_path, overrides, sequences, only, until, dry_run, workers, threa
     store = Store(catalog.root)
     plan = build_plan(catalog, sequences)
     items = select(plan, catalog, store, only=only, until=until)
-    if not dry_run:  # held until the command ends: gc deletes nothing this run reads or writes
+    run_id = None
+    if not dry_run and store.writable():  # held until the command ends: gc deletes nothing this run reads or writes
         run_id = click.get_current_context().with_resource(store.run_lease(f"run {catalog_path}", held_versions(items)))
     cached = [i for i in items if store.is_complete(i.partition.stage, i.key)]
     todo = [i for i in items if i not in cached]
+    if not dry_run and todo and run_id is None:  # a read-only store: only a run served from its cache reports
+        raise store.refuse_writes(f"{len(todo)} partition(s) are to be computed, e.g. {todo[0].partition.id}")
     if dry_run:
         cells = {i.partition.id: ("cached" if i in cached else "run") for i in items}
         click.echo(_matrix(plan, [s for s in catalog.stages if any(i.partition.stage == s for i in items)], cells))
@@ -117,7 +125,7 @@ def run(catalog_path, overrides, sequences, only, until, dry_run, workers, threa
     summary = (f"{len(by_status['executed'])} executed, {len(cached) + found_complete} cached, "
                f"{len(by_status['failed'])} failed, {len(by_status['skipped'])} skipped in {elapsed:.2f} s")
     logging.getLogger(__name__).info("%s", summary)
-    click.echo(f"{summary}; log {log_path}")
+    click.echo(f"{summary}; {_log_said(log_path, store)}")
     for r in by_status["failed"] + by_status["skipped"]:  # the log holds every one, root failures first
         logging.getLogger(__name__).info("%s %s: %s", r.status.upper(), r.partition, r.error)
         if r.detail:
@@ -379,7 +387,7 @@ def train(catalog_path, overrides, sequences, stage, out, workers, threads, as_j
     data = export_weights(store, item, Path(out))
     sha = hashlib.sha256(data).hexdigest()
     click.echo(f"wrote {out} ({len(data) / 1e6:.2f} MB, sha256 {sha[:16]}) from {item.partition.id} "
-               f"(key {item.key[:12]}) in {time.perf_counter() - started:.1f} s; log {log_path}")
+               f"(key {item.key[:12]}) in {time.perf_counter() - started:.1f} s; {_log_said(log_path, store)}")
     if as_json:
         click.echo(json.dumps({"weights": str(out), "sha256": sha, "bytes": len(data), "key": item.key,
                                "seconds": round(time.perf_counter() - started, 3)}))
@@ -400,13 +408,14 @@ def train(catalog_path, overrides, sequences, stage, out, workers, threads, as_j
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="folder for <sequence>.<format>")
 @click.option("--up", type=click.Choice(["y", "z"]), default=None,
               help="trc only: the file's up axis [default: y, as OpenSim reads TRC; z keeps the studio's Z-up world]")
+@click.option("--force", is_flag=True, help="overwrite files already in --out")
 @workers_option
 @threads_option
-def export(catalog_path, overrides, sequences, fmt, stage, out_dir, up, workers, threads):
+def export(catalog_path, overrides, sequences, fmt, stage, out_dir, up, force, workers, threads):
     """Write markers as C3D or TRC, poses as BVH, or a UUO report, one per sequence (computes missing partitions
-    first)."""
+    first); files already in --out are refused unless --force."""
     for path in export_files(load_catalog(catalog_path, overrides), sequences, fmt, stage, Path(out_dir), workers,
-                             processes=not threads, up=up):
+                             processes=not threads, up=up, force=force):
         click.echo(f"wrote {path}")
 
 
@@ -449,7 +458,7 @@ def demo(out_dir, motions, frames, workers, threads, as_json):
     click.echo(text)
     for path in written:
         click.echo(f"wrote {path}")
-    click.echo(f"log {summary.pop('log')}")
+    click.echo(_log_said(summary.pop("log", None), Store(str(Path(out_dir) / "storage"))))
     if as_json:
         click.echo(json.dumps(summary))
 
@@ -505,7 +514,8 @@ def synth(out_dir, motions, views, frames, fps, seed, subject_height, noise, lay
                **({"motion_map": motion_map} if motion_map and motion not in EXERCISES else {})}
         if motion.lower().endswith(".amc"):
             raw.update({k: v for k, v in (("skeleton", skeleton), ("amc_fps", amc_fps)) if v is not None})
-        spec, text, _ = make_spec(raw, f"--motion {motion}", lambda p: Path(p).resolve(), layout)
+        spec, text, _ = make_spec(raw, f"--motion {motion}", lambda p: Path(p).resolve(), layout,
+                                  skeleton_hint="pass --skeleton subject.asf")
         name = Path(motion).stem if text is not None else motion
         target = out / f"{name}.zarr"
         if target.exists() and not force:
@@ -521,10 +531,10 @@ def synth(out_dir, motions, views, frames, fps, seed, subject_height, noise, lay
 
 
 def _matrix(plan: Plan, stages: list[str], cells: dict[str, str]) -> str:
-    """Rows: stages; columns: sequence/view. A per-sequence stage fills every view column of its sequence,
-    a per-dataset stage every column of its dataset."""
-    columns = [(s.id, v) for s in plan.sequences for v in s.views]
-    header = ["stage"] + [f"{s}/{v}" for s, v in columns]
+    """Rows: stages; columns: sequence/view, or the sequence where it has no views (marker files). A per-sequence
+    stage fills every view column of its sequence, a per-dataset stage every column of its dataset."""
+    columns = [(s.id, v) for s in plan.sequences for v in (s.views or [None])]
+    header = ["stage"] + [s if v is None else f"{s}/{v}" for s, v in columns]
     rows = [header]
     for stage in stages:
         row = [stage]

@@ -8,6 +8,7 @@ catalog is rewritten only when the options change, so a second run is served fro
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,7 +16,7 @@ from typing import Callable
 
 from mocapflow.cli.scaffold import DEFAULT_STAGES
 from mocapflow.pipeline.catalog import load_catalog
-from mocapflow.pipeline.errors import InputError
+from mocapflow.pipeline.errors import InputError, StorageError
 from mocapflow.pipeline.evaluate import evaluate, headline, table
 from mocapflow.pipeline.export import export_files
 from mocapflow.pipeline.plan import build_plan
@@ -54,13 +55,25 @@ def catalog_text(options: DemoOptions) -> str:
 
 
 def prepare(out: Path, options: DemoOptions):
-    """The demo catalog in ``out`` (written when missing or different), loaded."""
+    """The demo catalog in ``out`` (written when missing or different), loaded; the options are checked before
+    any folder is made."""
+    text = catalog_text(options)
+    _check_writable(out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "catalog.yaml"
-    text = catalog_text(options)
     if not path.exists() or path.read_text() != text:
         path.write_text(text)
     return load_catalog(str(path), ())
+
+
+def _check_writable(out: Path) -> None:
+    """Refuse an ``out`` folder this process cannot write (the demo writes its cache, exports and report there)."""
+    existing = out.absolute()
+    while not existing.exists() and existing.parent != existing:
+        existing = existing.parent
+    if not os.access(existing, os.W_OK):
+        raise StorageError(f"--out {out}: cannot write in {existing} (read-only, or not writable by this user); "
+                           "choose a writable --out folder")
 
 
 def run_demo(out: Path, options: DemoOptions, *, workers: int, processes: bool = True,
@@ -79,7 +92,8 @@ def run_demo(out: Path, options: DemoOptions, *, workers: int, processes: bool =
     result = evaluate(catalog, plan, store)
     text = table(result)
     files = [path for fmt in ("bvh", "c3d")
-             for path in export_files(catalog, None, fmt, None, out / "export", workers, processes=processes)]
+             for path in export_files(catalog, None, fmt, None, out / "export", workers, processes=processes,
+                                          force=True)]  # the demo's own files, rewritten
     page, images, _ = build_report(catalog, plan, store, out / "report", title="mocapflow demo",
                                    summary={"partitions computed": len(computed)}, files=files,
                                    result=result)

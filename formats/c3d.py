@@ -71,7 +71,8 @@ def read_points(path: Path) -> tuple[np.ndarray, list[str], float, np.ndarray]:
 def read_trajectories(path: Path) -> tuple[np.ndarray, float, list[str], str]:
     """Any C3D file's trajectories as recorded: points (frame, marker, 3) in the file's unit and axes, NaN where
     a residual marks a sample missing, its rate, its labels (``unlabelledN`` past the last label) and its unit
-    (``POINT:UNITS``, mm when absent)."""
+    (``POINT:UNITS``, mm when absent). A file holding fewer frames than its header announces (cut short), or a
+    present sample that is not a finite number (damaged bytes), is refused, naming the frame and marker."""
     try:
         c3d = ezc3d.c3d(str(path))
     except (RuntimeError, ValueError, OSError) as exc:
@@ -79,8 +80,41 @@ def read_trajectories(path: Path) -> tuple[np.ndarray, float, list[str], str]:
     point = c3d["parameters"]["POINT"]
     points = np.asarray(c3d["data"]["points"][:3], np.float64).transpose(2, 1, 0)  # (frame, marker, 3)
     residuals = np.asarray(c3d["data"]["meta_points"]["residuals"][0]).T  # (frame, marker)
-    points[residuals < 0] = np.nan
+    present = residuals >= 0
+    points[~present] = np.nan
     names = [str(n).strip() for n in point["LABELS"]["value"]][:points.shape[1]]
     names += [f"unlabelled{i}" for i in range(len(names), points.shape[1])]
+    _check_frame_count(path, points.shape[0])
+    _check_finite(path, points, present, names)
     unit = str(point["UNITS"]["value"][0]).strip().lower() if point.get("UNITS") else "mm"
     return points, float(c3d["header"]["points"]["frame_rate"]), names, unit
+
+
+def header_frames(data: bytes) -> int:
+    """The number of frames a C3D file's header announces (words 4 and 5: first and last frame), in the byte order
+    of the processor its parameter section names (86: MIPS, big-endian; else little-endian)."""
+    if len(data) < 10:
+        return 0
+    block = data[0]
+    processor = data[(block - 1) * 512 + 3] if block >= 1 and len(data) > (block - 1) * 512 + 3 else 84
+    first, last = np.frombuffer(data, ">u2" if processor == 86 else "<u2", 2, 6)
+    return int(last) - int(first) + 1
+
+
+def _check_frame_count(path: Path, n_read: int) -> None:
+    """Refuse a file cut short: fewer frames read than its header announces (a header's last frame stops at 65535,
+    so a longer file reads more, never fewer)."""
+    announced = header_frames(path.read_bytes()[:64 * 1024])
+    if n_read < announced:
+        raise InputError(f"{path}: holds {n_read} of the {announced} frames its header announces (the file is cut "
+                         "short or damaged); copy or export it again")
+
+
+def _check_finite(path: Path, points: np.ndarray, present: np.ndarray, names: list[str]) -> None:
+    """Refuse a sample its residual marks present whose coordinates are not finite numbers (damaged bytes)."""
+    bad = present & ~np.isfinite(points).all(axis=-1)
+    if bad.any():
+        frame, marker = (int(i) for i in np.argwhere(bad)[0])
+        raise InputError(f"{path}: frame {frame} marker {names[marker]}: coordinates {points[frame, marker].tolist()} "
+                         f"are not finite numbers though the sample is marked present ({int(bad.sum())} sample(s) so); "
+                         "the file is damaged: copy or export it again")

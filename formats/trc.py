@@ -57,13 +57,34 @@ def read_trajectories(path: Path) -> tuple[np.ndarray, float, list[str], str]:
         raise InputError(f"{path}: TRC header line 3 needs DataRate and Units ({exc})") from exc
     names = [n.strip() for n in lines[3].split("\t")[2:] if n.strip()]
     rows = [line.split("\t") for line in lines[5:] if line.strip()]
+    _check_frame_count(path, header, len(rows))
     points = np.full((len(rows), len(names), 3), np.nan)
     for f, row in enumerate(rows):
-        cells = row[2:2 + 3 * len(names)]
-        for k, cell in enumerate(cells):
+        for k, cell in enumerate(row[2:2 + 3 * len(names)]):
             if cell.strip():
-                try:
-                    points[f, k // 3, k % 3] = float(cell)
-                except ValueError as exc:
-                    raise InputError(f"{path}: line {f + 6}: {cell!r} is not a number") from exc
+                points[f, k // 3, k % 3] = _number(path, cell, f, names[k // 3])
     return points, fps, names, unit
+
+
+def _number(path: Path, cell: str, frame: int, marker: str) -> float:
+    """A coordinate cell's value; not a number, or not a finite one (inf, nan, 1e999), is refused."""
+    where = f"{path}: line {frame + 6} (frame {frame}) marker {marker}"
+    try:
+        value = float(cell)
+    except ValueError as exc:
+        raise InputError(f"{where}: {cell!r} is not a number") from exc
+    if not np.isfinite(value):
+        raise InputError(f"{where}: {cell.strip()!r} is not a finite number; leave the cell empty for a missing "
+                         "sample")
+    return value
+
+
+def _check_frame_count(path: Path, header: dict, n_rows: int) -> None:
+    """Refuse a file with fewer data rows than its header's NumFrames (cut short)."""
+    try:
+        announced = int(header.get("NumFrames", ""))
+    except ValueError:
+        return  # no frame count to hold it to
+    if n_rows < announced:
+        raise InputError(f"{path}: holds {n_rows} of the {announced} frames its header's NumFrames announces (the "
+                         "file is cut short or damaged); copy or export it again")

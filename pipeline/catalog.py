@@ -46,6 +46,18 @@ class DatasetConfig:
     kind: str
     options: Mapping[str, Any]
     where: str
+    lines: Mapping[tuple, Any] = field(default_factory=dict, compare=False, repr=False)  # option keys -> line
+
+    def where_of(self, *keys) -> str:
+        """Where an option (``where_of("sequences", "walk", "motion")``) is in the catalog: the line of the deepest
+        of ``keys`` the catalog holds (``--set`` where an override set it), else the dataset's."""
+        path = ".".join(str(k) for k in keys)
+        for n in range(len(keys), 0, -1):
+            line = self.lines.get(tuple(keys[:n]))
+            if line is not None:
+                at = f"line {line}" if isinstance(line, int) else line
+                return f"{self.where.split(' (', 1)[0]} ({at}): datasets.{self.name}.{path}"
+        return f"{self.where}.{path}"
 
 
 @dataclass(frozen=True)
@@ -272,7 +284,8 @@ class _Validator:
                                        f"dataset{registry.did_you_mean(str(key), options)}; its options are "
                                        f"{['kind', *options]}")
             self.counts(body, "datasets", name)
-            out[name] = DatasetConfig(name, kind, body, self.where("datasets", name))
+            own = {key[2:]: line for key, line in self.lines.items() if key[:2] == ("datasets", name) and len(key) > 2}
+            out[name] = DatasetConfig(name, kind, body, self.where("datasets", name), own)
         return out
 
     def counts(self, value, *keys) -> None:

@@ -9,6 +9,8 @@ outside ``--out`` (:func:`target`).
 
 from __future__ import annotations
 
+import shutil
+import tempfile
 from pathlib import Path
 from typing import Callable
 
@@ -23,10 +25,12 @@ UNIT_SCALE = 1000.0  # metres -> millimetres, the unit of the marker formats
 
 
 def export_files(catalog, sequences: str | None, fmt: str, stage: str | None, out_dir: Path,
-                 workers: int, processes: bool = True, up: str | None = None) -> list[Path]:
+                 workers: int, processes: bool = True, up: str | None = None, force: bool = False) -> list[Path]:
     """Write every sequence of ``stage`` (or the format's default stage) as ``fmt`` into ``out_dir``, computing
     missing partitions first on ``workers`` local worker processes (or threads); ``up`` is an up axis for the
-    formats that take one (TRC). Returns the files written."""
+    formats that take one (TRC). A file already in ``out_dir`` is refused unless ``force`` (then overwritten): the
+    exporters write into a staging folder there, whose files are moved into place once none is refused. Returns
+    the files written."""
     exporters = registry.exporters(fmt)
     if not exporters:
         known = sorted({e.format for e in registry.exporters()})
@@ -41,12 +45,39 @@ def export_files(catalog, sequences: str | None, fmt: str, stage: str | None, ou
     for needed in [stage] + (exporter.needs(catalog, stage) if exporter.needs else []):
         compute_missing(select(plan, catalog, store, only=None, until=needed), store, workers=workers,
                         processes=processes, what="cannot export")
-    written = []
-    for item in plan.for_stages([stage]):
-        data = store.open(stage, item.key, item.stage.schema).load()
-        job = registry.ExportJob(catalog, plan, store, stage, item.partition.sequence, data, out_dir, up)
-        written += exporter.write(job)
-    return written
+    staging = _staging(out_dir)
+    try:
+        written = []
+        for item in plan.for_stages([stage]):
+            data = store.open(stage, item.key, item.stage.schema).load()
+            job = registry.ExportJob(catalog, plan, store, stage, item.partition.sequence, data, staging, up)
+            written += exporter.write(job)
+        return _publish([Path(p) for p in written], staging, out_dir, force)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def _staging(out_dir: Path) -> Path:
+    """A new empty folder inside ``out_dir`` (made) for one export's files."""
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        return Path(tempfile.mkdtemp(prefix=".export-", dir=out_dir))
+    except OSError as exc:
+        raise StorageError(f"cannot write in --out {out_dir}: {exc.strerror}; choose another --out") from exc
+
+
+def _publish(files: list[Path], staging: Path, out_dir: Path, force: bool) -> list[Path]:
+    """Move the exported ``files`` from ``staging`` to the same names in ``out_dir``; an existing one is refused
+    (before any is moved) unless ``force``."""
+    moves = [(path, out_dir / path.resolve().relative_to(staging.resolve())) for path in files]
+    existing = [dst for _, dst in moves if dst.exists()]
+    if existing and not force:
+        more = f" (and {len(existing) - 1} more of the files to write)" if len(existing) > 1 else ""
+        raise InputError(f"{existing[0]} exists{more}; pass --force to overwrite, or choose another --out")
+    for src, dst in moves:
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        src.replace(dst)
+    return [dst for _, dst in moves]
 
 
 def choose(catalog, exporters: list[registry.Exporter], fmt: str, stage: str | None) -> tuple[registry.Exporter, str]:

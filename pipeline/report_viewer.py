@@ -11,6 +11,16 @@ Once frame 0 is drawn the page marks its body with ``data-frames`` (the sequence
 (canvas pixels drawn over the background), so a headless browser can tell that it ran.
 """
 
+# A marker's colour among ``n``: the categorical palette while it has a colour for each, else hues a golden angle
+# apart (neighbouring markers far apart on the wheel) at three lightnesses: distinct for any count.
+MARKER_COLOUR_JS = r"""
+  function markerColour(m, n, palette) {
+    if (n <= palette.length) return palette[m];
+    var hue = (m * 137.50776405) % 360, light = [58, 42, 74][m % 3];
+    return "hsl(" + hue.toFixed(2) + ",70%," + light + "%)";
+  }
+"""
+
 VIEWER = r"""<!doctype html><html><head><meta charset="utf-8"><title>3D view</title><style>
 #mf-viewer{display:flex;gap:1em;align-items:flex-start;flex-wrap:wrap}
 #mf-canvas{background:#1e1e1e;border-radius:4px;cursor:grab}
@@ -26,6 +36,7 @@ margin-right:4px}</style></head><body>
   "use strict";
   var DATA = /*DATA*/null;
   var BG = [30, 30, 30], SOLVED = "#ffa040", TRUTH = "#f0f0f0";
+/*MARKER_COLOUR*/
   var canvas = document.getElementById("mf-canvas"), ctx = canvas.getContext("2d");
   var select = document.getElementById("mf-seq"), slider = document.getElementById("mf-frame");
   var label = document.getElementById("mf-label"), legend = document.getElementById("mf-legend");
@@ -77,7 +88,7 @@ margin-right:4px}</style></head><body>
     });
     pts.sort(function (a, b) { return b[0] - a[0]; });  // far first
     pts.forEach(function (p) {
-      ctx.fillStyle = DATA.palette[p[3] % DATA.palette.length];
+      ctx.fillStyle = markerColour(p[3], seq.markers.length, DATA.palette);
       ctx.beginPath(); ctx.arc(p[1], p[2], 4, 0, 2 * Math.PI); ctx.fill();
     });
     label.textContent = "frame " + f + " / " + (seq.frames - 1) + ", " + (f / seq.fps).toFixed(2) + " s, " +
@@ -95,7 +106,7 @@ margin-right:4px}</style></head><body>
 
   function showLegend(seq) {
     var items = seq.markers.map(function (name, m) {
-      return "<li><span style='background:" + DATA.palette[m % DATA.palette.length] + "'></span>" + name + "</li>";
+      return "<li><span style='background:" + markerColour(m, seq.markers.length, DATA.palette) + "'></span>" + name + "</li>";
     });
     if (seq.joint_xyz) items.push("<li><span style='background:" + SOLVED + ";border-radius:0'></span>solved skeleton</li>");
     if (seq.gt_joint_xyz) items.push("<li><span style='background:" + TRUTH + ";border-radius:0'></span>" +
@@ -158,4 +169,4 @@ margin-right:4px}</style></head><body>
   if (DATA.sequences.length) choose(0);
 })();
 </script></body></html>
-"""
+""".replace("/*MARKER_COLOUR*/", MARKER_COLOUR_JS)

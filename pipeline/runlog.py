@@ -40,7 +40,10 @@ class _LogFile(logging.FileHandler):
         if self.failed:
             self._to_stderr(record)
             return
-        super().emit(record)
+        try:
+            super().emit(record)  # opens the file on the first record, outside logging's own error handling
+        except OSError:
+            self.handleError(record)
 
     def handleError(self, record: logging.LogRecord) -> None:
         """One line on stderr, then this record and the next ones there (never logging's own traceback)."""
@@ -76,8 +79,13 @@ class _LogFile(logging.FileHandler):
 @contextmanager
 def run_log(store: Store, command: str) -> Iterator[str]:
     """Write the INFO log of the enclosed run to a new file in ``store``'s ``logs/`` folder, created on its first
-    record; yields its path (a URL where the root is not a local folder: the log is then written locally and
-    copied there at the end)."""
+    record (or, where none came, with a closing line when the run ends without an error); yields its path (a URL
+    where the root is not a local folder: the log is then written locally and copied there at the end), or None
+    where the store is read-only (a run served from its cache writes nothing there)."""
+    if not store.writable():
+        log.info("no run log: the storage root %s is read-only", store.root)
+        yield None
+        return
     name = f"run-{datetime.now().strftime('%Y%m%d-%H%M%S-%f')}.log"
     target = f"{store.base.rstrip('/')}/{LOG_FOLDER}/{name}"
     local = target if store.local else os.path.join(tempfile.gettempdir(), f"mocapflow-{os.getpid()}-{name}")
@@ -90,6 +98,9 @@ def run_log(store: Store, command: str) -> Iterator[str]:
     root.setLevel(min(level or logging.WARNING, logging.INFO))
     try:
         yield _relative(shown) if store.local else shown
+        if handler.stream is None and not handler.failed:  # nothing logged (all cached): the file named exists anyway
+            handler.handle(logging.LogRecord(__name__, logging.INFO, __file__, 0, "mocapflow %s finished",
+                                             (command,), None))
     finally:
         root.removeHandler(handler)
         root.setLevel(level)

@@ -157,7 +157,8 @@ def run_items(items: list[WorkItem], *, workers: int = 2, address: str | None = 
 
 
 class _StageLines:
-    """One line per stage as the last of its partitions finishes: how many executed, were cached or failed."""
+    """One line per stage as the last of its partitions finishes: how many executed, were cached or failed, the
+    seconds its partitions took (summed over the workers) and when it finished, counted from the run's start."""
 
     def __init__(self, items: list[WorkItem], tasks_of: Counter, report: Callable[[str], None] | None):
         self.left = Counter(i.partition.stage for i in items)
@@ -166,18 +167,21 @@ class _StageLines:
         self.stage_of = {i.partition.id: i.partition.stage for i in items}
         self.tasks_of = tasks_of
         self.report = report
+        self.seconds: Counter = Counter()  # stage -> its partitions' own seconds, summed over workers
         self.started = time.perf_counter()
 
     def finished(self, pids: list[str], reports: dict[str, list[Result]]) -> None:
         for pid in pids:
             stage = self.stage_of[pid]
-            self.counts[stage][_summary(pid, reports.get(pid, []), self.tasks_of[pid]).status] += 1
+            result = _summary(pid, reports.get(pid, []), self.tasks_of[pid])
+            self.counts[stage][result.status] += 1
+            self.seconds[stage] += result.seconds
             self.left[stage] -= 1
             if self.left[stage] == 0:
                 counts = self.counts[stage]
                 line = (f"{stage}: {self.total[stage]} partition(s) done, {counts['executed']} executed, "
-                        f"{counts['cached']} cached, {counts['failed']} failed "
-                        f"({time.perf_counter() - self.started:.1f} s)")
+                        f"{counts['cached']} cached, {counts['failed']} failed ({self.seconds[stage]:.1f} s of "
+                        f"work, finished {time.perf_counter() - self.started:.1f} s into the run)")
                 log.info("%s", line)
                 if self.report is not None:
                     self.report(line)
@@ -384,7 +388,13 @@ def _summary(pid: str, reports: list[Result], tasks: int) -> Result:
 def compute_missing(items, store, *, workers: int, what: str, processes: bool = True,
                     report: Callable[[str], None] | None = None) -> list[WorkItem]:
     """Run the ``items`` not yet complete in ``store`` and return them; raise PlanError naming the first
-    failures (``what``: the purpose, e.g. "cannot export"). ``report``: see run_items."""
+    failures (``what``: the purpose, e.g. "cannot export"). ``report``: see run_items. A store this process cannot
+    write is read as it is: nothing to compute and no lease (gc cannot delete there either), else a StorageError."""
+    if not store.writable():
+        todo = [i for i in items if not store.is_complete(i.partition.stage, i.key)]
+        if todo:
+            raise store.refuse_writes(f"{len(todo)} partition(s) are missing ({what}), e.g. {todo[0].partition.id}")
+        return []
     with store.run_lease(f"inputs ({what})", held_versions(items)) as run_id:  # gc deletes none of them
         todo = [i for i in items if not store.is_complete(i.partition.stage, i.key)]
         results = run_items(todo, workers=workers, processes=processes, progress=sys.stderr.isatty(), report=report,

@@ -23,9 +23,11 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Iterator
 
 import fsspec
@@ -138,6 +140,21 @@ class Store:
         if self.fs.exists(self._marker(stage, key, "_COMPLETE")):
             self.fs.rm_file(self._marker(stage, key, "_COMPLETE"))
         self.fs.rm(self.version_dir(stage, key), recursive=True)
+
+    def writable(self) -> bool:
+        """Whether this process may write under the root: a local root's nearest existing folder is writable (a
+        read-only mount or folder is not); a remote root is taken as writable, its writes name their own errors."""
+        if not self.local:
+            return True
+        path = Path(self.base)
+        while not path.exists() and path.parent != path:
+            path = path.parent
+        return os.access(path, os.W_OK)
+
+    def refuse_writes(self, what: str) -> StorageError:
+        """The error for ``what`` (e.g. "3 partition(s) to compute") in a root this process cannot write."""
+        return StorageError(f"the storage root {self.root} is read-only (or not writable by this user) and {what}; "
+                            "make it writable, or pass --set storage.root=<a writable folder>")
 
     # ---- run leases ----------------------------------------------------------------------
     def _runs_folder(self) -> str:

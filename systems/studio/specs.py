@@ -63,20 +63,24 @@ class MotionSource:
 
 
 def make_spec(raw: Mapping[str, Any], where: str, resolve: Callable[[str], Path],
-              layout: Mapping | None = None) -> tuple[SequenceSpec, str | None, MotionSource | None]:
+              layout: Mapping | None = None,
+              origin: Mapping[str, str] | None = None,
+              skeleton_hint: str = "add skeleton: subject.asf") -> tuple[SequenceSpec, str | None, MotionSource | None]:
     """A validated SequenceSpec, the clip's BVH text (or None) and where the clip comes from, from a mapping of
-    spec fields (and MOTION_FILE_KEYS)."""
+    spec fields (and MOTION_FILE_KEYS). ``origin``: where each field was given (its catalog line), for its errors
+    (else ``where.<field>``)."""
     raw = dict(raw)
+    at = {k: (origin or {}).get(k, f"{where}.{k}") for k in raw}
     files = {k: raw.pop(k) for k in MOTION_FILE_KEYS if k in raw}
     for key in raw:
         if key not in SPEC_FIELDS:
             known = sorted(set(SPEC_FIELDS) | set(MOTION_FILE_KEYS))
-            raise CatalogError(f"{where}: unknown studio field {key!r}{did_you_mean(key, known)}; fields: {known}")
+            raise CatalogError(f"{at[key]}: unknown studio field {key!r}{did_you_mean(key, known)}; fields: {known}")
     if "motion" not in raw:
         raise CatalogError(f"{where}: no 'motion'; give an exercise name ({', '.join(sorted(EXERCISES))}), a .bvh "
                            "clip or an .amc take (with skeleton: its .asf)")
     motion = str(raw["motion"])
-    source = motion_source(motion, files, where, resolve)
+    source = motion_source(motion, files, where, resolve, skeleton_hint)
     text = None
     if source is not None:
         text = read_motion(source, where)
@@ -84,14 +88,19 @@ def make_spec(raw: Mapping[str, Any], where: str, resolve: Callable[[str], Path]
         raw.setdefault("label", Path(source.path).stem)
         raw.setdefault("frames", None)
     elif motion not in EXERCISES:
-        raise CatalogError(f"{where}: unknown exercise {motion!r}{did_you_mean(motion, EXERCISES)}; "
+        raise CatalogError(f"{at.get('motion', where)}: unknown exercise {motion!r}{did_you_mean(motion, EXERCISES)}; "
                            f"use one of {sorted(EXERCISES)}, a .bvh clip or an .amc take")
-    if layout is not None:
-        raw.setdefault("layout", layout)
+    if raw.get("layout") is not None:  # a sequence's own layout file, read like the dataset's
+        if not isinstance(raw["layout"], str):
+            raise CatalogError(f"{at['layout']}: expected a camera layout file (a path, read like the dataset's "
+                               f"layout), got {raw['layout']!r}")
+        raw["layout"] = read_layout(resolve(raw["layout"]), at["layout"])
+    elif layout is not None:
+        raw["layout"] = layout
     if raw.get("motion_map") is not None:
         raw["motion_map"] = read_motion_map(resolve(str(raw["motion_map"])), f"{where}.motion_map")
     hints = typing.get_type_hints(SequenceSpec)
-    values = {k: coerce(v, hints[k], f"{where}.{k}") if k not in ("layout", "motion_map") else v
+    values = {k: coerce(v, hints[k], at.get(k, f"{where}.{k}")) if k not in ("layout", "motion_map") else v
               for k, v in raw.items()}
     try:
         spec = SequenceSpec(**values)
@@ -104,9 +113,10 @@ def make_spec(raw: Mapping[str, Any], where: str, resolve: Callable[[str], Path]
     return spec, text, source
 
 
-def motion_source(motion: str, files: Mapping[str, Any], where: str,
-                  resolve: Callable[[str], Path]) -> MotionSource | None:
-    """Where a ``motion`` that names a file comes from (None for an exercise), its MOTION_FILE_KEYS checked."""
+def motion_source(motion: str, files: Mapping[str, Any], where: str, resolve: Callable[[str], Path],
+                  skeleton_hint: str = "add skeleton: subject.asf") -> MotionSource | None:
+    """Where a ``motion`` that names a file comes from (None for an exercise), its MOTION_FILE_KEYS checked;
+    ``skeleton_hint``: how to give an AMC take's missing skeleton (a catalog key, a command's option)."""
     suffix = Path(motion).suffix.lower()
     if suffix == ".asf":
         raise CatalogError(f"{where}: {motion} is a skeleton; give the take as the motion and the skeleton beside "
@@ -117,7 +127,7 @@ def motion_source(motion: str, files: Mapping[str, Any], where: str,
                                f"{motion!r} needs none, so leave them out")
         return MotionSource(str(resolve(motion))) if suffix == ".bvh" else None
     if "skeleton" not in files:
-        raise CatalogError(f"{where}: the AMC take {motion} needs its ASF skeleton: add skeleton: subject.asf")
+        raise CatalogError(f"{where}: the AMC take {motion} needs its ASF skeleton: {skeleton_hint}")
     fps = coerce(files.get("amc_fps", asf_amc.CMU_FPS), float, f"{where}.amc_fps")
     if not fps > 0:
         raise CatalogError(f"{where}: amc_fps must be positive (the take's frame rate; CMU's is 120), got {fps}")
@@ -240,14 +250,18 @@ def sequence_specs(catalog, dataset, kind: str, *, mesh_only: bool = False, forc
     if not isinstance(sequences, dict) or not sequences:
         raise CatalogError(f"{dataset.where}: a {kind} dataset needs 'sequences: {{id: {{motion: ...}}}}'")
     out = []
+    defaults = opts.get("defaults") or {}
     for seq_id, body in sequences.items():
-        where = f"{dataset.where}.sequences.{seq_id}"
-        fields = {**(opts.get("defaults") or {}), **(body or {})}
+        where = dataset.where_of("sequences", seq_id)
+        fields = {**defaults, **(body or {})}
+        # a field's errors name its own line: the sequence's, or the defaults' where it came from there
+        origin = {k: dataset.where_of(*(("defaults", k) if k not in (body or {}) else ("sequences", seq_id, k)))
+                  for k in fields}
         extra = {k: fields.pop(k) for k in EXTRA_KEYS if k in fields}
         if mesh_only and fields.setdefault("body", "mesh") != "mesh":
             raise CatalogError(f"{where}: {kind} takes are filmed on the mesh body; drop 'body' or set it to mesh")
         fields.update(forced or {})
-        spec = make_spec(fields, where, lambda p, w=where: catalog.resolve_data_path(p, w), layout)
+        spec = make_spec(fields, where, lambda p, w=where: catalog.resolve_data_path(p, w), layout, origin)
         out.append((str(seq_id), where, extra, spec))
     return out
 

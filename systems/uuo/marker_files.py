@@ -9,7 +9,8 @@ missing (a negative C3D residual, an empty TRC cell, or NaN) is NaN. With ``labe
 are ``m000``, ``m001``, ... in file order and the file's labels are dropped (an unlabelled take); with ``"use"``
 they keep the file's labels, a label that repeats (one marker split over several trajectories) getting
 ``#2``, ``#3`` ... Trajectories that are never seen are kept: a fragmented or ghost-ridden recording is
-read as it is.
+read as it is. A file cut short, a damaged sample, a file with no sample, or a coordinate farther from the origin
+than ``max_coordinate_m`` (20 m; no capture volume is larger) is refused, naming the frame and marker.
 """
 
 from __future__ import annotations
@@ -20,22 +21,27 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from mocapflow.formats import c3d, trc
 from mocapflow.pipeline.errors import InputError
 from mocapflow.tasks.shared.kinematics import Y_UP_TO_Z_UP
 
 UNITS_M = {"mm": 0.001, "cm": 0.01, "m": 1.0, "dm": 0.1, "in": 0.0254}
 UPS = ("z", "y")
 LABELS = ("ignore", "use")
+MAX_COORDINATE_M = 20.0  # metres from the origin on any axis: larger than any capture volume (the catalog's
+# max_coordinate_m of a markers dataset changes it)
 
 
-def read_markers(path: Path, *, up: str = "z", labels: str = "ignore") -> xr.Dataset:
-    """A C3D or TRC file's marker trajectories in the raw_markers schema (metres, Z up)."""
+def read_markers(path: Path, *, up: str = "z", labels: str = "ignore",
+                 max_coordinate_m: float = MAX_COORDINATE_M) -> xr.Dataset:
+    """A C3D or TRC file's marker trajectories in the raw_markers schema (metres, Z up). A file with no sample at
+    all, or a coordinate farther than ``max_coordinate_m`` from the origin on any axis, is refused."""
     path = Path(path)
     if up not in UPS:
         raise InputError(f"{path}: up axis {up!r} is not one of {', '.join(UPS)}; say which axis of the file is up")
     if labels not in LABELS:
         raise InputError(f"{path}: labels {labels!r} is not one of {', '.join(LABELS)}")
-    readers = {".c3d": _c3d, ".trc": _trc}
+    readers = {".c3d": c3d.read_trajectories, ".trc": trc.read_trajectories}
     reader = readers.get(path.suffix.lower())
     if reader is None:
         raise InputError(f"{path}: not a marker file this reads ({', '.join(readers)}); export C3D or TRC")
@@ -45,9 +51,25 @@ def read_markers(path: Path, *, up: str = "z", labels: str = "ignore") -> xr.Dat
     if not (np.isfinite(fps) and fps > 0):
         raise InputError(f"{path}: frame rate {fps} is not a positive number; fix the file's rate")
     positions = positions * UNITS_M[unit]
+    _check_samples(path, positions, names, max_coordinate_m)
     if up == "y":
         positions = positions @ Y_UP_TO_Z_UP.T
     return _dataset(positions, fps, names, labels)
+
+
+def _check_samples(path: Path, positions: np.ndarray, names: list[str], bound: float) -> None:
+    """Refuse a file with no sample, or with a coordinate (metres, the file's axes) no capture volume holds."""
+    if not np.isfinite(positions).any():
+        raise InputError(f"{path}: none of its {positions.shape[1]} marker(s) has a sample in any of its "
+                         f"{positions.shape[0]} frame(s); export the trajectories (not an empty take)")
+    with np.errstate(invalid="ignore"):
+        far = np.abs(positions) > bound
+    if far.any():
+        frame, marker, axis = (int(i) for i in np.argwhere(far)[0])
+        raise InputError(f"{path}: frame {frame} marker {names[marker]}: {'xyz'[axis]} = "
+                         f"{positions[frame, marker, axis]:.4g} m lies beyond {bound:g} m of the origin, outside any "
+                         f"capture volume ({int(far.any(axis=-1).sum())} sample(s) so); the file is damaged or its "
+                         "unit is wrong: export it again, or raise the markers dataset's max_coordinate_m")
 
 
 def _dataset(positions: np.ndarray, fps: float, names: list[str], labels: str) -> xr.Dataset:
@@ -71,48 +93,3 @@ def _unique(names: list[str]) -> list[str]:
         seen[name] += 1
         out.append(name if seen[name] == 1 else f"{name}#{seen[name]}")
     return out
-
-
-def _c3d(path: Path) -> tuple[np.ndarray, float, list[str], str]:
-    import ezc3d
-
-    try:
-        c3d = ezc3d.c3d(str(path))
-    except (RuntimeError, ValueError, OSError) as exc:
-        raise InputError(f"{path}: not a readable C3D file ({exc})") from exc
-    point = c3d["parameters"]["POINT"]
-    points = np.asarray(c3d["data"]["points"][:3], np.float64).transpose(2, 1, 0)  # (frame, marker, 3)
-    residuals = np.asarray(c3d["data"]["meta_points"]["residuals"][0]).T  # (frame, marker)
-    points[residuals < 0] = np.nan
-    names = [str(n).strip() for n in point["LABELS"]["value"]][:points.shape[1]]
-    names += [f"unlabelled{i}" for i in range(len(names), points.shape[1])]
-    unit = str(point["UNITS"]["value"][0]).strip().lower() if point.get("UNITS") else "mm"
-    return points, float(c3d["header"]["points"]["frame_rate"]), names, unit
-
-
-def _trc(path: Path) -> tuple[np.ndarray, float, list[str], str]:
-    try:
-        lines = path.read_text().splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot read the TRC file ({exc})") from exc
-    if len(lines) < 5:
-        raise InputError(f"{path}: a TRC file needs its 5 header lines; this has {len(lines)} lines")
-    keys, values = lines[1].split("\t"), lines[2].split("\t")
-    header = dict(zip((k.strip() for k in keys), (v.strip() for v in values)))
-    try:
-        fps = float(header["DataRate"])
-        unit = header["Units"].lower()
-    except (KeyError, ValueError) as exc:
-        raise InputError(f"{path}: TRC header line 3 needs DataRate and Units ({exc})") from exc
-    names = [n.strip() for n in lines[3].split("\t")[2:] if n.strip()]
-    rows = [line.split("\t") for line in lines[5:] if line.strip()]
-    points = np.full((len(rows), len(names), 3), np.nan)
-    for f, row in enumerate(rows):
-        cells = row[2:2 + 3 * len(names)]
-        for k, cell in enumerate(cells):
-            if cell.strip():
-                try:
-                    points[f, k // 3, k % 3] = float(cell)
-                except ValueError as exc:
-                    raise InputError(f"{path}: line {f + 6}: {cell!r} is not a number") from exc
-    return points, fps, names, unit

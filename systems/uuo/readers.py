@@ -11,7 +11,7 @@ import xarray as xr
 from mocapflow.pipeline.datasets import SequenceInfo, data_folder, data_pattern
 from mocapflow.pipeline.errors import CatalogError, InputError
 from mocapflow.pipeline.hashing import digest, file_digest
-from mocapflow.systems.uuo.marker_files import read_markers
+from mocapflow.systems.uuo.marker_files import MAX_COORDINATE_M, read_markers
 from mocapflow.systems.uuo.prior_files import prior_path, read_prior
 from mocapflow.tasks.shared.body import JOINT_NAMES
 from mocapflow.tasks.shared.cache import BoundedCache
@@ -27,10 +27,11 @@ class MarkerFileReader:
     (unlabelled trajectories m000, m001, ...) or ``use``; ``frames``: ``[start, stop]``, the frames of each file
     to keep (a short take of a long trial); ``takes``: per file (by its id) its own ``up`` and ``frames``;
     ``prior``: a folder (inside data_roots) of monocular prior files, ``<id>.npz`` or ``<id>.json``
-    (pipeline/prior_files.py), read as ``prior_joints`` for the ``file_prior`` stage. A catalog reads them with
-    the source task ``ingest_markers``."""
+    (pipeline/prior_files.py), read as ``prior_joints`` for the ``file_prior`` stage; ``max_coordinate_m``: the
+    farthest a coordinate may lie from the origin on any axis (20 m), a file with a sample beyond it refused. A
+    catalog reads them with the source task ``ingest_markers``."""
 
-    options = ("path", "pattern", "up", "labels", "frames", "takes", "prior")
+    options = ("path", "pattern", "up", "labels", "frames", "takes", "prior", "max_coordinate_m")
     has_views = False  # trajectories, not sensor images: a sequence is one partition
 
     @staticmethod
@@ -78,10 +79,11 @@ class MarkerFileReader:
     @staticmethod
     def _load(dataset, path: Path, settings: dict) -> xr.Dataset:
         up, labels, frames = settings["up"], settings["labels"], settings["frames"]
+        bound = _max_coordinate(dataset)
         stat = path.stat()
         try:
-            ds = _MARKER_FILES.get_or_make((str(path), stat.st_size, stat.st_mtime_ns, up, labels),
-                                           lambda: read_markers(path, up=up, labels=labels))
+            ds = _MARKER_FILES.get_or_make((str(path), stat.st_size, stat.st_mtime_ns, up, labels, bound),
+                                           lambda: read_markers(path, up=up, labels=labels, max_coordinate_m=bound))
         except InputError as exc:
             raise InputError(f"{dataset.where}: {exc}") from exc
         n_file = ds.sizes["frame"]
@@ -99,6 +101,15 @@ class MarkerFileReader:
     def read(dataset, seq: SequenceInfo, start: int, stop: int) -> xr.Dataset:
         settings = {k: seq.spec[k] for k in ("up", "labels", "frames", "prior") if k in seq.spec}
         return MarkerFileReader._load(dataset, Path(seq.spec["path"]), settings).isel(frame=slice(start, stop))
+
+
+def _max_coordinate(dataset) -> float:
+    """The dataset's ``max_coordinate_m``: a positive number of metres (MAX_COORDINATE_M when absent)."""
+    value = dataset.options.get("max_coordinate_m", MAX_COORDINATE_M)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < float("inf"):
+        raise CatalogError(f"{dataset.where}.max_coordinate_m: expected a positive number of metres (the farthest a "
+                           f"marker may lie from the origin on any axis), got {value!r}; e.g. {MAX_COORDINATE_M:g}")
+    return float(value)
 
 
 def _prior_joints(dataset, path: str, markers: xr.Dataset) -> np.ndarray:

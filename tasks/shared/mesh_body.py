@@ -155,6 +155,8 @@ def anny_model():
         import warp
 
         warp.config.log_level = warp.LOG_ERROR  # Anny initializes warp on import; keep its banner off the console
+        with _without_cuda_driver_warning():
+            warp.init()  # here, not in Anny's import: on a machine without a GPU its CUDA driver warning is dropped
         import anny
         import torch
 
@@ -163,6 +165,35 @@ def anny_model():
         return model
 
     return _MODELS.get_or_make("anny", build)
+
+
+CUDA_DRIVER_WARNING = "Could not find or load the NVIDIA CUDA driver"  # warp's native line on a machine without one
+
+
+@contextmanager
+def _without_cuda_driver_warning():
+    """Hold what native code writes to stderr (file descriptor 2) while the block runs, then write it back except
+    warp's line saying no CUDA driver was found (expected on a CPU machine; Anny skins on the CPU there). Any other
+    line, a real error among them, still reaches stderr."""
+    import os
+    import sys
+    import tempfile
+
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        try:
+            yield
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            held.seek(0)
+            text = held.read().decode(errors="replace")
+        kept = [line for line in text.splitlines(keepends=True) if CUDA_DRIVER_WARNING not in line]
+        if kept:
+            os.write(2, "".join(kept).encode())
 
 
 @contextmanager

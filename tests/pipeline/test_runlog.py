@@ -23,8 +23,13 @@ def test_a_piped_run_prints_a_line_per_stage_and_logs_to_the_storage_root(toy_pr
     proc = mocapflow("run", "--workers", "1", cwd=project)  # stdout is a pipe here
     lines = proc.stdout.strip().splitlines()
     for stage, n in (("frames", 2), ("scaled", 4), ("diffed", 4), ("summed", 2)):
-        assert any(re.match(rf"{stage}: {n} partition\(s\) done, {n} executed, 0 cached, 0 failed \([\d.]+ s\)$", line)
+        assert any(re.match(rf"{stage}: {n} partition\(s\) done, {n} executed, 0 cached, 0 failed "
+                            r"\([\d.]+ s of work, finished [\d.]+ s into the run\)$", line)
                    for line in lines), proc.stdout
+    # a stage's own seconds are its partitions', not the time since the run started
+    own = {m[1]: (float(m[2]), float(m[3])) for m in
+           (re.match(r"(\w+): .*\(([\d.]+) s of work, finished ([\d.]+) s into the run\)$", line) for line in lines) if m}
+    assert all(work <= at * 2 + 0.1 for work, at in own.values()), own  # two workers at most in parallel
     assert len(lines) == 5, proc.stdout  # four stages, then the summary
     assert "INFO" not in proc.stderr  # the console stays at WARNING without -v
     text = log_file(project, proc.stdout).read_text()
