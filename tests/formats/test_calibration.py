@@ -325,7 +325,7 @@ def test_empty_files_unknown_formats_and_unit_mistakes_are_refused(tmp_path):
     with pytest.raises(InputError, match=r"cam0.yml is empty"):
         read_opencv(tmp_path / "cam0.yml", unit="m")
     with pytest.raises(InputError, match=r"unknown calibration format 'vicon'; use one of qca, toml, opencv"):
-        readread_calibration_yaml(tmp_path / "cam0.yml", "vicon")
+        read_calibration(tmp_path / "cam0.yml", "vicon")
     with pytest.raises(InputError, match=r"missing.qca does not exist"):
         read_qca(tmp_path / "missing.qca")
     (tmp_path / "Calib.toml").write_text(good_toml())

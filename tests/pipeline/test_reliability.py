@@ -195,7 +195,7 @@ def test_damaged_array_metadata_is_found_refused_and_rewritten(toy_project):
     catalog = load_catalog(project / "catalog.yaml")
     item = build_plan(catalog).item("scaled", "seqA", "cam0")
     with pytest.raises(IntegrityError, match=r"metadata value/zarr\.json has digest .*, recorded"):
-        Store(catalog.root).open("scaled", item.key, item.stage.schema)["value"].values
+        _ = Store(catalog.root).open("scaled", item.key, item.stage.schema)["value"].values
 
     found = mocapflow("verify", cwd=project, check=False)
     assert found.returncode == 1
