@@ -35,6 +35,8 @@ import numpy as np
 import xarray as xr
 
 from mocapflow.pipeline.errors import LockError, SchemaError, StorageError
+from mocapflow.pipeline.integrity import (RecordingStore, VerifyingStore, Where, chunk_problem, digest, is_chunk,
+                                         zarr_store)
 from mocapflow.pipeline.locks import LeasedLock, RunLease, describe, read_run_leases
 from mocapflow.schemas import ArtifactSchema, SchemaViolation
 from mocapflow.tasks.shared.cache import BoundedCache
@@ -305,7 +307,6 @@ class Store:
         expected = {chunk: d for chunks in _chunk_groups(self.digests(stage, key)).values() for chunk, d in chunks.items()}
         if not expected:
             return target
-        from mocapflow.pipeline.integrity import VerifyingStore, Where, zarr_store
 
         where = Where(stage, key, self.pending_lineage(stage, key).get("partition", "?"), self.root)
         return VerifyingStore(zarr_store(target, read_only=True), expected, where)
@@ -340,7 +341,6 @@ class Store:
     def _metadata_digests(self, stage: str, key: str) -> dict[str, str]:
         """The digest of every metadata file of a version's zarr group (its own and each array's ``zarr.json``:
         dtypes, codecs, shapes, attributes), keyed like chunks."""
-        from mocapflow.pipeline.integrity import digest, is_chunk
 
         base = f"{self.version_dir(stage, key)}/data.zarr"
         names = [path[len(base) + 1:] for path in self.fs.find(base)]
@@ -351,7 +351,6 @@ class Store:
     def check_chunks(self, stage: str, key: str, groups: dict[str, dict[str, str]]) -> list[Damage]:
         """The chunks of ``groups`` (``"init"`` or a region ``"A-B"`` -> {chunk: digest}) whose stored bytes are
         missing or differ from their digest."""
-        from mocapflow.pipeline.integrity import chunk_problem
 
         base = f"{self.version_dir(stage, key)}/data.zarr"
         paths = sorted({f"{base}/{chunk}" for chunks in groups.values() for chunk in chunks})
@@ -501,7 +500,6 @@ def _writer(target: str, digests: dict[str, str] | None):
     """``target`` itself, or a zarr store writing to it that records chunk digests in ``digests``."""
     if digests is None:
         return target
-    from mocapflow.pipeline.integrity import RecordingStore, zarr_store
 
     return RecordingStore(zarr_store(target, read_only=False), digests)
 

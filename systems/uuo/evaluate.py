@@ -24,6 +24,7 @@ from mocapflow.pipeline.evaluate import format_rows
 from mocapflow.pipeline.registry import Evaluator
 from mocapflow.tasks.shared.mesh_body import Phenotype, mesh_body, part_of_bone, pose_mesh
 from mocapflow.tasks.uuo import metrics
+from mocapflow.tasks.uuo.labelled import base_label
 
 
 def _mesh(phenotype: dict, quats: np.ndarray, root: np.ndarray):
@@ -224,9 +225,6 @@ def score_against_reference(solved, reference, raw_labels: list[str], raw_positi
 
 def evaluate_against_reference(catalog, plan, store, stages: list[str], reference: str, per_sequence: dict) -> dict:
     """Figures per UUO stage on recorded takes, against the ``reference`` stage's body (evaluation.uuo_reference)."""
-    from mocapflow.pipeline.evaluate import stage_writing
-    from mocapflow.tasks.uuo.labelled import base_label
-
     if reference not in catalog.stages or catalog.stages[reference].spec.output != "uuo_body":
         raise PlanError(f"evaluation.uuo_reference names {reference!r}, not a stage writing uuo_body; name the "
                         "labelled solve's stage")
