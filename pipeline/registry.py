@@ -146,7 +146,8 @@ class Exporter:
 class ReportSection:
     """What `mocapflow report` shows of one system. ``applies(catalog)``; ``takes(catalog, plan, store)`` the
     sequences as the report's :class:`~mocapflow.pipeline.report.Take` (markers, joints, truth) or [] ;
-    ``figures(folder, catalog, plan, store, result)`` extra images (paths) given the evaluation's result;
+    ``figures(folder, catalog, plan, store, result)`` extra images (paths) given the evaluation's result (``{}``
+    where the take has no ground truth to evaluate against: draw what needs none);
     ``named_figures``: the evaluation's JSON keys it names on the page, key -> (label, scale, unit)."""
 
     name: str

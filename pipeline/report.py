@@ -153,6 +153,7 @@ class Take:
     parents: list[int] = field(default_factory=list)
     gt_joints: np.ndarray | None = None  # (frame, joint, 3) m
     gt_markers: np.ndarray | None = None  # (frame, marker, 3) m, the true position of each of ``names``
+    note: str = ""  # shown under the sequence's heading (e.g. that ``names`` is a subsample of the take's points)
 
 
 def gaps(present: np.ndarray) -> list[tuple[int, int]]:
@@ -183,6 +184,10 @@ def marker_rows(take: Take) -> list[dict]:
     return rows
 
 
+LEGEND_MAX = 40  # markers named in the trajectories' legend; above it the legend gives their count
+TABLE_OPEN_MAX = 40  # marker-table rows shown open; a longer table is folded (<details>)
+
+
 def trajectories_plot(take: Take, size=(980, 600)) -> np.ndarray:
     """x, y and z of every marker over time (s), one panel each, a legend of the markers on the right."""
     w, h = size
@@ -211,6 +216,9 @@ def trajectories_plot(take: Take, size=(980, 600)) -> np.ndarray:
                     cv2.polylines(img, [pts], False, PALETTE[m % len(PALETTE)], 1, cv2.LINE_AA)
     cv2.putText(img, f"{take.id}: marker trajectories ({take.stage})", (left, 20), FONT, 0.5, BLACK, 1, cv2.LINE_AA)
     cv2.putText(img, f"0 - {t[-1]:.2f} s", (left, h - 12), FONT, 0.42, BLACK, 1, cv2.LINE_AA)
+    if len(take.names) > LEGEND_MAX:  # too many names to read: the count instead
+        cv2.putText(img, f"{len(take.names)} markers", (legend_x, 35), FONT, 0.45, BLACK, 1, cv2.LINE_AA)
+        return img
     row = min(18, (h - 40) // max(len(take.names), 1))
     for m, name in enumerate(take.names):
         y = 35 + m * row
@@ -307,7 +315,7 @@ def write_report(folder: Path, takes: list[Take], *, title: str, summary: dict, 
         heading = html.escape(take.id + (f" ({take.label})" if take.label and take.label != take.id else ""))
         sections.append(f"<h3 id='seq-{html.escape(take.id)}'>{heading}</h3><p>{take.position.shape[0]} frames at "
                         f"{take.fps:g} fps, {len(take.names)} markers from stage <code>{html.escape(take.stage)}</code>"
-                        f"</p>{html_table(marker_rows(take))}<figure><img src='{html.escape(png.name)}'>"
+                        f"</p>{_note(take)}{_marker_table(take)}<figure><img src='{html.escape(png.name)}'>"
                         f"<figcaption>trajectories of {heading}; a gap breaks its line</figcaption></figure>"
                         + (_worst_section(folder, take, heading) if take.gt_markers is not None else ""))
     rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(_fmt(v))}</td></tr>" for k, v in summary.items())
@@ -331,6 +339,18 @@ def write_report(folder: Path, takes: list[Take], *, title: str, summary: dict, 
         f"<h2>3D view</h2>{body}<h2>Markers per sequence</h2>{''.join(sections)}"
         f"<h2>Files</h2><ul>{links or '<li>(none)</li>'}</ul></body></html>\n")
     return page
+
+
+def _note(take: Take) -> str:
+    return f"<p><em>{html.escape(take.note)}</em></p>" if take.note else ""
+
+
+def _marker_table(take: Take) -> str:
+    """The marker table, folded where it is long."""
+    table_ = html_table(marker_rows(take))
+    if len(take.names) <= TABLE_OPEN_MAX:
+        return table_
+    return f"<details><summary>marker table ({len(take.names)} rows)</summary>{table_}</details>"
 
 
 def _worst_section(folder: Path, take: Take, heading: str) -> str:
@@ -371,7 +391,8 @@ def build_report(catalog, plan, store, folder: Path, *, title: str, summary: dic
     """The report of a computed run: with ground truth, the accuracy tables and figures; always, per sequence the
     marker table, trajectories and the 3D view. ``result``: the evaluation, when already made. Returns the page,
     the images and the evaluation's figures. What it shows of each system comes from that system's report sections
-    (registry.ReportSection): the takes from the first that has some, the figures and figure names from all."""
+    (registry.ReportSection): the takes from the first that has some, the figures and figure names from all (the
+    figures with or without an evaluation: ``{}`` where there is none)."""
     sections = [r for r in registry.report_sections() if r.applies(catalog)]
     takes = next((found for r in sections if r.takes is not None and (found := r.takes(catalog, plan, store))), [])
     if not takes:
@@ -386,7 +407,7 @@ def build_report(catalog, plan, store, folder: Path, *, title: str, summary: dic
             accuracy = f"not measured: {exc}"
     if result is not None:
         accuracy, figures_ = table(result), headline(result)
-        images = [p for r in sections if r.figures is not None for p in r.figures(folder, catalog, plan, store, result)]
+    images = [p for r in sections if r.figures is not None for p in r.figures(folder, catalog, plan, store, result or {})]
     known = {"sequences": ("sequences", 1, "")}
     for r in sections:
         known.update(r.named_figures)

@@ -2,14 +2,14 @@
 corners -> triangulated, holes filled.
 
 Everything the system adds to the engine, declared in one place: its task specs (tasks.py), schemas, evaluator
-(evaluate.py), exporters (export.py: c3d, ply) and the reader of its trained networks. Its takes come from the
-studio (systems/studio, kind ``studio_suit``); its drawings for figures are in report.py. The kernels are in
-tasks/suit.
+(evaluate.py), exporters (export.py: c3d, ply), report section (report.py: its corners as the report's takes, its
+figures) and the reader of its trained networks. Its takes come from the studio (systems/studio, kind
+``studio_suit``). The kernels are in tasks/suit.
 """
 
 from mocapflow.pipeline.registry import System
 from mocapflow.schemas import suit
-from mocapflow.systems.suit import evaluate, export, tasks
+from mocapflow.systems.suit import evaluate, export, report, tasks
 from mocapflow.tasks.shared.weights import unpack
 
 SYSTEM = System(
@@ -21,5 +21,6 @@ SYSTEM = System(
              suit.SUIT_QUAD_SAMPLES),
     evaluators=(evaluate.EVALUATOR,),
     exporters=export.EXPORTERS,
+    report=(report.SECTION,),
     weights={"suit_net_weights": unpack},
 )

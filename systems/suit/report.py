@@ -1,10 +1,24 @@
-"""Figures of the suit chain, drawn with OpenCV: labelled corners and codes over a camera image, the filled suit
-in 3D (observed corners green, filled ones orange) from two sides, and the reprojection errors' histogram."""
+"""The suit in `mocapflow report`, and its figures drawn with OpenCV: labelled corners and codes over a camera image,
+the filled suit in 3D (observed corners green, filled ones orange) from two sides, and the errors' histograms.
+
+Its takes are the suit's corners (the filled ones where the catalog fills, else the triangulated ones) as markers,
+with the studio's true corners where the take has them; a suit has about 1,400 corners, so a take carries an even
+subsample of them (``TAKE_CORNERS`` at most, said on the page) for the marker table, trajectories and 3D view, while
+the figures draw every corner.
+"""
 
 from __future__ import annotations
 
+from math import ceil
+from pathlib import Path
+
 import cv2
 import numpy as np
+
+from mocapflow.pipeline.catalog import stage_writing
+from mocapflow.pipeline.registry import ReportSection
+from mocapflow.pipeline.report import Take, write_png
+from mocapflow.systems.suit.export import corner_names
 
 GREEN, ORANGE, WHITE, GREY, RED = (60, 200, 60), (0, 140, 255), (255, 255, 255), (120, 120, 120), (40, 40, 230)
 FONT = cv2.FONT_HERSHEY_SIMPLEX
@@ -86,3 +100,141 @@ def histogram(values: np.ndarray, top: float, title: str, bins: int = 40, size: 
         cv2.putText(out, f"{t:g}", (x - 8, bottom + 18), FONT, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
     cv2.putText(out, title, (left, 22), FONT, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
     return out
+
+
+# ---- the report section ----------------------------------------------------------------------------------------
+
+TAKE_CORNERS = 150  # corners a take carries at most into the page's table, trajectories and 3D view
+
+
+def corner_stage(catalog) -> str | None:
+    """The corners to show: the catalog's last filling, else its last triangulation (not a hold-out's)."""
+    return stage_writing(catalog, "suit_filled") or stage_writing(catalog, "suit_points")
+
+
+def applies(catalog) -> bool:
+    return corner_stage(catalog) is not None and stage_writing(catalog, "suit_images") is not None
+
+
+def takes(catalog, plan, store) -> list[Take]:
+    """Every sequence's corners (an even subsample, ``TAKE_CORNERS`` at most) named by code and quad vertex, with
+    the studio's true corners where the take has them."""
+    stage, source = corner_stage(catalog), stage_writing(catalog, "suit_images")
+    out = []
+    for seq in plan.sequences:
+        corners, images = plan.open(store, stage, seq.id), plan.open(store, source, seq.id)
+        n = corners.sizes["corner"]
+        step = max(1, ceil(n / TAKE_CORNERS))
+        keep = np.arange(0, n, step)
+        names = corner_names(images["code"].values, images["square_corners"].values, n)
+        take = Take(seq.id, float(corners.attrs["fps"]), str(images.attrs.get("exercise", "")), stage,
+                    [names[c] or f"corner{c}" for c in keep],
+                    corners["position"].values[:, keep].astype(np.float64))
+        if step > 1:
+            take.note = (f"{len(keep)} of the {n} corners of the suit (every {step}th) in the table, trajectories and 3D "
+                         "view; the figures above draw every corner")
+        if "gt_corners" in images:
+            take.gt_markers = images["gt_corners"].values[:, keep].astype(np.float64)
+        out.append(take)
+    return out
+
+
+def figures(folder: Path, catalog, plan, store, result: dict) -> list[Path]:
+    """Of the first sequence's middle frame: the labelled corners over the view that labels most
+    (``suit_labels_<seq>.png``) and the suit in 3D (``suit_corners_3d_<seq>.png``); over every sequence the
+    triangulation's reprojection errors and, with the truth, the corners' 3D errors (histograms)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    seq, source = plan.sequences[0], stage_writing(catalog, "suit_images")
+    images = plan.open(store, source, seq.id)
+    frame = images.sizes["frame"] // 2
+    out = []
+    labels = stage_writing(catalog, "suit_labels")
+    if labels is not None:
+        out.append(folder / f"suit_labels_{seq.id}.png")
+        write_png(out[-1], _labels_figure(plan, store, labels, seq, images, frame))
+    out.append(folder / f"suit_corners_3d_{seq.id}.png")
+    write_png(out[-1], _corners_figure(plan.open(store, corner_stage(catalog), seq.id).isel(frame=frame),
+                                       images["cells"].values))
+    return out + _histograms(folder, catalog, plan, store)
+
+
+def _labels_figure(plan, store, stage: str, seq, images, frame: int) -> np.ndarray:
+    """The view with the most labelled corners at ``frame``: its image cropped to the suit, labels and truth."""
+    xys = {}
+    for view in seq.views:
+        lab = plan.open(store, stage, seq.id, view).sel(view=view).isel(frame=frame)
+        xys[view] = np.stack([lab["x"].values, lab["y"].values], axis=1).astype(np.float64)
+    view = max(xys, key=lambda v: int(np.isfinite(xys[v]).all(axis=1).sum()))
+    pixels = images["image"].sel(view=view).isel(frame=frame).values
+    truth = None
+    if "gt_corners2d" in images:
+        truth = images["gt_corners2d"].sel(view=view).isel(frame=frame).values.astype(np.float64)
+        truth[~images["gt_visible"].sel(view=view).isel(frame=frame).values] = np.nan
+    out = overlay_labels(pixels, xys[view], images["square_corners"].values, images["code"].values, truth,
+                         _box(xys[view], pixels.shape))
+    cv2.putText(out, f"{seq.id} {view}, frame {frame}: dots labelled (red: > 2 px off), rings the truth", (8, 20),
+                FONT, 0.5, ORANGE, 1, cv2.LINE_AA)
+    return out
+
+
+def _box(xy: np.ndarray, shape: tuple[int, ...], margin: int = 20) -> tuple[int, int, int, int] | None:
+    """(y0, y1, x0, x1) around the labelled corners, inside the image; None (the whole image) where none."""
+    ok = np.isfinite(xy).all(axis=1)
+    if not ok.any():
+        return None
+    (x0, y0), (x1, y1) = xy[ok].min(axis=0) - margin, xy[ok].max(axis=0) + margin
+    return (max(0, int(y0)), min(shape[0], int(y1) + 1), max(0, int(x0)), min(shape[1], int(x1) + 1))
+
+
+def _corners_figure(corners, cells: np.ndarray) -> np.ndarray:
+    """One frame's corners in 3D; a triangulation's (no ``observed``) counts its reconstructed corners observed."""
+    points = corners["position"].values.astype(np.float64)
+    observed = corners["observed"].values if "observed" in corners else np.isfinite(points).all(axis=1)
+    return view_3d(points, observed, cells)
+
+
+def _histograms(folder: Path, catalog, plan, store) -> list[Path]:
+    """The reprojection errors of the triangulation (px) and, with the truth, the shown corners' 3D errors (mm)."""
+    out = []
+    points = next((s.name for s in reversed(list(catalog.stages.values())) if s.spec.output == "suit_points"
+                   and "suit_points" not in s.spec.inputs.values()), None)
+    if points is not None:
+        errors = [plan.open(store, points, seq.id) for seq in plan.sequences]
+        values = np.concatenate([e["error"].values[e["kept"].values].ravel() for e in errors])
+        values = values[np.isfinite(values)]
+        if values.size:
+            out.append(folder / "suit_reprojection_error.png")
+            write_png(out[-1], histogram(values, _top(values, 1.0), f"reprojection error of the corners of {points} (px)"))
+    source, stage = stage_writing(catalog, "suit_images"), corner_stage(catalog)
+    if all("gt_corners" in plan.open(store, source, seq.id) for seq in plan.sequences):
+        values = np.concatenate([_errors_mm(plan.open(store, stage, seq.id), plan.open(store, source, seq.id))
+                                 for seq in plan.sequences])
+        if values.size:
+            out.append(folder / "suit_error_3d.png")
+            write_png(out[-1], histogram(values, _top(values, 5.0), f"3D error of the corners of {stage} (mm)"))
+    return out
+
+
+def _errors_mm(corners, images) -> np.ndarray:
+    error = np.linalg.norm(corners["position"].values.astype(np.float64) - images["gt_corners"].values, axis=-1)
+    return 1000.0 * error[np.isfinite(error)]
+
+
+def _top(values: np.ndarray, least: float) -> float:
+    """The histogram's range: the 99th percentile rounded up to one significant digit, ``least`` at least."""
+    p99 = float(np.percentile(values, 99))
+    unit = 10.0 ** np.floor(np.log10(max(p99, 1e-9)))
+    return max(least, float(np.ceil(p99 / unit) * unit))
+
+
+# The evaluation's JSON keys, named for a reader: (label, scale, unit)
+NAMED_FIGURES = {
+    "suit_detect_rate": ("suit: readable corners labelled", 100, "%"), "suit_wrong_labels": ("suit: wrong labels", 1, ""),
+    "suit_loc_err_px": ("suit: label localisation error, mean", 1, "px"),
+    "suit_err3d_median_mm": ("suit: triangulated corners' 3D error, median", 1, "mm"),
+    "suit_fill_err_median_mm": ("suit: hidden corners filled, 3D error median", 1, "mm"),
+    "suit_fill_all_err_median_mm": ("suit: filled corners' 3D error, median", 1, "mm"),
+}
+
+
+SECTION = ReportSection("suit", applies, takes, figures, NAMED_FIGURES)

@@ -117,8 +117,9 @@ def mesh_view(vertices: np.ndarray, faces: np.ndarray, markers: np.ndarray, mark
 
 
 def report_figures(folder: Path, solved: xr.Dataset, markers: xr.Dataset, truth: np.ndarray | None,
-                   against: str) -> list[Path]:
-    """The report's PNGs for one take; ``truth`` (frame, joint, 3) what the joints are scored against, if any."""
+                   against: str, tag: str = "") -> list[Path]:
+    """The report's PNGs for one take; ``truth`` (frame, joint, 3) what the joints are scored against, if any;
+    ``tag`` ends each file's name (``markers_on_mesh{tag}.png``: one set per take in one folder)."""
     folder.mkdir(parents=True, exist_ok=True)
     frame = solved.sizes["frame"] // 2
     body = mesh_body(Phenotype(**solved.attrs["phenotype"]))
@@ -127,12 +128,12 @@ def report_figures(folder: Path, solved: xr.Dataset, markers: xr.Dataset, truth:
     faces = body.faces[body.skin]
     positions = markers["position"].transpose("frame", "marker", "xyz").values[frame].astype(np.float64)
     parts = [str(p) for p in solved["part"].values]
-    out = [folder / "markers_on_mesh.png"]
+    out = [folder / f"markers_on_mesh{tag}.png"]
     write_png(out[0], np.hstack([mesh_view(vertices, faces, positions, parts, "xz", f"front, frame {frame}"),
                                  mesh_view(vertices, faces, positions, parts, "yz", f"left side, frame {frame}")]))
     if truth is not None:
         error = np.linalg.norm(solved["joints"].values.astype(np.float64) - truth, axis=-1) * 1000.0  # (frame, joint)
-        out += [folder / "joint_errors.png", folder / "error_over_time.png"]
+        out += [folder / f"joint_errors{tag}.png", folder / f"error_over_time{tag}.png"]
         write_png(out[1], bar_chart(dict(zip(JOINT_NAMES, error.mean(axis=0))),
                                     title=f"mean error per joint against {against}", unit="mm", size=(640, 560)))
         frames = np.arange(len(error), dtype=float)
@@ -172,8 +173,7 @@ def default_stage(catalog) -> str | None:
 
 
 def _markers(job: ExportJob) -> xr.Dataset:
-    """The trajectories the solve labelled: its ``markers`` input."""
-    return job.plan.open(job.store, job.catalog.stages[job.stage].inputs["markers"], job.sequence).load()
+    return solve_markers(job.catalog, job.plan, job.store, job.stage, job.sequence)
 
 
 def export_c3d(job: ExportJob) -> list[Path]:
@@ -194,18 +194,28 @@ def report_needs(catalog, stage: str) -> list[str]:
     return [str(reference)] if reference in catalog.stages else []
 
 
-def export_report(job: ExportJob) -> list[Path]:
-    """``<out>/<sequence>/report.html``: against the studio's truth where the take has it, else the labelled reference."""
-    catalog, plan, store = job.catalog, job.plan, job.store
-    truth, against = None, ""
+def solve_truth(catalog, plan, store, stage: str, sequence: str) -> tuple[np.ndarray | None, str]:
+    """What ``stage``'s joints of ``sequence`` are scored against, (frame, joint, 3) m, and its name: the studio's
+    truth where the take has it, else the catalog's labelled reference (``evaluation.uuo_reference``), else none."""
     raw_stage = stage_writing(catalog, "raw_markers")
-    raw = plan.open(store, raw_stage, job.sequence) if raw_stage else None
+    raw = plan.open(store, raw_stage, sequence) if raw_stage else None
     reference = catalog.evaluation.get("uuo_reference")
     if raw is not None and "gt_joints" in raw:
-        truth, against = raw["gt_joints"].values.astype(np.float64), "the studio's truth"
-    elif reference in catalog.stages and reference != job.stage:
-        truth = plan.open(store, str(reference), job.sequence)["joints"].values.astype(np.float64)
-        against = f"the labelled reference ({reference})"
+        return raw["gt_joints"].values.astype(np.float64), "the studio's truth"
+    if reference in catalog.stages and reference != stage:
+        truth = plan.open(store, str(reference), sequence)["joints"].values.astype(np.float64)
+        return truth, f"the labelled reference ({reference})"
+    return None, ""
+
+
+def solve_markers(catalog, plan, store, stage: str, sequence: str) -> xr.Dataset:
+    """The trajectories the solve ``stage`` labelled: its ``markers`` input."""
+    return plan.open(store, catalog.stages[stage].inputs["markers"], sequence).load()
+
+
+def export_report(job: ExportJob) -> list[Path]:
+    """``<out>/<sequence>/report.html``: against the studio's truth where the take has it, else the labelled reference."""
+    truth, against = solve_truth(job.catalog, job.plan, job.store, job.stage, job.sequence)
     folder = target(job.out_dir, job.sequence)
     return [write_report(folder, job.sequence, job.stage, job.data, _markers(job), truth, against, files=[])]
 
