@@ -4,15 +4,17 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import warnings
 
 import numpy as np
 import pytest
 import xarray as xr
 
 from conftest import SHARED, last_json, mocapflow, read_artifacts
-from mocapflow.pipeline.errors import InputError
+from mocapflow.pipeline.errors import InputError, InputWarning
 from mocapflow.pipeline.hashing import digest
-from mocapflow.systems.studio.specs import LATER_FIELDS, fingerprint, make_spec
+from mocapflow.systems.studio.specs import LATER_FIELDS, check_in_view, fingerprint, make_spec
+from mocapflow.tasks.studio.cameras import layout as camera_layout
 from mocapflow.tasks.shared.body import JOINT_INDEX, Subject
 from mocapflow.tasks.studio import bvh
 from motion_files import USER_MAP, mixamo_text
@@ -300,26 +302,35 @@ stages:
 """
 
 
-@pytest.mark.parametrize("check", ["", "out_of_view: warn", "out_of_view: refuse", "out_of_view: off"])
+@pytest.mark.parametrize("check", ["", "out_of_view: refuse"])
 def test_a_subject_leaving_a_sensors_view_is_reported_or_refused(tmp_path, check):
     # one sensor 1.1 m in front of a 1.8 m subject sees the chest, not the head and feet
     (tmp_path / "close.yaml").write_text("sensors:\n  - {name: near, position: [0, 1.1, 1.0], target: [0, 0, 1.0]}\n")
     (tmp_path / "catalog.yaml").write_text(CLOSE_SENSOR.format(check=check))
     proc = mocapflow("run", cwd=tmp_path, check=False)
     said = "sequence 'squat': the subject leaves the view of 1 camera(s) (joint-frames outside: near"
-    if check == "out_of_view: refuse":
+    if check:
         assert proc.returncode == 1 and said in proc.stdout + proc.stderr
-    elif check == "out_of_view: off":
-        assert proc.returncode == 0 and "leaves the view" not in proc.stderr
     else:
         assert proc.returncode == 0 and said in proc.stderr  # the worker's warning, said by the driver
         assert "set the dataset's out_of_view: off" in proc.stderr
 
 
-def test_a_subject_in_every_view_is_not_reported(tmp_path):
-    (tmp_path / "catalog.yaml").write_text(CLOSE_SENSOR.format(check="").replace("    layout: close.yaml\n", ""))
-    proc = mocapflow("run", cwd=tmp_path)
-    assert "leaves the view" not in proc.stderr
+def test_the_view_check_warns_refuses_or_keeps_quiet():
+    cams = camera_layout({"sensors": [{"name": "near", "position": [0, 1.1, 1.0], "target": [0, 0, 1.0]},
+                                      {"name": "far", "position": [0, 3.5, 1.0], "target": [0, 0, 1.0]}]})
+    standing = np.zeros((3, 2, 3))
+    standing[:, 1, 2] = 1.8  # feet and head of a 1.8 m subject at the centre
+    with pytest.warns(InputWarning, match=r"leaves the view of 1 camera\(s\) \(joint-frames outside: near 100 %"):
+        check_in_view("s", cams, standing, "warn")
+    with pytest.raises(InputError, match="leaves the view of 1 camera"):
+        check_in_view("s", cams, standing, "refuse")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_in_view("s", cams, standing, "off")
+        check_in_view("s", cams[1:], standing, "warn")  # the far sensor sees head and feet: nothing to say
+        waist = np.full((3, 1, 3), [0.0, 0.0, 1.0])
+        check_in_view("s", cams, waist, "warn")  # both see the waist
 
 
 def test_an_unknown_view_check_is_refused_at_load(tmp_path):
