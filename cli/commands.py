@@ -23,7 +23,7 @@ from mocapflow.pipeline.plan import Partition, Plan, WorkItem, build_plan, held_
 from mocapflow.pipeline.registry import did_you_mean
 from mocapflow.pipeline.report import build_report
 from mocapflow.pipeline.runlog import run_log
-from mocapflow.pipeline.scheduler import compute_missing, failure_report, run_items
+from mocapflow.pipeline.scheduler import check_address, compute_missing, failure_report, run_items
 from mocapflow.pipeline.storage import Store
 from mocapflow.pipeline.training import export_weights, training_item
 from mocapflow.systems.studio.film_deepmocap import write_sequence
@@ -98,6 +98,8 @@ def run(catalog_path, overrides, sequences, only, until, dry_run, workers, threa
         no_progress):
     """Run the catalog's stages, reusing every cached partition."""
     started = time.perf_counter()
+    if address:
+        check_address(address)  # before the run's lease writes into the store
     catalog = load_catalog(catalog_path, overrides)
     store = Store(catalog.root)
     plan = build_plan(catalog, sequences)

@@ -55,11 +55,9 @@ def dask_client(workers: int, address: str | None, *, processes: bool = True) ->
                  "distributed.http.proxy", "distributed.nanny"):
         logging.getLogger(name).setLevel(logging.ERROR if quiet else logging.DEBUG)
     if address:
+        check_address(address)
         try:
             client = Client(address, timeout="15s")
-        except ValueError as exc:
-            raise PlanError(f"--scheduler {address!r} is not a Dask scheduler address ({exc}); pass the address "
-                            "`dask scheduler` prints, e.g. tcp://10.0.0.5:8786") from exc
         except (OSError, TimeoutError) as exc:
             raise PlanError(f"cannot reach the Dask scheduler at {address!r} ({exc}); start one with "
                             "`dask scheduler` and pass the address it prints") from exc
@@ -402,6 +400,17 @@ def compute_missing(items, store, *, workers: int, what: str, processes: bool = 
     if any(not r.ok for r in results):
         raise PlanError(f"{what}:\n" + "\n".join(failure_report(results)))
     return todo
+
+
+def check_address(address: str) -> None:
+    """Refuse an ``address`` that is no Dask scheduler address (before a run writes anything)."""
+    from distributed.comm.addressing import parse_address, parse_host_port  # distributed: only when it is used
+
+    try:
+        parse_host_port(parse_address(address)[1])
+    except ValueError as exc:
+        raise PlanError(f"--scheduler {address!r} is not a Dask scheduler address ({exc}); pass the address "
+                        "`dask scheduler` prints, e.g. tcp://10.0.0.5:8786") from exc
 
 
 ROOT_FAILURES_SHOWN = 20  # partitions that failed on their own, listed with their error before a count of the rest
