@@ -1,6 +1,6 @@
 """Prior files for the labelled reference of benchmarks/uuo_real.yaml: the template's joints estimated from the
 labelled markers of each recording (a joint at the mean of the markers around it), written in the `file` prior
-format (pipeline/prior_files.py) to storage/uuo_real_priors/<take>.npz.
+format (systems/uuo/prior_files.py) to storage/uuo_real_priors/<take>.npz.
 
     python benchmarks/uuo_real_priors.py
 

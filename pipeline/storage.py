@@ -279,9 +279,9 @@ class Store:
         begun = partial and stamp is None and self.fs.exists(self._marker(stage, key, "_init"))
         if stamp is None and not begun:
             if not self.fs.exists(self.version_dir(stage, key)):
-                raise StorageError(f"artifact {stage}/{key} is gone from {self.root}: it was deleted while this run "
-                                   f"needed it (a `mocapflow gc` of a release without run leases, or by hand); run "
-                                   f"again to recompute it")
+                raise StorageError(f"artifact {stage}/{key} is not complete in {self.root}: it was never computed, "
+                                   "or deleted while a run needed it (by hand, or a `mocapflow gc` of a release "
+                                   f"without run leases); run again (`mocapflow run --until {stage}`) to compute it")
             raise StorageError(f"artifact {stage}/{key} is not complete in {self.root}; "
                                f"run `mocapflow run --until {stage}` to produce it")
         target = self._zarr_target(stage, key)

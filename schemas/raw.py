@@ -124,7 +124,7 @@ RAW_MARKERS = register_schema(
             "gt_joints": VarSpec(("frame", "joint", "xyz"), "float32", "m", required=False),
             "gt_bone_rotations": VarSpec(("frame", "bone", "quat"), "float64", "", required=False),
             "gt_root": VarSpec(("frame", "xyz"), "float64", "m", required=False),
-            # Optional monocular prior brought with a recording (pipeline/prior_files.py): the template's joints.
+            # Optional monocular prior brought with a recording (systems/uuo/prior_files.py): the template's joints.
             "prior_joints": VarSpec(("frame", "joint", "xyz"), "float32", "m", required=False,
                                     description="a monocular estimate's joints (JOINT_NAMES), NaN on lost frames"),
         },

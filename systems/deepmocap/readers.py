@@ -247,7 +247,7 @@ def read_calibration_yaml(seq_dir: Path) -> dict:
 
 
 class DeepMoCapReader:
-    """The DeepMoCap dataset's recordings, one sequence per folder (pipeline/dmc_files.py): ``path`` and
+    """The DeepMoCap dataset's recordings, one sequence per folder (systems/deepmocap/dmc_files.py): ``path`` and
     ``pattern`` as an image dataset's, ``intrinsics`` (the files hold none), ``fps`` (30), ``mirrored`` (true:
     flip the Kinect's mirrored images), ``up`` (z), ``unit`` of the extrinsics' positions (mm) and
     ``camera_axes`` (kinect: x left, y up; or opencv)."""

@@ -21,13 +21,13 @@ _MARKER_FILES: BoundedCache[tuple, xr.Dataset] = BoundedCache(4)  # (path, size,
 
 
 class MarkerFileReader:
-    """A folder of optical marker recordings (C3D, TRC), one sequence per file, as raw_markers (pipeline/marker_files.py).
+    """A folder of optical marker recordings (C3D, TRC), one sequence per file, as raw_markers (systems/uuo/marker_files.py).
 
     ``up``: which axis of the files is up (``z``, or ``y`` to turn Y-up files onto Z up); ``labels``: ``ignore``
     (unlabelled trajectories m000, m001, ...) or ``use``; ``frames``: ``[start, stop]``, the frames of each file
     to keep (a short take of a long trial); ``takes``: per file (by its id) its own ``up`` and ``frames``;
     ``prior``: a folder (inside data_roots) of monocular prior files, ``<id>.npz`` or ``<id>.json``
-    (pipeline/prior_files.py), read as ``prior_joints`` for the ``file_prior`` stage; ``max_coordinate_m``: the
+    (systems/uuo/prior_files.py), read as ``prior_joints`` for the ``file_prior`` stage; ``max_coordinate_m``: the
     farthest a coordinate may lie from the origin on any axis (20 m), a file with a sample beyond it refused. A
     catalog reads them with the source task ``ingest_markers``."""
 

@@ -4,7 +4,7 @@ skin, filmed by a ring of grey machine-vision cameras.
 ``suit_rig`` puts 8-16 cameras on a circle around the volume at two alternating heights, in portrait, each
 with its own small lens distortion, defocus and light level, aimed so that a standing body fills most of the
 image height (about 1 px per mm at 3 m with the default 1536 x 2048 sensor, like the paper's 4000 x 2160 at 2 m).
-``suit_texture`` prints the pattern (tasks/suit/pattern.py) as an albedo texture, pre-filtered so that one
+``suit_texture`` prints the pattern (tasks/shared/suit_pattern.py) as an albedo texture, pre-filtered so that one
 ray per pixel samples a band-limited image (sharp square edges sampled at pixel centres would otherwise alias
 the corners' sub-pixel positions). ``film`` renders frames [start, stop) of every camera and the ground truth:
 each corner's 3D position, and per view its pixel, whether it is visible (in the image, facing the camera, not

@@ -14,7 +14,7 @@ single yaw offset). Implementations of the stage ``prior``:
   140 mm on the studio's exercises (benchmarks/uuo_solver.py prints both);
 - ``no_prior``: markers only (the paper's marker-only rows): a neutral body in its rest pose;
 - ``file_prior``: a monocular estimate a user brings (any method), as the 20 template joints per frame
-  (tasks/shared/body.py JOINT_NAMES, metres, Z up; NaN rows for lost frames), read by pipeline/prior_files.py.
+  (tasks/shared/body.py JOINT_NAMES, metres, Z up; NaN rows for lost frames), read by systems/uuo/prior_files.py.
   Anny's rig is fitted to them (``fit_joints``): the SMPL-like bones of PRIOR_BONES turn, the others follow
   their parents; the phenotype's height is set from the joints' limb lengths;
 - ``reference_prior``: ``simulated_prior``'s degradation applied to a solved body (a recorded take's labelled

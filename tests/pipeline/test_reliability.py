@@ -25,7 +25,7 @@ from mocapflow.pipeline.locks import HOST_ENV, LEASE_ENV
 from mocapflow.pipeline.plan import build_plan
 from mocapflow.pipeline.storage import Store
 
-CLI = [sys.executable, "-m", "mocapflow.pipeline.cli"]
+CLI = [sys.executable, "-m", "mocapflow.cli.commands"]
 
 
 @pytest.fixture(autouse=True)

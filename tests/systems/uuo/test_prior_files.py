@@ -1,4 +1,4 @@
-"""Monocular prior files in (pipeline/prior_files.py): the format's keys, its refusals, and a take's prior file
+"""Monocular prior files in (systems/uuo/prior_files.py): the format's keys, its refusals, and a take's prior file
 through the engine into a `file_prior` body."""
 
 from __future__ import annotations
