@@ -9,25 +9,8 @@ import cv2
 import numpy as np
 
 from conftest import mocapflow, read_artifacts
+from studio_catalogs import SUIT_CATALOG as CATALOG
 
-CATALOG = """\
-data_roots: [.]
-storage: {root: storage/, region_frames: 4}
-datasets:
-  suits:
-    kind: studio_suit
-    suit: small
-    cameras: {count: 4, width: 384, height: 512}
-    defaults: {frames: 3}
-    sequences:
-      sq: {motion: classic_squat, seed: 11}
-stages:
-  images: {task: ingest_suit, dataset: suits}
-  labels: {task: oracle_labels, inputs: [images], params: {noise_px: 0.2, wrong: 0.02}}
-  points: {task: triangulate_corners, inputs: {labels: labels, images: images}}
-  hidden: {task: hide_corners, inputs: [points], params: {share: 0.2, run_frames: [1, 2]}}
-  filled: {task: fill_suit, inputs: {points: hidden, images: images}}
-"""
 
 FIGURES = ("suit_labels_sq", "suit_corners_3d_sq", "suit_reprojection_error", "suit_error_3d", "trajectories_sq",
            "worst_markers_sq")

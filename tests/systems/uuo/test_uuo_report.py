@@ -9,41 +9,8 @@ import cv2
 import numpy as np
 
 from conftest import mocapflow
+from studio_catalogs import UUO_CATALOG as CATALOG
 from mocapflow.tasks.shared.body import JOINT_NAMES, PARENTS
-
-CATALOG = """\
-data_roots: [.]
-storage: {root: storage/, region_frames: 8}
-datasets:
-  uuo:
-    kind: studio_markers
-    defaults: {frames: 24, views: 1}
-    markers: {count: 30, ghosts: 1}
-    sequences:
-      reach: {motion: side_reaches, seed: 8}
-stages:
-  markers: {task: ingest_markers, dataset: uuo}
-  segments: {task: rigid_segments, inputs: [markers]}
-  prior:
-    task: simulated_prior
-    inputs: [markers]
-    params: {rotation_deg: 0.0, yaw_deg: 0.0, lost: 0.0, phenotype_noise: 0.0, drift_m: 0.0}
-  yaw0:
-    task: solve_hypothesis
-    inputs: [markers, segments, prior]
-    params: &fast
-      yaw_deg: 0.0
-      matching: {frames: 12, iterations: 12}
-      pose_fit: {rounds: 3, iterations: 10}
-      ik: {iterations: 40}
-  yaw90: {task: solve_hypothesis, inputs: [markers, segments, prior], params: {<<: *fast, yaw_deg: 90.0}}
-  yaw180: {task: solve_hypothesis, inputs: [markers, segments, prior], params: {<<: *fast, yaw_deg: 180.0}}
-  yaw270: {task: solve_hypothesis, inputs: [markers, segments, prior], params: {<<: *fast, yaw_deg: 270.0}}
-  solve:
-    task: best_hypothesis
-    inputs: {markers: markers, yaw0: yaw0, yaw90: yaw90, yaw180: yaw180, yaw270: yaw270}
-    params: {ik: {iterations: 40}}
-"""
 
 
 def viewer_data(page: str) -> dict:

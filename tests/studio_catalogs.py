@@ -1,0 +1,54 @@
+"""Small studio catalogs that run fast, shared by the tests of one system's engine run and of its report."""
+
+UUO_CATALOG = """\
+data_roots: [.]
+storage: {root: storage/, region_frames: 8}
+datasets:
+  uuo:
+    kind: studio_markers
+    defaults: {frames: 24, views: 1}
+    markers: {count: 30, ghosts: 1}
+    sequences:
+      reach: {motion: side_reaches, seed: 8}
+stages:
+  markers: {task: ingest_markers, dataset: uuo}
+  segments: {task: rigid_segments, inputs: [markers]}
+  prior:
+    task: simulated_prior
+    inputs: [markers]
+    params: {rotation_deg: 0.0, yaw_deg: 0.0, lost: 0.0, phenotype_noise: 0.0, drift_m: 0.0}
+  yaw0:
+    task: solve_hypothesis
+    inputs: [markers, segments, prior]
+    params: &fast
+      yaw_deg: 0.0
+      matching: {frames: 12, iterations: 12}
+      pose_fit: {rounds: 3, iterations: 10}
+      ik: {iterations: 40}
+  yaw90: {task: solve_hypothesis, inputs: [markers, segments, prior], params: {<<: *fast, yaw_deg: 90.0}}
+  yaw180: {task: solve_hypothesis, inputs: [markers, segments, prior], params: {<<: *fast, yaw_deg: 180.0}}
+  yaw270: {task: solve_hypothesis, inputs: [markers, segments, prior], params: {<<: *fast, yaw_deg: 270.0}}
+  solve:
+    task: best_hypothesis
+    inputs: {markers: markers, yaw0: yaw0, yaw90: yaw90, yaw180: yaw180, yaw270: yaw270}
+    params: {ik: {iterations: 40}}
+"""
+
+SUIT_CATALOG = """\
+data_roots: [.]
+storage: {root: storage/, region_frames: 4}
+datasets:
+  suits:
+    kind: studio_suit
+    suit: small
+    cameras: {count: 4, width: 384, height: 512}
+    defaults: {frames: 3}
+    sequences:
+      sq: {motion: classic_squat, seed: 11}
+stages:
+  images: {task: ingest_suit, dataset: suits}
+  labels: {task: oracle_labels, inputs: [images], params: {noise_px: 0.2, wrong: 0.02}}
+  points: {task: triangulate_corners, inputs: {labels: labels, images: images}}
+  hidden: {task: hide_corners, inputs: [points], params: {share: 0.2, run_frames: [1, 2]}}
+  filled: {task: fill_suit, inputs: {points: hidden, images: images}}
+"""
