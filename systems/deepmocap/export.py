@@ -56,15 +56,6 @@ def _camera_masks(markers: xr.Dataset, shape: tuple[int, int]) -> np.ndarray:
     return mask
 
 
-def _camera_masks(markers: xr.Dataset, shape: tuple[int, int]) -> np.ndarray:
-    """C3D camera bits (frame, marker): bit v set where view v (the first 7 views) was fused; 0 for filtered data."""
-    mask = np.zeros(shape, dtype=np.int64)
-    if "residual" in markers:
-        seen = np.isfinite(markers["residual"].transpose("frame", "reflector", "view").values)[..., :7]
-        mask = (seen * (1 << np.arange(seen.shape[-1]))).sum(axis=-1)
-    return mask
-
-
 def write_c3d(markers: xr.Dataset, path: Path) -> None:
     xyz, names, fps, residual = _arrays(markers)
     scale = c3d.c3d_scale(xyz, residual)
