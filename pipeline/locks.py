@@ -274,18 +274,7 @@ class LeasedLock:
 
     def _replace(self, path: str, info: dict) -> None:
         """Put ``info`` at ``path`` in one step: readers see the old lock or the new, never a part."""
-        data = _encode(info)
-        if not self.local:
-            self.fs.pipe_file(path, data)
-            return
-        tmp = f"{path}.{info['token']}.tmp"
-        try:
-            with open(tmp, "wb") as fh:
-                fh.write(data)
-        except OSError:
-            _unlink_quietly(tmp)
-            raise
-        os.replace(tmp, path)
+        _put(self.fs, self.local, path, _encode(info), f"{path}.{info['token']}.tmp")
 
     def _read(self, path: str) -> dict | None:
         """The lock at ``path``; None if there is none, {} if its contents are unreadable."""
@@ -366,6 +355,21 @@ def _fenced(label: str, path: str, holder: dict) -> bool:
     log.warning("%s: the lock %s is held by worker %s of this run, which the scheduler reports dead; taking it over",
                 label, path, worker)
     return True
+
+
+def _put(fs, local: bool, path: str, data: bytes, tmp: str) -> None:
+    """``data`` at ``path`` in one step (a local file through ``tmp`` and a rename, no ``tmp`` left on failure;
+    an object store's put is whole already)."""
+    if not local:
+        fs.pipe_file(path, data)
+        return
+    try:
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+    except OSError:
+        _unlink_quietly(tmp)
+        raise
+    os.replace(tmp, path)
 
 
 def _unlink_quietly(path: str) -> None:
@@ -464,18 +468,7 @@ class RunLease:
             return
 
     def _write(self) -> None:
-        data = _encode(self.me)
-        if not self.local:
-            self.fs.pipe_file(self.path, data)
-            return
-        tmp = f"{self.path}.tmp"
-        try:
-            with open(tmp, "wb") as fh:
-                fh.write(data)
-        except OSError:
-            _unlink_quietly(tmp)
-            raise
-        os.replace(tmp, self.path)
+        _put(self.fs, self.local, self.path, _encode(self.me), f"{self.path}.tmp")
 
     def _beat(self) -> None:
         interval = float(self.me["lease_s"]) / HEARTBEATS_PER_LEASE

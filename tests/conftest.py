@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import subprocess
+import time
 import sys
 from pathlib import Path
 
@@ -43,6 +44,20 @@ def mocapflow(*args, cwd, check=True, timeout=300) -> subprocess.CompletedProces
         raise AssertionError(f"mocapflow {' '.join(map(str, args))} exited {proc.returncode}\n"
                              f"stdout:\n{proc.stdout}\nstderr:\n{proc.stderr}")
     return proc
+
+
+def wait_for(predicate, timeout=120.0, what="condition"):
+    """Poll ``predicate`` until it holds (a file a process writes may be half-written meanwhile: OSError and
+    ValueError count as not yet); AssertionError naming ``what`` after ``timeout`` seconds."""
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        try:
+            if predicate():
+                return
+        except (OSError, ValueError):
+            pass
+        time.sleep(0.05)
+    raise AssertionError(f"{what} not met within {timeout:.0f} s")
 
 
 def last_json(proc: subprocess.CompletedProcess) -> dict:

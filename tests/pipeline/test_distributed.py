@@ -8,12 +8,11 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
-from conftest import assert_same_artifacts, env_with_plugins, last_json, mocapflow, read_artifacts
+from conftest import assert_same_artifacts, env_with_plugins, last_json, mocapflow, read_artifacts, wait_for
 
 DASK = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
 WORKER = [sys.executable, "-m", "distributed.cli.dask_worker"]
@@ -27,7 +26,7 @@ def cluster(tmp_path):
                                       "--scheduler-file", str(sched_file)],
                               env=env_with_plugins(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
     try:
-        _wait(lambda: sched_file.exists() and json.loads(sched_file.read_text()).get("address"))
+        wait_for(lambda: sched_file.exists() and json.loads(sched_file.read_text()).get("address"), 60, "the scheduler file")
         address = json.loads(sched_file.read_text())["address"]
         workers = []
         for i in range(2):
@@ -46,18 +45,6 @@ def cluster(tmp_path):
             if proc.poll() is None:
                 proc.send_signal(signal.SIGKILL)
             proc.wait()
-
-
-def _wait(predicate, timeout=60):
-    deadline = time.time() + timeout
-    while time.time() < deadline:
-        try:
-            if predicate():
-                return
-        except (OSError, ValueError):
-            pass
-        time.sleep(0.1)
-    raise TimeoutError("condition not met in time")
 
 
 def _reference(project: Path, tmp_path_factory) -> dict:
@@ -81,7 +68,7 @@ def test_killing_a_worker_mid_run_still_completes(toy_project, cluster, tmp_path
     project = toy_project(sleep=0.2, frames=32)
     run = subprocess.Popen([sys.executable, "-m", "mocapflow.cli.commands", "run", "--json", "--scheduler", address],
                            cwd=project, env=env_with_plugins(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    _wait(lambda: len(list((project / "storage").glob("scaled/*/_regions/*"))) >= 3)
+    wait_for(lambda: len(list((project / "storage").glob("scaled/*/_regions/*"))) >= 3)
     os.kill(workers[0].pid, signal.SIGKILL)
     out, err = run.communicate(timeout=240)
     assert run.returncode == 0, err

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from conftest import PLUGINS, env_with_plugins, last_json, mocapflow, read_artifacts
+from conftest import PLUGINS, env_with_plugins, last_json, mocapflow, read_artifacts, wait_for
 from mocapflow.pipeline.catalog import COUNT_LIMITS, MAX_EXPANDED_NODES, load_catalog
 from mocapflow.pipeline.errors import CatalogError, IntegrityError
 from mocapflow.pipeline.locks import HOST_ENV, LEASE_ENV
@@ -31,18 +31,6 @@ CLI = [sys.executable, "-m", "mocapflow.cli.commands"]
 @pytest.fixture(autouse=True)
 def _plugins_importable(monkeypatch):
     monkeypatch.syspath_prepend(str(PLUGINS))
-
-
-def wait_for(predicate, timeout=120.0, what="condition"):
-    deadline = time.time() + timeout
-    while time.time() < deadline:
-        try:
-            if predicate():
-                return
-        except (OSError, ValueError):
-            pass
-        time.sleep(0.05)
-    raise AssertionError(f"{what} not met within {timeout:.0f} s")
 
 
 def check_scaled_values(project: Path, storage: Path | None = None, factor: float = 3.0) -> int:
