@@ -16,7 +16,7 @@ stages:
   prior:
     task: simulated_prior
     inputs: [markers]
-    params: {rotation_deg: 0.0, yaw_deg: 0.0, lost: 0.0, phenotype_noise: 0.0, drift_m: 0.0}
+    params: {form: mild, rotation_deg: 0.0, yaw_deg: 0.0, lost: 0.0, phenotype_noise: 0.0, drift_m: 0.0}
   yaw0:
     task: solve_hypothesis
     inputs: [markers, segments, prior]

@@ -1,10 +1,11 @@
 """`mocapflow evaluate` for the UUO stages: the solved bodies of every stage writing `uuo_body` (the best or the
 single hypothesis, refined) against the studio's truth of its marker take (tasks/uuo/metrics.py).
 
-Per stage: MPJPE, MPJVE, V2V and m2s over the evaluation split, per layout (a whole-body layout is named by its
+Per stage: MPJPE, MPJVE, V2V and m2s over the evaluation split (median, 90th percentile and worst over takes),
+the prior's own error (its stage's ``aligned_mpjpe_mm`` and the others), per layout (a whole-body layout is named by its
 marker count, ``body40``; a partial one by its part, also scored on the part's joints), the joints after each
-solver stage (the paper's Table 4), and the labelling: the share of real markers given a vertex, and of those
-the share on the right body part.
+solver stage (the paper's Table 4), and the labelling: the share of real markers given a vertex, of those
+the share on the right body part, and the share of ghosts given a vertex (each a false label).
 
 Recorded takes have no truth: with ``evaluation: {uuo_reference: STAGE}`` every other UUO stage is scored
 against that stage's body, the same solver on the labelled markers (the paper's "labelled markers" row): MPJPE,
@@ -76,6 +77,8 @@ def score_take(truth_of: dict, solved) -> dict:
     true_part = truth_of["parts"]
     labelled = real & (vertex >= 0)
     out["labelled"] = float(labelled[real].mean()) if real.any() else float("nan")
+    ghost = ~real  # a ghost given a vertex is a false label
+    out["ghost_label_rate"] = float((vertex[ghost] >= 0).mean()) if ghost.any() else float("nan")
     out["part_right"] = float((solved["part"].values[labelled] == true_part[labelled]).mean()) if labelled.any() \
         else float("nan")
     out["hypothesis_yaw_deg"] = float(solved.attrs.get("yaw_deg", np.nan))
@@ -99,36 +102,51 @@ def evaluate(catalog, plan, store, per_sequence: dict, thorough: bool = True) ->
 
 
 def evaluate_uuo(catalog, plan, store, stages: list[str], per_sequence: dict) -> dict:
-    """Figures per UUO stage: overall (mean over takes), per layout and per take."""
+    """Figures per UUO stage: overall (median and p90 over takes), per layout and per take."""
     reference = catalog.evaluation.get("uuo_reference")
     if reference is not None:  # recorded takes: no truth, a labelled reference
         return evaluate_against_reference(catalog, plan, store, stages, str(reference), per_sequence)
     markers_stage = stage_writing(catalog, "raw_markers")
     if markers_stage is None:
         raise PlanError("the catalog solves UUO bodies but has no stage writing raw_markers to score them against")
-    truths = {}
+    truths, priors = {}, {}
+    prior_stage = stage_writing(catalog, "body_prior")
     for seq in plan.sequences:
         markers = plan.open(store, markers_stage, seq.id).load()
         if "gt_joints" not in markers:
             raise PlanError(f"sequence {seq.id!r} has no ground truth (gt_joints); evaluate UUO on studio takes")
         truths[seq.id] = take_truth(markers)
+        attrs = plan.open(store, prior_stage, seq.id).attrs if prior_stage else {}
+        priors[seq.id] = {f"prior_{k}": float(attrs[k]) for k in PRIOR_FIGURES if k in attrs}
     out = {}
     for stage in stages:
         takes = {}
         for seq in plan.sequences:
-            takes[seq.id] = score_take(truths[seq.id], plan.open(store, stage, seq.id).load())
+            takes[seq.id] = {**score_take(truths[seq.id], plan.open(store, stage, seq.id).load()), **priors[seq.id]}
             per_sequence.setdefault(seq.id, {})[f"uuo_{stage}"] = takes[seq.id]
-        out[stage] = {"overall": _mean(list(takes.values())), "takes": takes,
-                      "layouts": {layout: _mean([t for t in takes.values() if t["layout"] == layout])
+        out[stage] = {"overall": _summary(list(takes.values())), "takes": takes,
+                      "layouts": {layout: _summary([t for t in takes.values() if t["layout"] == layout])
                                   for layout in sorted({t["layout"] for t in takes.values()})}}
     return out
 
 
-def _mean(rows: list[dict]) -> dict:
+# The prior's error as its stage stores it (tasks/uuo/prior.py): after part matching's alignment, after one rigid
+# registration with scale (HMR2.0+RR), per frame (PA).
+PRIOR_FIGURES = ("aligned_mpjpe_mm", "registered_mpjpe_mm", "pa_mpjpe_mm")
+
+
+def _summary(rows: list[dict]) -> dict:
+    """Over takes: each figure's median (``key``), its 90th percentile (``key_p90``) and worst (``key_max``)."""
     keys = [k for k, v in rows[0].items() if isinstance(v, float)] if rows else []
-    out = {k: float(np.nanmean([r.get(k, np.nan) for r in rows])) for k in keys}
+    out = {}
+    for k in keys:
+        values = np.array([r.get(k, np.nan) for r in rows], float)
+        finite = values[np.isfinite(values)]
+        out[k] = float(np.median(finite)) if len(finite) else float("nan")
+        out[f"{k}_p90"] = float(np.percentile(finite, 90)) if len(finite) else float("nan")
+        out[f"{k}_max"] = float(finite.max()) if len(finite) else float("nan")
     stage_names = {s for r in rows for s in r["stages_mpjpe_mm"]}
-    out["stages_mpjpe_mm"] = {s: float(np.nanmean([r["stages_mpjpe_mm"].get(s, np.nan) for r in rows]))
+    out["stages_mpjpe_mm"] = {s: float(np.nanmedian([r["stages_mpjpe_mm"].get(s, np.nan) for r in rows]))
                               for s in sorted(stage_names)}
     out["takes"] = len(rows)
     return out
@@ -145,9 +163,14 @@ def uuo_headline(result: dict) -> dict:
             continue
         if i == 0:
             out.update({"uuo_stage": stage, "uuo_mpjpe_mm": o["mpjpe_mm"], "uuo_mpjve_mm": o["mpjve_mm"],
-                        "uuo_v2v_mm": o["v2v_mm"], "uuo_m2s_mm": o["m2s_mm"]})
+                        "uuo_v2v_mm": o["v2v_mm"], "uuo_m2s_mm": o["m2s_mm"],
+                        "uuo_ghost_label_rate": o["ghost_label_rate"]})
+            if "prior_aligned_mpjpe_mm" in o:
+                out["uuo_prior_aligned_mpjpe_mm"] = o["prior_aligned_mpjpe_mm"]
             for layout, lr in r["layouts"].items():
-                out[f"uuo_{layout}_mpjpe_mm"] = lr.get("part_mpjpe_mm", lr["mpjpe_mm"])
+                key = "part_mpjpe_mm" if "part_mpjpe_mm" in lr else "mpjpe_mm"
+                out[f"uuo_{layout}_mpjpe_mm"] = lr[key]  # the median over the layout's takes ...
+                out[f"uuo_{layout}_mpjpe_p90_mm"] = lr[f"{key}_p90"]  # ... and its 90th percentile
         else:
             out[f"uuo_{stage}_mpjpe_mm"] = o["mpjpe_mm"]
     return out
@@ -159,16 +182,20 @@ def uuo_table(result: dict) -> list[str]:
     result = result["uuo"]
     if any("reference" in r for r in result.values()):
         return reference_table(result)
-    rows = [("UUO stage", "layout", "takes", "MPJPE mm", "part MPJPE", "MPJVE mm/frame", "V2V mm", "m2s mm (truth)",
-             "labelled", "right part")]
+    rows = [("UUO stage", "layout", "takes", "MPJPE mm (p90)", "part MPJPE (p90)", "MPJVE mm/frame", "V2V mm",
+             "m2s mm (truth)", "labelled", "right part", "ghosts labelled", "prior aligned mm")]
     for stage, r in result.items():
         for layout, lr in [("all", r["overall"])] + list(r["layouts"].items()):
             part = lr.get("part_mpjpe_mm", float("nan"))
-            rows.append((stage, layout, str(lr["takes"]), f"{lr['mpjpe_mm']:.1f}",
-                         "-" if np.isnan(part) else f"{part:.1f}", f"{lr['mpjve_mm']:.2f}", f"{lr['v2v_mm']:.1f}",
+            prior = lr.get("prior_aligned_mpjpe_mm", float("nan"))
+            rows.append((stage, layout, str(lr["takes"]), f"{lr['mpjpe_mm']:.1f} ({lr['mpjpe_mm_p90']:.1f})",
+                         "-" if np.isnan(part) else f"{part:.1f} ({lr['part_mpjpe_mm_p90']:.1f})",
+                         f"{lr['mpjve_mm']:.2f}", f"{lr['v2v_mm']:.1f}",
                          f"{lr['m2s_mm']:.1f} ({lr['m2s_truth_mm']:.1f})", f"{lr['labelled']:.0%}",
-                         f"{lr['part_right']:.0%}"))
-    lines = format_rows(rows)
+                         f"{lr['part_right']:.0%}",
+                         "-" if np.isnan(lr["ghost_label_rate"]) else f"{lr['ghost_label_rate']:.0%}",
+                         "-" if np.isnan(prior) else f"{prior:.1f}"))
+    lines = ["median over takes (90th percentile)"] + format_rows(rows)
     stage_rows = [("UUO stage", "after matching", "pose fit", "IK", "refined")]
     for stage, r in result.items():
         s = r["overall"]["stages_mpjpe_mm"]

@@ -26,7 +26,7 @@ TASKS = (
         description="group unlabelled markers by the bone they ride: spread of pairwise distances, agglomerative clustering",
     ),
     TaskSpec(
-        name="simulated_prior", fn=prior.simulated_prior, version="2", params=prior.SimulatedPriorConfig,
+        name="simulated_prior", fn=prior.simulated_prior, version="3", params=prior.SimulatedPriorConfig,
         output="body_prior", partition="sequence", inputs={"markers": "raw_markers"}, whole_sequence=True,
         description="the studio's true body degraded like a monocular estimate (rotation errors, yaw, size, position, "
                     "lost frames)",
@@ -75,7 +75,7 @@ TASKS = (
                     "to them",
     ),
     TaskSpec(
-        name="reference_prior", fn=prior.reference_prior, version="1", params=prior.SimulatedPriorConfig,
+        name="reference_prior", fn=prior.reference_prior, version="2", params=prior.SimulatedPriorConfig,
         output="body_prior", partition="sequence", inputs={"markers": "raw_markers", "reference": "uuo_body"},
         reads={"markers": ("position",), "reference": ("bone_rotation", "root", "joints")}, whole_sequence=True,
         description="a solved reference body (a recorded take's labelled solve) degraded like a monocular estimate",

@@ -3,7 +3,7 @@
 - MPJPE: mean distance of the 20 template joints to the true ones (all frames);
 - MPJVE: mean error of the joints' velocity, the difference of adjacent poses (the paper's definition), per frame;
 - V2V: mean distance of the solved mesh's vertices to the true mesh's (the same topology: Anny's);
-- m2s: mean distance from each real marker sample to the solved body's skin. A marker sits 9.5 mm above the
+- m2s: mean distance from each real marker sample (every frame) to the solved body's skin. A marker sits 9.5 mm above the
   skin, so the truth itself scores about 9.5 mm (``m2s_truth``).
 A partial layout is also scored on its part's joints (PART_JOINTS, the paper's Table 5 parts).
 """
@@ -64,10 +64,11 @@ def surface_distance(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray
     return best
 
 
-def m2s(markers: np.ndarray, vertices: np.ndarray, faces: np.ndarray, frames: int = 30) -> float:
-    """Mean marker-to-skin distance over up to ``frames`` evenly spaced frames.
+def m2s(markers: np.ndarray, vertices: np.ndarray, faces: np.ndarray, frames: int | None = None) -> float:
+    """Mean marker-to-skin distance over every frame (or up to ``frames`` evenly spaced ones).
     markers (frame, marker, 3) NaN where unseen, vertices (frame, vertex, 3) -> m"""
-    chosen = np.linspace(0, len(markers) - 1, min(frames, len(markers))).astype(int)
+    count = len(markers) if frames is None else min(frames, len(markers))
+    chosen = np.linspace(0, len(markers) - 1, count).astype(int)
     incident = incident_faces(faces, vertices.shape[1])
     out = [surface_distance(markers[f][np.isfinite(markers[f]).all(-1)], vertices[f], faces, incident)
            for f in chosen]

@@ -25,6 +25,9 @@ def test_unlabelled_markers_are_solved_through_the_engine_and_one_hypothesis_rer
     assert scores["uuo_stage"] == "solve" and scores["uuo_mpjpe_mm"] == pytest.approx(1000 * error, rel=1e-5)
     assert scores["uuo_body30_mpjpe_mm"] == scores["uuo_mpjpe_mm"]  # the one layout: 30 markers on the body
     assert 5 < scores["uuo_m2s_mm"] < 60 and scores["uuo_v2v_mm"] > 0 and scores["uuo_mpjve_mm"] > 0
+    assert scores["uuo_body30_mpjpe_p90_mm"] == scores["uuo_body30_mpjpe_mm"]  # one take: its median and p90
+    assert scores["uuo_prior_aligned_mpjpe_mm"] < 1.0  # the catalog's exact prior (form: mild, no error)
+    assert scores["uuo_ghost_label_rate"] == (solved["vertex"][~real] >= 0).mean()  # a labelled ghost: a false label
     (tmp_path / "catalog.yaml").write_text(CATALOG.replace("yaw_deg: 270.0}", "yaw_deg: 270.0, outlier_m: 0.11}"))
     again = last_json(mocapflow("run", "--json", cwd=tmp_path))
     assert sorted(again["executed"]) == ["solve/reach", "yaw270/reach"]  # one hypothesis changed: it and the choice

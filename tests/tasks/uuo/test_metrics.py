@@ -27,3 +27,13 @@ def test_surface_distance_is_exact_on_a_square():
     markers = np.broadcast_to(points[:2], (3, 2, 3)).copy()
     markers[1, 0] = np.nan  # an unseen sample is left out
     assert metrics.m2s(markers, np.broadcast_to(vertices, (3, 4, 3)), faces) == pytest.approx((0.01 * 2 + 0.2 * 3) / 5)
+
+
+def test_m2s_counts_every_frame_unless_told_fewer():
+    vertices = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    markers = np.zeros((40, 1, 3)) + [0.5, 0.5, 0.0]
+    markers[:, 0, 2] = np.arange(40) / 1000.0  # frame f: f mm above the square
+    surface = np.broadcast_to(vertices, (40, 4, 3))
+    assert metrics.m2s(markers, surface, faces) == pytest.approx(np.arange(40).mean() / 1000.0)
+    assert metrics.m2s(markers, surface, faces, frames=2) == pytest.approx(39 / 2000.0)  # frames 0 and 39

@@ -86,7 +86,8 @@ FAST = solve.HypothesisConfig(
 
 def _turned_prior(take):
     """The take's exact prior turned half round about the vertical and shifted: what MHT is for."""
-    exact = prior.SimulatedPriorConfig(rotation_deg=0.0, yaw_deg=0.0, scale_range=(1.0, 1.0), translation_m=0.4,
+    exact = prior.SimulatedPriorConfig(form="mild", rotation_deg=0.0, yaw_deg=0.0, scale_range=(1.0, 1.0),
+                                       translation_m=0.4,
                                        lost=0.0, phenotype_noise=0.0, drift_m=0.0, seed=2)
     body_prior = prior.simulated_prior(take, exact)
     turned = body_prior.copy()
