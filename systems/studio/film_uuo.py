@@ -4,7 +4,7 @@
       uuo:
         kind: studio_markers
         defaults: {frames: 100, fps: 30.0, start_s: 0.5}
-        markers: {count: 40, part: body, dropout: 0.002, ghosts: 3}
+        markers: {count: 40, part: body, dropout: 0.002, ghosts: 3}   # occlusion: true loses what the cameras miss
         sequences:
           walk_body40: {motion: ../shared/data/motions/cmu_12_01_walk.bvh, seed: 9101}
           knee_left_leg: {motion: jumping_jack, seed: 9104, markers: {count: 20, part: left_leg}}
@@ -81,8 +81,11 @@ class StudioMarkersReader:
 
         def record():
             layout = uuo.layout(shot.body, np.random.default_rng([shot.spec.seed, 3]), count, part)
-            paths = uuo.marker_paths(shot.body, layout, shot.mesh.posed.vertices[:shot.n_frames])
-            return layout, uuo.capture(paths, faults, np.random.default_rng([shot.spec.seed, 4]))
+            vertices = shot.mesh.posed.vertices[:shot.n_frames]
+            paths = uuo.marker_paths(shot.body, layout, vertices)
+            seen_by = uuo.cameras_seeing(vertices, shot.body.faces, paths, uuo.optical_cameras()) \
+                if faults.occlusion else None
+            return layout, uuo.capture(paths, faults, np.random.default_rng([shot.spec.seed, 4]), seen_by)
 
         layout, captured = _CAPTURES.get_or_make(seq.fingerprint, record)
         return uuo.marker_dataset(shot.body, layout, captured, shot.mesh, shot.spec.fps, start, stop)

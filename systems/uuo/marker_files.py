@@ -4,7 +4,8 @@
 
 Units come from the file (C3D ``POINT:UNITS``, TRC ``Units``), the frame rate too (``POINT:RATE``, ``DataRate``).
 Files do not say which way is up, so ``up`` does: ``"z"`` keeps the axes, ``"y"`` turns a Y-up file onto the
-project's Z up by a proper rotation (x stays, y becomes up: (x, y, z) -> (x, -z, y)). A sample the file marks
+project's Z up by a proper rotation (x stays, y becomes up: (x, y, z) -> (x, -z, y)), and ``"auto"`` (the
+default) finds it from the markers (``up_from_data``: the body's tall axis, whose lowest point keeps to the floor). A sample the file marks
 missing (a negative C3D residual, an empty TRC cell, or NaN) is NaN. With ``labels="ignore"`` the trajectories
 are ``m000``, ``m001``, ... in file order and the file's labels are dropped (an unlabelled take); with ``"use"``
 they keep the file's labels, a label that repeats (one marker split over several trajectories) getting
@@ -26,13 +27,33 @@ from mocapflow.pipeline.errors import InputError
 from mocapflow.tasks.shared.kinematics import Y_UP_TO_Z_UP
 
 UNITS_M = {"mm": 0.001, "cm": 0.01, "m": 1.0, "dm": 0.1, "in": 0.0254}
-UPS = ("z", "y")
+UPS = ("auto", "z", "y")
 LABELS = ("ignore", "use")
 MAX_COORDINATE_M = 20.0  # metres from the origin on any axis: larger than any capture volume (the catalog's
 # max_coordinate_m of a markers dataset changes it)
 
 
-def read_markers(path: Path, *, up: str = "z", labels: str = "ignore",
+def up_from_data(positions: np.ndarray) -> str:
+    """Which axis of a recording is up, z or y, from the markers themselves: a person's markers spread farthest
+    along the vertical (a body, standing or seated, is taller than it is deep), and their lowest point keeps to
+    the floor while the body moves about; the axis of the larger spread / (1 m + drift of the lowest point)
+    wins (the drift only a mild correction: a marker lost at the feet moves the lowest point too).
+    positions (frame, marker, 3) NaN where unseen -> "z" | "y" """
+    score = {}
+    for name, axis in (("y", 1), ("z", 2)):
+        values = positions[..., axis]
+        seen = np.isfinite(values).any(axis=1)
+        if not seen.any():
+            return "z"
+        with np.errstate(all="ignore"):
+            spread = np.nanmedian(np.nanmax(values[seen], axis=1) - np.nanmin(values[seen], axis=1))
+            floor = np.nanmin(values[seen], axis=1)
+        drift = np.nanpercentile(floor, 90) - np.nanpercentile(floor, 10)
+        score[name] = spread / (drift + 1.0)
+    return "y" if score["y"] > score["z"] else "z"
+
+
+def read_markers(path: Path, *, up: str = "auto", labels: str = "ignore",
                  max_coordinate_m: float = MAX_COORDINATE_M) -> xr.Dataset:
     """A C3D or TRC file's marker trajectories in the raw_markers schema (metres, Z up). A file with no sample at
     all, or a coordinate farther than ``max_coordinate_m`` from the origin on any axis, is refused."""
@@ -52,9 +73,12 @@ def read_markers(path: Path, *, up: str = "z", labels: str = "ignore",
         raise InputError(f"{path}: frame rate {fps} is not a positive number; fix the file's rate")
     positions = positions * UNITS_M[unit]
     _check_samples(path, positions, names, max_coordinate_m)
-    if up == "y":
+    found = up_from_data(positions) if up == "auto" else up
+    if found == "y":
         positions = positions @ Y_UP_TO_Z_UP.T
-    return _dataset(positions, fps, names, labels)
+    ds = _dataset(positions, fps, names, labels)
+    ds.attrs["file_up_axis"] = found.upper() + (" (found from the markers)" if up == "auto" else "")
+    return ds
 
 
 def _check_samples(path: Path, positions: np.ndarray, names: list[str], bound: float) -> None:

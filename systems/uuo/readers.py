@@ -23,7 +23,8 @@ _MARKER_FILES: BoundedCache[tuple, xr.Dataset] = BoundedCache(4)  # (path, size,
 class MarkerFileReader:
     """A folder of optical marker recordings (C3D, TRC), one sequence per file, as raw_markers (systems/uuo/marker_files.py).
 
-    ``up``: which axis of the files is up (``z``, or ``y`` to turn Y-up files onto Z up); ``labels``: ``ignore``
+    ``up``: which axis of the files is up (``auto``, the default: found from the markers; ``z``; or ``y`` to turn
+    Y-up files onto Z up); ``labels``: ``ignore``
     (unlabelled trajectories m000, m001, ...) or ``use``; ``frames``: ``[start, stop]``, the frames of each file
     to keep (a short take of a long trial); ``takes``: per file (by its id) its own ``up`` and ``frames``;
     ``prior``: a folder (inside data_roots) of monocular prior files, ``<id>.npz`` or ``<id>.json``
@@ -72,7 +73,7 @@ class MarkerFileReader:
                                        and 0 <= frames[0] < frames[1]):
             raise CatalogError(f"{dataset.where}: frames {frames!r} of {take!r} must be [start, stop] with "
                                "0 <= start < stop (frame numbers of the file, stop excluded)")
-        return {"up": str(own.get("up", dataset.options.get("up", "z"))),
+        return {"up": str(own.get("up", dataset.options.get("up", "auto"))),
                 "labels": str(dataset.options.get("labels", "ignore")),
                 "frames": list(frames) if frames is not None else None}
 

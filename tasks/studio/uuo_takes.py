@@ -4,7 +4,9 @@ A ``MarkerLayout`` is a set of points on the skin, given as (face, barycentric) 
 along its normal, spread uniformly by area over the whole body or one part (the paper's partial layouts: a
 leg, an arm, a shoulder). ``marker_paths`` tracks them through a skinned take. ``capture`` then records them
 the way an optical system does when nobody labels its output: each sample jittered (0.5-1 mm), markers
-hidden for runs of frames (a run of ``gap_frames`` starts on any frame with probability ``dropout``), a
+hidden for runs of frames (a run of ``gap_frames`` starts on any frame with probability ``dropout``) and, with
+``occlusion``, on every frame fewer than two of the studio's optical cameras (``optical_cameras``) see it past
+the body, a
 marker that reappears after a gap under a new trajectory id (fragmentation), a few ghost points near the
 body, and the ids in an order that says nothing. ``source`` keeps, per id, the true marker it follows
 (-1 for a ghost): the ground truth a labelling is scored against.
@@ -48,6 +50,8 @@ class MarkerFaults:
     ghosts: int = 0  # ghost points in the take
     ghost_frames: tuple[int, int] = (3, 15)  # how long a ghost lives
     ghost_reach_m: float = 0.3  # how far from a true marker a ghost appears
+    occlusion: bool = False  # a marker seen by fewer than ``min_cameras`` of the optical cameras is lost
+    min_cameras: int = 2  # (an optical system triangulates a marker from two cameras or more)
 
     def __post_init__(self):
         lo, hi = self.jitter_mm
@@ -55,6 +59,9 @@ class MarkerFaults:
             raise MarkerTakeError(f"jitter_mm must be a range 0 <= low <= high, got {self.jitter_mm}")
         if not 0 <= self.dropout < 1:
             raise MarkerTakeError(f"dropout is a per-frame probability in [0, 1), got {self.dropout}")
+        if self.min_cameras < 1:
+            raise MarkerTakeError(f"min_cameras must be >= 1 (a marker is triangulated from cameras), got "
+                                  f"{self.min_cameras}")
         if self.gap_frames < 1 or self.ghosts < 0 or not 1 <= self.ghost_frames[0] <= self.ghost_frames[1]:
             raise MarkerTakeError(f"gap_frames ({self.gap_frames}) and ghost_frames ({self.ghost_frames}) must be "
                                   f">= 1 and ghosts ({self.ghosts}) >= 0")
@@ -80,11 +87,44 @@ def marker_paths(body: MeshBody, markers: MarkerLayout, vertices: np.ndarray) ->
                      for v in vertices])
 
 
-def capture(truth: np.ndarray, faults: MarkerFaults, rng: np.random.Generator) -> CapturedMarkers:
-    """The unlabelled recording of true marker paths (frame, marker, 3) under ``faults``."""
+def optical_cameras(count: int = 8, radius_m: float = 3.5, heights_m: tuple[float, float] = (0.8, 2.4),
+                    centre: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+    """The studio's optical mocap cameras: ``count`` centres on a ring around the capture area, their heights
+    alternating low and high, as marker systems are set up.  -> (camera, 3) metres"""
+    angles = 2 * np.pi * np.arange(count) / count
+    heights = np.where(np.arange(count) % 2 == 0, heights_m[0], heights_m[1])
+    return np.stack([centre[0] + radius_m * np.cos(angles), centre[1] + radius_m * np.sin(angles), heights], 1)
+
+
+def cameras_seeing(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, cameras: np.ndarray,
+                   tolerance_m: float = 2e-3) -> np.ndarray:
+    """How many cameras see each marker: the body hides no part of the line from the camera to the marker.
+    vertices (frame, vertex, 3), faces (face, 3), points (frame, marker, 3), cameras (camera, 3) -> (frame, marker)"""
+    from mocapflow.tasks.studio.mesh_render import MeshScene
+
+    count = np.zeros(points.shape[:2], np.int64)
+    for f in range(len(points)):
+        scene = MeshScene(vertices[f], faces)
+        for cam in cameras:
+            ray = points[f] - cam
+            dist = np.linalg.norm(ray, axis=1)
+            _, _, t = scene.cast(np.broadcast_to(cam, ray.shape), ray / dist[:, None])
+            count[f] += t >= dist - tolerance_m
+    return count
+
+
+def capture(truth: np.ndarray, faults: MarkerFaults, rng: np.random.Generator,
+            cameras_seen: np.ndarray | None = None) -> CapturedMarkers:
+    """The unlabelled recording of true marker paths (frame, marker, 3) under ``faults``; with
+    ``faults.occlusion``, ``cameras_seen`` (frame, marker) counts the cameras seeing each marker (cameras_seeing)."""
     n_frames, n_markers, _ = truth.shape
     sigma = rng.uniform(*faults.jitter_mm, n_markers) / 1000.0
     seen = _visibility(n_frames, n_markers, faults, rng)  # (frame, marker)
+    if faults.occlusion:
+        if cameras_seen is None or cameras_seen.shape != (n_frames, n_markers):
+            raise MarkerTakeError(f"occlusion needs how many cameras see each marker per frame, ({n_frames}, "
+                                  f"{n_markers}); got {None if cameras_seen is None else cameras_seen.shape}")
+        seen &= cameras_seen >= faults.min_cameras
     noisy = truth + rng.standard_normal(truth.shape) * sigma[None, :, None]
     columns, source = [], []
     for m in range(n_markers):

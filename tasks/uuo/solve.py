@@ -4,7 +4,10 @@ choose and refine.
 ``solve_hypothesis`` (a stage per hypothesis y of B = {0, 90, 180, 270} degrees, so each runs as its own task):
 part matching (§3.4.2) from the yaw y, pose fitting (stage 2), marker-vertex correspondence (stage 3) and
 inverse kinematics (stage 4); its result carries the one-directional chamfer distance of Eq. (3).
-``best_hypothesis`` keeps the hypothesis of least chamfer (Eq. 3, stage 1) and refines it (stage 5: stages 3
+``best_hypothesis`` keeps the hypothesis of least chamfer (Eq. 3, stage 1); where others come close (within
+``close`` times the least), the one whose pose agrees best with the prior's own joint rotations and whose rigid
+groups keep to one side (a solve turned around or mirrored bends its limbs unlike the prior and splits groups
+across sides); it refines it (stage 5: stages 3
 and 4 again, anchored to stage 4's result); ``single_hypothesis`` is the same on one hypothesis (the paper's
 "- MHT" ablation); ``rigid_prior`` is the baseline without a solve, the prior placed by part matching. Every
 result is a body over the take (bone rotations, root, phenotype, joints) and a vertex and body part per marker
@@ -52,6 +55,24 @@ class HypothesisConfig:
 class RefineConfig:
     correspondence: CorrespondenceConfig = field(default_factory=CorrespondenceConfig)
     ik: IKConfig = field(default_factory=IKConfig)
+    close: float = 1.5  # hypotheses whose chamfer is within this factor of the least are close: among them ...
+    split_deg: float = 100.0  # ... the least prior_pose_deg + split_deg * side_split wins (not turned or mirrored)
+
+    def __post_init__(self):
+        if self.close < 1.0 or self.split_deg < 0:
+            raise SolveError(f"refine needs close >= 1 and split_deg >= 0, got {self.close} and {self.split_deg}")
+
+
+def choose(hypotheses: list[xr.Dataset], config: RefineConfig) -> int:
+    """The hypothesis kept: of those whose chamfer (Eq. 3) is within ``close`` of the least, the one whose pose
+    agrees best with the prior's own joint rotations and whose rigid groups keep to one side."""
+    scores = np.array([h.attrs["chamfer"] for h in hypotheses])
+    close = np.flatnonzero(scores <= config.close * scores.min())
+    if len(close) == 1 or not all("prior_pose_deg" in hypotheses[i].attrs for i in close):
+        return int(np.argmin(scores))
+    robust = [hypotheses[i].attrs["prior_pose_deg"] + config.split_deg * hypotheses[i].attrs["side_split"]
+              for i in close]
+    return int(close[int(np.argmin(robust))])
 
 
 def _bodies(phenotype: dict) -> tuple[MeshBody, SolverBody]:
@@ -120,9 +141,37 @@ def solve_hypothesis(markers: xr.Dataset, segments: xr.Dataset, prior: xr.Datase
     score = chamfer(solver, m, solved, chain, config.outlier_m)
     stage_joints = {name: posed_heads(solver, f)[:, body.joint_bones()]
                     for name, f in (("matching", start), ("pose_fit", fitted), ("ik", solved))}
+    part = np.array([part_of_bone(body.bone_names[body.vertex_bone[v]]) if v >= 0 else "" for v in vertex])
     return body_dataset(markers, body, solver, solved, vertex, distance, stage_joints,
                         {"yaw_deg": float(config.yaw_deg), "chamfer": score, "parts": list(match.parts),
-                         "matched_yaw_deg": float(np.degrees(match.yaw)), "candidates": match.candidates})
+                         "matched_yaw_deg": float(np.degrees(match.yaw)), "candidates": match.candidates,
+                         "prior_pose_deg": pose_disagreement(body, solved.local, start.local),
+                         "side_split": side_split(part, segments["segment"].values)})
+
+
+def pose_disagreement(body: MeshBody, local: np.ndarray, prior_local: np.ndarray) -> float:
+    """Mean angle (degrees) between a solve's and the prior's own joint rotations (PRIOR_BONES but the root, which
+    placement sets): a body solved turned around or mirrored bends its limbs unlike the prior's.
+    local, prior_local (frame, bone, 3, 3)"""
+    from mocapflow.tasks.uuo.prior import PRIOR_BONES
+
+    bones = [i for i, n in enumerate(body.bone_names) if n in PRIOR_BONES and i > 0]
+    relative = np.swapaxes(prior_local[:, bones], -1, -2) @ local[:, bones]
+    cos = np.clip((np.trace(relative, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    return float(np.degrees(np.arccos(cos)).mean())
+
+
+def side_split(parts: np.ndarray, segments: np.ndarray) -> float:
+    """The share of sided labels (left_*/right_*) of the rigid groups against their group's majority side: a rigid
+    group rides one bone, so its markers are on one side.  parts, segments (marker,) -> [0, 1]"""
+    side = np.array(["left" if p.startswith("left") else "right" if p.startswith("right") else "" for p in parts])
+    against = total = 0
+    for group in np.unique(segments[segments >= 0]):
+        sided = side[(segments == group) & (side != "")]
+        if len(sided) >= 2:
+            total += len(sided)
+            against += len(sided) - max((sided == "left").sum(), (sided == "right").sum())
+    return float(against / total) if total else 0.0
 
 
 @dataclass(frozen=True)
@@ -157,7 +206,7 @@ def rigid_prior(markers: xr.Dataset, segments: xr.Dataset, prior: xr.Dataset, co
 
 def _refine(markers: xr.Dataset, hypotheses: list[xr.Dataset], config: RefineConfig) -> xr.Dataset:
     scores = [h.attrs["chamfer"] for h in hypotheses]
-    best = hypotheses[int(np.argmin(scores))]  # Eq. (3)
+    best = hypotheses[choose(hypotheses, config)]  # Eq. (3), the close ones told apart
     m = _marker_positions(markers)
     body, solver = _bodies(best.attrs["phenotype"])
     solved = body_fit(best)

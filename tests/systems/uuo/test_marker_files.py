@@ -8,7 +8,7 @@ import pytest
 
 from conftest import SHARED, last_json, mocapflow, read_artifacts
 from mocapflow.pipeline.errors import InputError
-from mocapflow.systems.uuo.marker_files import read_markers
+from mocapflow.systems.uuo.marker_files import read_markers, up_from_data
 from mocapflow.schemas import get_schema
 
 C3D = SHARED / "c3d"
@@ -30,6 +30,20 @@ def test_real_c3d_files_read_in_metres_with_z_up(name, up, fps, unit):
     expected = raw @ np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]]).T if up == "y" else raw
     np.testing.assert_allclose(ds.position.values, expected, atol=1e-6, equal_nan=True)
     assert list(ds.marker.values[:2]) == ["m000", "m001"] and "label" not in ds  # labels dropped by default
+
+
+@pytest.mark.parametrize("name, up", [
+    ("ezc3d_qualisys_gait_forceplates.c3d", "z"), ("ktk_kinematics_tennis_serve.c3d", "z"),
+    ("bts_c3d_sample_gait_with_gaps.c3d", "y"), ("qualisys_duplicate_labels_fragmented.c3d", "z"),
+    ("c3dorg_sample01_Eb015pr_gait.c3d", "z")])
+@pytest.mark.needs_shared
+def test_the_up_axis_is_found_from_the_markers_when_not_given(name, up):
+    found = read_markers(C3D / name)  # up: auto, the default
+    assert found.attrs["file_up_axis"] == f"{up.upper()} (found from the markers)"
+    np.testing.assert_array_equal(found.position.values, read_markers(C3D / name, up=up).position.values)
+    turned = read_markers(C3D / name, up=up).position.values  # Z up; now written Y up: found again
+    assert up_from_data(turned @ np.linalg.inv(np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])).T) == "y"
+    assert up_from_data(turned) == "z"
 
 
 @pytest.mark.needs_shared
@@ -67,7 +81,7 @@ def test_bad_marker_files_and_settings_are_refused(tmp_path):
     (tmp_path / "x.c3d").write_bytes(b"not a c3d")
     with pytest.raises(InputError, match="not a readable C3D file"):
         read_markers(tmp_path / "x.c3d")
-    with pytest.raises(InputError, match="up axis 'x' is not one of z, y"):
+    with pytest.raises(InputError, match="up axis 'x' is not one of auto, z, y"):
         read_markers(C3D / "ktk_kinematics_tennis_serve.c3d", up="x")
     with pytest.raises(InputError, match="export C3D or TRC"):
         read_markers(tmp_path / "take.csv")
@@ -114,4 +128,4 @@ def test_a_markers_dataset_runs_through_the_engine(tmp_path):
     assert last_json(mocapflow("run", "--json", cwd=tmp_path))["executed"] == []
     (tmp_path / "catalog.yaml").write_text((tmp_path / "catalog.yaml").read_text().replace("labels: use", "up: x"))
     proc = mocapflow("run", cwd=tmp_path, check=False)
-    assert proc.returncode == 2 and "up axis 'x' is not one of z, y" in proc.stderr
+    assert proc.returncode == 2 and "up axis 'x' is not one of auto, z, y" in proc.stderr

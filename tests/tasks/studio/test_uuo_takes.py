@@ -81,3 +81,21 @@ def test_bad_faults_are_refused():
         uuo.MarkerFaults(dropout=1.5)
     with pytest.raises(uuo.MarkerTakeError, match="jitter_mm must be a range"):
         uuo.MarkerFaults(jitter_mm=(2.0, 1.0))
+
+
+def test_occlusion_loses_the_markers_fewer_than_two_cameras_see(take):
+    rig, _, paths = take
+    vertices = rig.take.posed.vertices[:40]
+    cameras = uuo.optical_cameras()
+    assert cameras.shape == (8, 3) and np.allclose(np.linalg.norm(cameras[:, :2], axis=1), 3.5)
+    seen_by = uuo.cameras_seeing(vertices, rig.body.faces, paths, cameras)
+    assert seen_by.shape == (40, 40) and seen_by.max() <= 8
+    assert (seen_by >= 2).mean() > 0.8 and (seen_by < 8).any()  # most markers seen; the body hides some from some
+    # a camera in the body's middle sees nothing through the skin
+    inside = uuo.cameras_seeing(vertices[:1], rig.body.faces, paths[:1], vertices[0].mean(0, keepdims=True))
+    assert inside.sum() == 0
+    rec = uuo.capture(paths, uuo.MarkerFaults(occlusion=True, fragment=False), np.random.default_rng(3), seen_by)
+    kept = np.isfinite(rec.positions[..., 0])  # (frame, id), ids in shuffled order
+    np.testing.assert_array_equal(kept, seen_by[:, rec.source] >= 2)  # lost exactly where fewer than two see it
+    with pytest.raises(uuo.MarkerTakeError, match="occlusion needs how many cameras"):
+        uuo.capture(paths, uuo.MarkerFaults(occlusion=True), np.random.default_rng(3))
