@@ -5,9 +5,10 @@
 Units come from the file (C3D ``POINT:UNITS``, TRC ``Units``), the frame rate too (``POINT:RATE``, ``DataRate``).
 Files do not say which way is up, so ``up`` does: ``"z"`` keeps the axes, ``"y"`` turns a Y-up file onto the
 project's Z up by a proper rotation (x stays, y becomes up: (x, y, z) -> (x, -z, y)), and ``"auto"`` (the
-default) finds it from the markers (``up_from_data``: the body's tall axis, whose lowest point keeps to the floor). A sample the file marks
-missing (a negative C3D residual, an empty TRC cell, or NaN) is NaN. With ``labels="ignore"`` the trajectories
-are ``m000``, ``m001``, ... in file order and the file's labels are dropped (an unlabelled take); with ``"use"``
+default) finds it from the markers (``up_from_data``: the body's tall axis, whose lowest point keeps to the
+floor). A sample the file marks missing (a negative C3D residual, an empty TRC cell, or NaN) is NaN. With
+``labels="ignore"`` the trajectories are ``m000``, ``m001``, ... in file order and the file's labels are
+dropped (an unlabelled take); with ``"use"``
 they keep the file's labels, a label that repeats (one marker split over several trajectories) getting
 ``#2``, ``#3`` ... Trajectories that are never seen are kept: a fragmented or ghost-ridden recording is
 read as it is. A file cut short, a damaged sample, a file with no sample, or a coordinate farther from the origin

@@ -4,14 +4,17 @@ UUO starts from a body estimated from monocular video (HMR 2.0 in the paper), wh
 roughly right but whose global translation, size and root orientation are not (§3.3, appendix B: mostly a
 single yaw offset). Implementations of the stage ``prior``:
 
-- ``simulated_prior``: the studio's truth degraded the way such an estimator errs: every articulated joint's
-  local rotation (SMPL's joints on Anny's rig, PRIOR_BONES) off by a smooth, temporally correlated random
-  rotation; the whole body turned by one yaw offset, scaled by one factor, moved by one translation and by a
-  slow drift (monocular depth); a few frames lost (tracking failures, held by the nearest kept frame and
-  marked invalid); the phenotype off by a little. Its error is reported two ways: per-frame PA-MPJPE (the
-  articulated error; HMR 2.0 publishes about 54 mm on 3DPW) and MPJPE after one rigid registration with scale
-  of the whole take (the paper's HMR2.0+RR: 132-150 mm on its three datasets). The defaults give about 54 and
-  140 mm on the studio's exercises (benchmarks/uuo_solver.py prints both);
+- ``simulated_prior``: the studio's truth degraded the way such an estimator errs. ``form: mild`` (the first
+  form): every articulated joint's local rotation (SMPL's joints on Anny's rig, PRIOR_BONES) off by a smooth,
+  temporally correlated random rotation; the whole body turned by one yaw offset, scaled by one factor, moved by
+  one translation and by a slow drift (monocular depth); a few frames lost (tracking failures, held by the
+  nearest kept frame and marked invalid); the phenotype off by a little. ``form: realistic`` (the default) adds
+  the errors a real monocular estimate makes in correlated ways (``monocular_errors``): every other bone off by a
+  smaller smooth rotation, limbs flipped in depth and held for a while, a slow lean of the upper body, per-frame
+  jitter. Its error is stored three ways: ``aligned_mpjpe_mm`` after what part matching estimates (one rotation,
+  a translation per frame; realistic about 140 mm on the studio's exercises, like HMR2.0+RR's 132-150 mm; mild
+  about 79), ``registered_mpjpe_mm`` after one rigid registration with scale of the take, and ``pa_mpjpe_mm``
+  per frame (benchmarks/uuo_prior_calibration.py prints all three);
 - ``no_prior``: markers only (the paper's marker-only rows): a neutral body in its rest pose;
 - ``file_prior``: a monocular estimate a user brings (any method), as the 20 template joints per frame
   (tasks/shared/body.py JOINT_NAMES, metres, Z up; NaN rows for lost frames), read by systems/uuo/prior_files.py.
@@ -93,11 +96,16 @@ PRIOR_BONES = frozenset(("root", "spine05", "spine03", "spine01", "neck01", "hea
 
 
 def _smooth_noise(rng: np.random.Generator, shape: tuple, sigma_frames: float) -> np.ndarray:
-    """Unit-variance noise smoothed over the first axis (frames) by a Gaussian of ``sigma_frames``."""
+    """Noise smoothed over the first axis (frames) by a Gaussian of ``sigma_frames``, of unit variance in
+    expectation: scaled by the filter's own gain (the root of its squared weights), not by the take's spread, so
+    a take shorter than the smoothing keeps its stated size (a per-take normalisation blew a nearly constant
+    curve up to tens of standard deviations)."""
     noise = rng.standard_normal(shape)
     if shape[0] > 1:
         noise = gaussian_filter1d(noise, sigma_frames, axis=0, mode="nearest")
-        noise /= np.maximum(noise.std(axis=0, keepdims=True), 1e-9)  # unit std per component, whatever the smoothing
+        impulse = np.zeros(8 * int(np.ceil(sigma_frames)) + 1)
+        impulse[len(impulse) // 2] = 1.0
+        noise /= np.sqrt((gaussian_filter1d(impulse, sigma_frames, mode="constant") ** 2).sum())
     return noise
 
 
