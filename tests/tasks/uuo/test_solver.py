@@ -130,3 +130,60 @@ def test_a_take_with_a_turned_prior_is_solved_back_and_four_hypotheses_beat_one(
     with pytest.raises(solve.SolveError, match="yaws_deg is empty"):
         solve.rigid_prior(take, segments, turned, solve.RigidPriorConfig(yaws_deg=()))
 
+
+
+@pytest.mark.xfail(strict=True, reason="measured shortfall: from the realistic prior this 24-frame take solves to "
+                   "198 mm MPJPE with one hypothesis and the fast settings (goal: under 60 mm); the solver does not "
+                   "yet undo held depth flips and the lean (docs/uuo.md, What is left)")
+def test_a_take_with_the_realistic_prior_is_solved_far_closer_than_the_prior_placed(take):
+    """The default prior (flips held, a lean, every bone off; about 140 mm after part matching's alignment),
+    turned by at most 30 degrees, so one hypothesis suffices (choosing among four: the test above)."""
+    realistic = prior.simulated_prior(take, prior.SimulatedPriorConfig(seed=3, yaw_deg=30.0))
+    assert realistic.attrs["aligned_mpjpe_mm"] > 90
+    segments = segmentation.rigid_segments(take, segmentation.SegmentConfig())
+    best = solve.single_hypothesis(take, solve.solve_hypothesis(take, segments, realistic, FAST),
+                                   solve.RefineConfig())
+    truth = take["gt_joints"].values
+    mpjpe = 1000 * np.linalg.norm(best["joints"].values - truth, axis=-1).mean()
+    placed = 1000 * np.linalg.norm(best["stage_joints"].sel(stage="matching").values - truth, axis=-1).mean()
+    assert mpjpe < 60, mpjpe  # the markers pull the wrong limbs back: a fraction of the prior's error
+    assert mpjpe < 0.5 * placed, (mpjpe, placed)
+    real = take["gt_source"].values >= 0
+    assert (best["vertex"].values[real] >= 0).mean() > 0.85
+    true_body = mb.mesh_body(mb.Phenotype(**take.attrs["phenotype"]))
+    true_part = np.array([mb.part_of_bone(true_body.bone_names[true_body.vertex_bone[true_body.faces[f, 0]]])
+                          for f in take["gt_face"].values[real]])
+    got = best["part"].values[real]
+    sided = np.array([("left" in t or "right" in t) and g != "" for t, g in zip(true_part, got)])
+    swapped = np.array([("left" in t and "right" in g) or ("right" in t and "left" in g)
+                        for t, g in zip(true_part, got)])
+    assert sided.sum() > 10 and swapped.sum() == 0  # not mirrored: no marker of one side on the other
+
+
+def test_close_hypotheses_are_told_apart_by_the_priors_pose_and_one_side_per_rigid_group(body):
+    import xarray as xr
+
+    b, _ = body
+    parts = np.array(["left_thigh", "left_thigh", "right_thigh", "right_shank", "torso", ""])
+    groups = np.array([0, 0, 0, 1, 1, -1])  # group 0: two left, one right; group 1: one sided label only
+    assert solve.side_split(parts, groups) == pytest.approx(1 / 3)
+    assert solve.side_split(parts[:2], groups[:2]) == 0.0
+    local = np.broadcast_to(np.eye(3), (2, len(b.bone_names), 3, 3)).copy()
+    bent = local.copy()
+    knee = b.bone("lowerleg01.L")
+    bent[:, knee] = Rotation.from_euler("x", 90, degrees=True).as_matrix()
+    bent[:, 0] = Rotation.from_euler("z", 180, degrees=True).as_matrix()  # the root is placement's: not counted
+    count = sum(1 for n in b.bone_names if n in prior.PRIOR_BONES) - 1
+    assert solve.pose_disagreement(b, bent, local) == pytest.approx(90.0 / count)
+
+    def hyp(chamfer, pose_deg, split):
+        return xr.Dataset(attrs={"chamfer": chamfer, "prior_pose_deg": pose_deg, "side_split": split})
+
+    config = solve.RefineConfig()
+    # the least chamfer wins when no other comes close ...
+    assert solve.choose([hyp(1.0, 30, 0.0), hyp(2.0, 5, 0.0)], config) == 0
+    # ... among close ones, the pose like the prior's, and groups kept to one side
+    assert solve.choose([hyp(1.0, 30, 0.0), hyp(1.2, 5, 0.0), hyp(5.0, 1, 0.0)], config) == 1
+    assert solve.choose([hyp(1.0, 10, 0.0), hyp(1.1, 5, 0.2)], config) == 0
+    with pytest.raises(solve.SolveError, match="close >= 1"):
+        solve.RefineConfig(close=0.5)
