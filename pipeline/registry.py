@@ -46,6 +46,12 @@ class TaskSpec:
     ``reads`` names the variables a role needs (all when absent), so large unused arrays such as
     ground truth are never loaded. Parameters whose field carries ``metadata={"runtime": True}`` (how a
     task runs, not what it computes: a batch size, a device, worker processes) stay out of cache keys.
+
+    A per-dataset task (a training) may declare ``streams`` (role -> its large variables): that input then
+    arrives as ``tasks.shared.samples.Samples``, the large variables read one sample at a time, so the set need
+    not fit in memory. With ``checkpoints`` it also takes ``checkpoint`` (``load() -> dict | None``,
+    ``save(dict)``): state it saves survives a killed run, and the next run of the same partition (same cache
+    key) gets it back; the engine drops it once the partition is committed.
     """
 
     name: str
@@ -60,6 +66,8 @@ class TaskSpec:
     reads: Mapping[str, tuple[str, ...]] = field(default_factory=dict)  # role -> the variables it needs
     weights_params: tuple[str, ...] = ()
     packaged_weights: Mapping[str, str] = field(default_factory=dict)  # param -> file in mocapflow.models, when empty
+    streams: Mapping[str, tuple[str, ...]] = field(default_factory=dict)  # role -> variables read per sample
+    checkpoints: bool = False  # the task takes ``checkpoint`` (per-dataset tasks only)
     source: bool = False
     description: str = ""
 
@@ -186,6 +194,10 @@ def register(spec: TaskSpec) -> TaskSpec:
     if not spec.params.__dataclass_params__.frozen:
         raise CatalogError(f"task {spec.name!r}: params {spec.params.__name__} must be frozen "
                            "(@dataclass(frozen=True)): a stage's config never changes under a worker")
+    if (spec.streams or spec.checkpoints) and spec.partition != "dataset":
+        raise CatalogError(f"task {spec.name!r} is partitioned per {spec.partition!r} but declares "
+                           f"{'streams' if spec.streams else 'checkpoints'}, which only a per-dataset task (a training) "
+                           "may; drop them or partition it per dataset")
     roles = task_parameters(spec)
     if isinstance(spec.fn, Lazy):
         spec = dataclasses.replace(spec, fn=dataclasses.replace(spec.fn, roles=roles))
@@ -196,8 +208,9 @@ def register(spec: TaskSpec) -> TaskSpec:
 
 
 def task_parameters(spec: TaskSpec) -> tuple[str, ...]:
-    """The parameters a task's function takes, in order: its input roles, ``config``, its weight parameters."""
-    return (*spec.inputs, "config", *spec.weights_params)
+    """The parameters a task's function takes, in order: its input roles, ``config``, its weight parameters,
+    ``checkpoint`` where it keeps one."""
+    return (*spec.inputs, "config", *spec.weights_params, *(("checkpoint",) if spec.checkpoints else ()))
 
 
 def check_signature(what: str, fn: Callable[..., Any], roles: tuple[str, ...]) -> None:

@@ -268,8 +268,27 @@ class Store:
         recorded = {**self._collect_digests(stage, key), "meta": self._metadata_digests(stage, key)}
         self._put(self._marker(stage, key, "digests.json"), json.dumps(recorded).encode())
         self._put(self._marker(stage, key, "_COMPLETE"), str(time.time()).encode())
+        self.drop_checkpoint(stage, key)  # the committed artifact supersedes it
         if self.fs.exists(self._marker(stage, key, "_DAMAGED")):
             self.fs.rm_file(self._marker(stage, key, "_DAMAGED"))
+
+    # ---- a long task's checkpoint ----------------------------------------------------------------
+    def save_checkpoint(self, stage: str, key: str, data: bytes) -> None:
+        """Keep ``data`` as the checkpoint of an uncommitted version (written whole, then moved in place)."""
+        path = self._marker(stage, key, "_checkpoint")
+        self._put(path + ".partial", data)
+        self.fs.mv(path + ".partial", path)
+
+    def checkpoint(self, stage: str, key: str) -> bytes | None:
+        """The checkpoint saved for a version, None if there is none."""
+        try:
+            return self.fs.cat_file(self._marker(stage, key, "_checkpoint"))
+        except FileNotFoundError:
+            return None
+
+    def drop_checkpoint(self, stage: str, key: str) -> None:
+        if self.fs.exists(self._marker(stage, key, "_checkpoint")):
+            self.fs.rm_file(self._marker(stage, key, "_checkpoint"))
 
     # ---- reading -------------------------------------------------------------------------
     def open(self, stage: str, key: str, schema: ArtifactSchema, partial: bool = False) -> xr.Dataset:
