@@ -1,9 +1,9 @@
 """Reading a training set: the seconds and the memory the `weights` stage takes to read its samples.
 
     mocapflow run --catalog training/catalog_athletic.yaml --until samples    # render it first
-    python benchmarks/training_samples.py [--catalog FILE] [--sequences N] [--whole] [--reads N]
+    python benchmarks/training_samples.py [--catalog FILE] [--sequences GLOB] [--whole] [--reads N]
 
-Reads the samples of the catalog's first N training sequences (every one by default) the way the training
+Reads the samples of the catalog's training sequences (those matching ``--sequences``, every one by default) the way the training
 stage does (pipeline/samples.py): its streamed variables one sample at a time, the rest in memory; ``--whole``
 loads every variable, as the stage did before it streamed. Prints one JSON line: partitions, samples, the bytes
 held in memory, seconds to open, the median milliseconds of one streamed sample's read (``--reads`` random
@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import fnmatch
 import json
 import resource
 import time
@@ -33,7 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--catalog", default=str(ROOT / "training" / "catalog_athletic.yaml"))
-    parser.add_argument("--sequences", type=int, default=0, help="the first N training sequences (0: all)")
+    parser.add_argument("--sequences", default=None, metavar="GLOB", help="only the training sequences whose id matches")
     parser.add_argument("--whole", action="store_true", help="load every variable (no streaming)")
     parser.add_argument("--reads", type=int, default=200, help="random streamed samples to time")
     args = parser.parse_args()
@@ -41,7 +42,8 @@ def main() -> None:
     item = training_item(build_plan(catalog), catalog, None)
     (role, up), = item.upstream.items()
     if args.sequences:
-        up = dataclasses.replace(up, by_sequence=dict(list(up.by_sequence.items())[:args.sequences]))
+        up = dataclasses.replace(up, by_sequence={s: keys for s, keys in up.by_sequence.items()
+                                                  if fnmatch.fnmatchcase(s, args.sequences)})
     streamed = () if args.whole else item.spec.streams.get(role, ())
     started = time.perf_counter()
     samples = samples_input(Store(catalog.root), up, item.spec.reads.get(role), streamed)

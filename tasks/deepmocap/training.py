@@ -210,12 +210,11 @@ def train_fcn(samples: xr.Dataset | Samples, config: TrainConfig, checkpoint=Non
     run = _Progress.start(checkpoint.load() if checkpoint is not None else None, model, optimizer, schedule, config)
     stream = Batches(pool, arch, crop, config, start=run.iteration, rng_state=run.rng_state)
     for batch in stream:  # the batches from run.iteration on
-        depth, flow, s_target, l_target = (torch.as_tensor(column) for column in batch)
+        depth, flow, s_target, l_target = (torch.as_tensor(column).to(device) for column in batch)  # uint8 images
         with torch.autocast(device, dtype=torch.bfloat16, enabled=mixed):
-            outputs = model(fcn.to_input(depth).to(device), fcn.to_input(flow).to(device) if arch.flow_stream else None)
+            outputs = model(fcn.to_input(depth), fcn.to_input(flow) if arch.flow_stream else None)
         outputs = [(s.float(), None if f is None else f.float()) for s, f in outputs]  # the loss in float32
-        l_target = l_target.reshape(len(depth), -1, *l_target.shape[-2:]).to(device)  # (batch, 52, g, g)
-        s_target = s_target.to(device)
+        l_target = l_target.reshape(len(depth), -1, *l_target.shape[-2:])  # (batch, 52, g, g)
         weight = 1.0 + config.foreground_weight * s_target[:, :fcn.N_REFLECTORS].amax(dim=1, keepdim=True)
         loss = fcn.stage_losses(outputs, s_target, l_target, weight)
         optimizer.zero_grad()
