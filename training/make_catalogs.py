@@ -2,7 +2,7 @@
 training/validation.yaml, training/validation_athletic.yaml).
 
 Only the studio's procedural motions are used; the real CMU clips are reserved for the held-out
-benchmark (benchmarks/catalog.yaml). The split is by subject and by motion: validation subjects (seeds
+benchmark (benchmarks/capsule.yaml). The split is by subject and by motion: validation subjects (seeds
 500+) and its two exercises never appear in training. Every sequence gets its own random camera
 layout, heading, speed and amplitude. Half of the training sequences also get a random ``variation``
 (posture, heading and drift overlaid on the exercise, tasks/studio/motion.py) so that the network does
