@@ -59,7 +59,8 @@ def overlay(ir: np.ndarray, xy: np.ndarray, gt_uv: np.ndarray, names: list[str],
     """IR image with estimated reflectors (filled, labelled; a ``recovered`` one a hollow dot) and the true ones
     (rings).  (y, x), (reflector, 2) x2, (reflector,) bool"""
     ir = ir.astype(np.float64)
-    top = max(float(np.percentile(ir, 99.0)), 1.0)  # the body's IR, not the saturated reflectors, sets the gain
+    unsaturated = ir[ir < 0.5 * ir.max()] if (ir < 0.5 * ir.max()).any() else ir  # not the reflectors' regions
+    top = max(float(np.percentile(unsaturated, 99.0)), 1.0)  # the body's IR sets the gain
     img = cv2.cvtColor(np.clip(ir / top * 255.0, 0, 255).astype(np.uint8), cv2.COLOR_GRAY2BGR)
     for r, name in enumerate(names):
         if np.isfinite(gt_uv[r]).all():
