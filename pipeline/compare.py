@@ -13,9 +13,9 @@ instants must agree within TRUTH_TOLERANCE_M, or the takes are not one performan
 
 Figures per system: MPJPE (mean over the joints it gives, per frame and over the take, mm), per body part
 (BODY_PARTS), the surface error (per frame the median distance of the given surface from the true skin, mm),
-completeness (the share of truth joint-frames given) and the cost: the compute seconds the engine recorded for the
-system's stages of the sequence (each region's seconds, summed; the studio's filming, a source stage, left out) per
-captured second.
+completeness (the share of truth joint-frames given) and the cost: the CPU seconds the engine recorded for the
+system's stages of the sequence (each region's worker CPU time, summed; the studio's filming, a source stage, left
+out) per captured second.
 """
 
 from __future__ import annotations
@@ -143,11 +143,15 @@ def score_capture(capture: registry.Capture, frames: np.ndarray, truth: np.ndarr
 
 
 def cost(catalog, plan: Plan, store: Store, stage: str, sequence: str, capture: registry.Capture) -> float:
-    """Compute seconds the engine recorded for ``stage`` and the stages it needs (not the source: the studio's
-    filming) on ``sequence``, per captured second."""
+    """CPU seconds the engine recorded for ``stage`` and the stages it needs (not the source: the studio's filming)
+    on ``sequence``, per captured second: each region's worker CPU time, or its wall seconds where a region was
+    written before CPU time was recorded."""
     stages = {s for s in catalog.ancestors(stage) if not catalog.stages[s].spec.source}
-    seconds = sum(store.region_seconds(item.partition.stage, item.key) for item in plan.items.values()
-                  if item.partition.stage in stages and item.partition.sequence == sequence)
+    seconds = 0.0
+    for item in plan.items.values():
+        if item.partition.stage in stages and item.partition.sequence == sequence:
+            cpu = store.region_cpu_seconds(item.partition.stage, item.key)
+            seconds += store.region_seconds(item.partition.stage, item.key) if cpu is None else cpu
     return seconds / (len(capture.joints) / capture.fps)
 
 
