@@ -89,7 +89,7 @@ def test_systems_at_30_and_10_fps_are_scored_on_the_instants_both_filmed():
 def test_captures_of_different_performances_are_not_compared():
     times = np.arange(10) / 10.0
     other = _truth(times)
-    other[4, 7] += 0.05  # 5 cm off at one instant: another performance
+    other[4, 7, 0] += 0.05  # 5 cm off at one instant: another performance
     with pytest.raises(PlanError, match="differs from that of 'a' by 50.0 mm at the same instant: not one performance"):
         score_take("t", {"a": _capture(10.0, _truth(times), 0.0), "b": _capture(10.0, other, 0.0)}, {"a": 0, "b": 0})
 
