@@ -164,11 +164,13 @@ def _unit_member(item: WorkItem, unit: Unit, store: Store, loader: "_UnitInputs"
     def produce(started: float) -> tuple[int, bool]:
         written = 0
         if not store.resume_region(stage, key, unit.start, unit.stop):
+            cpu = time.process_time()
             if unit.first or not store.pending_lineage(stage, key):
                 store.begin(stage, key, item.lineage(started=now(), host=socket.gethostname()))
             out = _compute_region(item, store, unit.start, unit.stop, load=loader.for_member(item))
             store.write_region(stage, key, item.stage.schema, out, item.sequence.n_frames, unit.start,
-                               unit.stop, seconds=time.perf_counter() - started)
+                               unit.stop, seconds=time.perf_counter() - started,
+                               cpu_seconds=time.process_time() - cpu)
             loader.keep(item, out)
             written = 1
         if unit.last and not _commit_if_whole(item, store):
@@ -275,10 +277,10 @@ def _produce(item: WorkItem, store: Store) -> int:
     for start, stop in spans(item):
         if store.resume_region(stage, key, start, stop):
             continue
-        t0 = time.perf_counter()
+        t0, cpu = time.perf_counter(), time.process_time()
         out = _compute_region(item, store, start, stop)
         store.write_region(stage, key, schema, out, item.sequence.n_frames, start, stop,
-                           seconds=time.perf_counter() - t0)
+                           seconds=time.perf_counter() - t0, cpu_seconds=time.process_time() - cpu)
         written += 1
         log.debug("%s: frames %d-%d written", item.partition.id, start, stop)
     if not _commit_if_whole(item, store):

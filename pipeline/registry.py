@@ -166,6 +166,33 @@ class ReportSection:
 
 
 @dataclass(frozen=True)
+class Capture:
+    """One system's capture of one sequence, as `mocapflow compare` scores it: the 20 template joints
+    (tasks/shared/body.py JOINT_NAMES order) per frame, the studio's truth of the same frames, and the surface where
+    the system gives one. Frames are the sequence's own; ``fps`` puts them on the take's clock (frame / fps)."""
+
+    stage: str  # the stage whose output is compared
+    fps: float
+    joints: Any  # (frame, 20, 3) m, NaN where the system gives none
+    truth: Any  # (frame, 20, 3) m, the studio's
+    surface_error_mm: Any = None  # (frame,) median distance of the surface given from the true skin, or None
+    surface: Any = None  # (frame, point, 3) m, a few points of the surface for the 3D view, or None
+    needs: Mapping[str, str] = field(default_factory=dict)  # what the capture needs: cameras, markers, a prior
+
+
+@dataclass(frozen=True)
+class Comparer:
+    """How `mocapflow compare` reads one system. ``stage(catalog, stages)``: of a dataset's stages (topological
+    order), the one whose output it compares, or None; ``capture(catalog, plan, store, stage, sequence)`` ->
+    :class:`Capture`; ``requirements``: a line on what the system needs, whatever the take."""
+
+    system: str
+    stage: Callable[[Any, list], str | None]
+    capture: Callable[..., Capture]
+    requirements: str = ""
+
+
+@dataclass(frozen=True)
 class System:
     """Everything one capture system (or source of data) adds to the engine, declared in one place."""
 
@@ -178,6 +205,7 @@ class System:
     exporters: tuple[Exporter, ...] = ()
     report: tuple[ReportSection, ...] = ()
     weights: Mapping[str, Callable[[Any], dict]] = field(default_factory=dict)  # schema -> tensors of its artifact
+    compare: Comparer | None = None  # how `mocapflow compare` reads its captures
 
 
 _REGISTRY: dict[str, TaskSpec] = {}
@@ -292,6 +320,11 @@ def evaluators() -> list[Evaluator]:
 def exporters(fmt: str | None = None) -> list[Exporter]:
     """The registered exporters (of one --format), in system order."""
     return [e for s in systems() for e in s.exporters if fmt is None or e.format == fmt]
+
+
+def comparers() -> list[Comparer]:
+    """The systems' compare hooks, in system order."""
+    return [s.compare for s in systems() if s.compare is not None]
 
 
 def report_sections() -> list[ReportSection]:
