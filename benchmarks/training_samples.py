@@ -3,8 +3,8 @@
     mocapflow run --catalog training/catalog_athletic.yaml --until samples    # render it first
     python benchmarks/training_samples.py [--catalog FILE] [--sequences GLOB] [--whole] [--reads N]
 
-Reads the samples of the catalog's training sequences (those matching ``--sequences``, every one by default) the way the training
-stage does (pipeline/samples.py): its streamed variables one sample at a time, the rest in memory; ``--whole``
+Reads the samples of the catalog's training sequences (those matching ``--sequences``, every one by default) the
+way the training stage does (pipeline/samples.py): its streamed variables one sample at a time, the rest in memory; ``--whole``
 loads every variable, as the stage did before it streamed. Prints one JSON line: partitions, samples, the bytes
 held in memory, seconds to open, the median milliseconds of one streamed sample's read (``--reads`` random
 samples), and the process's peak resident memory.
