@@ -1,5 +1,5 @@
 """Disk per view-frame of the cache: bytes of every stage's stored chunks, per variable, divided by the view-frames
-of the take, after one `mocapflow run` of the held-out chain (benchmarks/catalog.yaml's stages, one sequence of the
+of the take, after one `mocapflow run` of the held-out chain (benchmarks/capsule.yaml's stages, one sequence of the
 CMU walk, 3 views at 512x424) in a temporary folder:
 
     python benchmarks/cache_size.py [--frames 48]

@@ -4,7 +4,7 @@ greedy `reflectors2d` step),
 the training wall time and the weight file's size. Accuracy comes from the held-out split:
 
     taskset -c 0 python benchmarks/fcn.py [--weights FILE]   # default: the committed weights
-    mocapflow evaluate --catalog benchmarks/catalog.yaml --json
+    mocapflow evaluate --catalog benchmarks/capsule.yaml --json
 """
 
 from __future__ import annotations

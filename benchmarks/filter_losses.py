@@ -3,7 +3,7 @@ positive (at least 5 visible pixels), whether its best candidate and its filtere
 radius (0.05 of the subject's box), and for a right candidate that filtering dropped, which rule dropped it.
 Reads the stored artifacts of the catalog's current stages (run `mocapflow evaluate` on it first):
 
-    python benchmarks/filter_losses.py [--catalog benchmarks/catalog.yaml] [R_HAND R_WRIST ...]
+    python benchmarks/filter_losses.py [--catalog benchmarks/capsule.yaml] [R_HAND R_WRIST ...]
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ def why_dropped(r: int, cand: np.ndarray, out: np.ndarray, blob_id, blob_area, n
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--catalog", default="benchmarks/catalog.yaml")
+    parser.add_argument("--catalog", default="benchmarks/capsule.yaml")
     parser.add_argument("reflectors", nargs="*", default=["R_HAND", "R_WRIST", "L_ELBOW", "L_WRIST", "R_ANKLE"])
     args = parser.parse_args()
     catalog = load_catalog(args.catalog, ())

@@ -1,5 +1,5 @@
 """Flow benchmark: time per frame pair per view on one CPU core at 512x424 for both variants, and the
-EPE table of each on the held-out split (benchmarks/catalog.yaml).
+EPE table of each on the held-out split (benchmarks/capsule.yaml).
 
     taskset -c 0 python benchmarks/flow.py
 """
@@ -48,7 +48,7 @@ def time_per_pair(pairs: int = 12) -> dict[str, float]:
 
 def epe(task: str) -> dict:
     proc = subprocess.run([sys.executable, "-m", "mocapflow.cli.commands", "evaluate", "--catalog",
-                           str(ROOT / "benchmarks" / "catalog.yaml"), "--json", "--set", f"stages.flow.task={task}"],
+                           str(ROOT / "benchmarks" / "capsule.yaml"), "--json", "--set", f"stages.flow.task={task}"],
                           capture_output=True, text=True, check=True)
     lines = proc.stdout.strip().splitlines()
     return {"table": "\n".join(lines[:-1]), "figures": json.loads(lines[-1])}

@@ -1,7 +1,7 @@
 """3D stages benchmark: time per frame of `markers3d` (2D->3D + fusion) and of each `smoothed`
 implementation (and of `kalman` in one pass, without competing tracks) on a 3-view held-out sequence, one CPU
 core. Run the held-out evaluation first so the
-inputs exist (`mocapflow evaluate --catalog benchmarks/catalog.yaml`):
+inputs exist (`mocapflow evaluate --catalog benchmarks/capsule.yaml`):
 
     taskset -c 0 python benchmarks/markers.py
 """
@@ -30,7 +30,7 @@ SEQUENCE = "cmu_jumping_jacks"
 
 
 def _inputs():
-    catalog = load_catalog(ROOT / "benchmarks" / "catalog.yaml", ())
+    catalog = load_catalog(ROOT / "benchmarks" / "capsule.yaml", ())
     plan, store = build_plan(catalog, SEQUENCE), Store(catalog.root)
 
     def load(stage, schema, variables):

@@ -4,7 +4,7 @@
 
 The recording itself (the studio render, standing in for the sensors) is made once and not timed;
 each repeat deletes every other stage's artifacts and reruns. The stages are the held-out catalog's
-(benchmarks/catalog.yaml); held-out motion (CMU walk), held-out subject seed and a random camera layout:
+(benchmarks/capsule.yaml); held-out motion (CMU walk), held-out subject seed and a random camera layout:
 
     python benchmarks/pipeline.py [--frames 90] [--repeats 3] [--workers 2]
 
@@ -35,9 +35,9 @@ CLIP = SHARED / "motions" / "cmu_12_01_walk.bvh"
 
 
 def catalog_text(frames: int, preset: str, motion: str = str(CLIP)) -> str:
-    """The held-out catalog's stage chain (benchmarks/catalog.yaml) on one sequence of ``frames`` frames of
+    """The held-out catalog's stage chain (benchmarks/capsule.yaml) on one sequence of ``frames`` frames of
     ``motion`` (a BVH file or a studio exercise), its `dis` flow at DIS ``preset``."""
-    held_out = yaml.safe_load((ROOT / "benchmarks" / "catalog.yaml").read_text())
+    held_out = yaml.safe_load((ROOT / "benchmarks" / "capsule.yaml").read_text())
     held_out["stages"]["flow"].setdefault("params", {})["preset"] = preset
     dataset = {"kind": "studio", "defaults": {**held_out["datasets"]["heldout"]["defaults"], "frames": frames},
                "sequences": {"take": {"motion": motion, "seed": 9105}}}

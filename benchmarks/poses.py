@@ -1,6 +1,6 @@
 """Motion capture benchmark: pose solve time per frame and skeleton calibration time per sequence,
 on the held-out sequences' smoothed markers, one CPU core. Run the held-out evaluation first so the
-inputs exist (`mocapflow evaluate --catalog benchmarks/catalog.yaml`):
+inputs exist (`mocapflow evaluate --catalog benchmarks/capsule.yaml`):
 
     taskset -c 0 python benchmarks/poses.py
 """
@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def main() -> None:
-    catalog = load_catalog(str(ROOT / "benchmarks" / "catalog.yaml"), ())
+    catalog = load_catalog(str(ROOT / "benchmarks" / "capsule.yaml"), ())
     store, plan = Store(catalog.root), build_plan(catalog)
     solve_ms, calib_s = [], []
     for seq in plan.sequences:

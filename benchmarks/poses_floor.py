@@ -3,7 +3,7 @@ studio's true 3D reflector positions (every reflector in every frame, confidence
 pipeline's, on the held-out sequences, scored like `mocapflow evaluate` (MAE and 3D PCK on the 12
 joints of Table 8). The gap between this floor and the evaluated figures is what the 2D labels, the
 depth lifting and fusion cost. Run the held-out evaluation first so the inputs exist
-(`mocapflow evaluate --catalog benchmarks/catalog.yaml`):
+(`mocapflow evaluate --catalog benchmarks/capsule.yaml`):
 
     python benchmarks/poses_floor.py [--set KEY=VALUE ...]   # catalog overrides, as `mocapflow evaluate --set`
 """
@@ -47,7 +47,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     args = parser.parse_args()
-    catalog = load_catalog(str(ROOT / "benchmarks" / "catalog.yaml"), tuple(args.overrides))
+    catalog = load_catalog(str(ROOT / "benchmarks" / "capsule.yaml"), tuple(args.overrides))
     store, plan = Store(catalog.root), build_plan(catalog)
     per_clip, errors = {}, []
     for seq in plan.sequences:

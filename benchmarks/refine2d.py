@@ -2,7 +2,7 @@
 view-frame on one CPU core, the stage function called on one frame at a time of every held-out view.
 It reads the held-out split's artifacts, so run the evaluation first:
 
-    mocapflow evaluate --catalog benchmarks/catalog.yaml --json
+    mocapflow evaluate --catalog benchmarks/capsule.yaml --json
     taskset -c 0 python benchmarks/refine2d.py [--figure docs/refined/knee_raise.png]
 
 ``--figure`` also draws, for the held-out view-frame of a clip that the stage changed most, the views' own
@@ -93,7 +93,7 @@ def main() -> None:
     parser.add_argument("--figure", type=Path, help="also write the comparison PNG here")
     parser.add_argument("--sequence", default="cmu_knee_raise", help="held-out clip of the figure")
     args = parser.parse_args()
-    catalog = load_catalog(ROOT / "benchmarks" / "catalog.yaml", ())
+    catalog = load_catalog(ROOT / "benchmarks" / "capsule.yaml", ())
     plan, store = build_plan(catalog), Store(catalog.root)
     if args.figure:
         figure(plan, store, args.figure, args.sequence)

@@ -15,6 +15,10 @@ from mocapflow.cli.demo import DEFAULT_MOTIONS, DemoOptions, run_demo
 from mocapflow.cli.scaffold import scaffold
 from mocapflow.formats.calibration import read_calibration, write_calibration
 from mocapflow.pipeline.catalog import load_catalog
+from mocapflow.pipeline.compare import compare_plan
+from mocapflow.pipeline.compare import headline as compare_headline
+from mocapflow.pipeline.compare import table as compare_table
+from mocapflow.pipeline.compare_page import write_compare_page
 from mocapflow.pipeline.errors import MocapflowError, PlanError
 from mocapflow.pipeline.evaluate import evaluate as run_evaluation
 from mocapflow.pipeline.evaluate import evaluation_plan, headline, table
@@ -482,6 +486,33 @@ def evaluate(catalog_path, overrides, sequences, workers, threads, as_json):
     click.echo(table(result))
     if as_json:
         click.echo(json.dumps(headline(result)))
+
+
+@main.command()
+@catalog_option
+@set_option
+@sequences_option
+@workers_option
+@threads_option
+@click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False),
+              help="also write the comparison page (compare.html and its figures) in this folder")
+@click.option("--json", "as_json", is_flag=True, help="print the figures as one JSON object, the last line of stdout")
+def compare(catalog_path, overrides, sequences, workers, threads, out_dir, as_json):
+    """Every system that filmed the catalog's joint take, scored on the same truth frames: MPJPE per frame and per
+    body part, surface error, completeness, compute seconds per captured second, what each needs (computes missing
+    partitions first)."""
+    catalog = load_catalog(catalog_path, overrides)
+    store = Store(catalog.root)
+    plan = build_plan(catalog, sequences)
+    compute_missing(plan.items.values(), store, workers=workers, processes=not threads, what="cannot compare",
+                    report=_stage_lines())
+    result = compare_plan(catalog, plan, store)
+    click.echo(compare_table(result))
+    if out_dir is not None:
+        for path in write_compare_page(Path(out_dir), result, title=f"mocapflow compare: {catalog_path}"):
+            click.echo(f"wrote {path}")
+    if as_json:
+        click.echo(json.dumps(compare_headline(result)))
 
 
 @main.command()

@@ -1,5 +1,5 @@
 """Figures of the 2D reflector estimation on the held-out split (run `mocapflow evaluate --catalog
-benchmarks/catalog.yaml` first, so the artifacts exist):
+benchmarks/capsule.yaml` first, so the artifacts exist):
 
 - docs/stages/reflectors2d.png: accepted estimates (coloured, labelled) and ground truth (white rings)
   on I_CD of the three views, with the summed confidence maps of each view below;
@@ -30,7 +30,7 @@ def _open(store, plan, stage, pid, schema):
 
 
 def overlay(sequence: str, frame: int) -> np.ndarray:
-    catalog = load_catalog(ROOT / "benchmarks" / "catalog.yaml", ())
+    catalog = load_catalog(ROOT / "benchmarks" / "capsule.yaml", ())
     plan, store = build_plan(catalog, sequence), Store(catalog.root)
     raw = _open(store, plan, "frames", f"frames/{sequence}", "raw_sequence")
     columns = []

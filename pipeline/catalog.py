@@ -20,7 +20,8 @@ from mocapflow.pipeline import registry
 from mocapflow.pipeline.errors import CatalogError
 from mocapflow.schemas import ArtifactSchema, UnknownSchema, get_schema
 
-TOP_KEYS = ("data_roots", "plugins", "storage", "datasets", "stages", "evaluation")
+TOP_KEYS = ("data_roots", "plugins", "storage", "datasets", "joint_take", "stages", "evaluation")
+JOINT_TAKE_KEYS = ("datasets", "defaults", "sequences")
 STORAGE_KEYS = ("root", "region_frames", "max_partition_bytes")
 
 # Limits at the door, checked before anything is built from the catalog. A catalog is a few kilobytes of hand-written
@@ -78,6 +79,19 @@ class StageConfig:
 
 
 @dataclass(frozen=True)
+class JointTake:
+    """One performance filmed by several datasets at once (``joint_take:``): every take (a studio sequence: subject,
+    motion, seed) is a sequence of each dataset, ``<take>.<dataset>``, made from the same posed mesh; each dataset
+    films it its own way (its kind, its ``defaults``) and its own stages run on it."""
+
+    datasets: tuple[str, ...]
+    takes: tuple[str, ...]
+
+    def sequence(self, take: str, dataset: str) -> str:
+        return f"{take}.{dataset}"
+
+
+@dataclass(frozen=True)
 class Catalog:
     path: Path
     root: str
@@ -87,6 +101,7 @@ class Catalog:
     stages: Mapping[str, StageConfig]  # in topological order
     evaluation: Mapping[str, Any] = field(default_factory=dict)
     max_partition_bytes: int = DEFAULT_MAX_PARTITION_BYTES
+    joint_take: JointTake | None = None
 
     def ancestors(self, stage: str) -> list[str]:
         """``stage`` and everything it depends on, in topological order."""
@@ -240,10 +255,49 @@ class _Validator:
         if not isinstance(roots, list):
             raise CatalogError(f"{self.where('data_roots')}: expected a list of folders, got {roots!r}")
         data_roots = tuple((self.path.parent / os.path.expanduser(str(r))).resolve() for r in roots)
-        datasets = self.datasets(self.mapping(data.get("datasets"), "datasets"))
+        raw_datasets = self.mapping(data.get("datasets"), "datasets")
+        joint = None
+        if data.get("joint_take") is not None:
+            raw_datasets, joint = self.joint_take(self.mapping(data["joint_take"], "joint_take"), raw_datasets)
+        datasets = self.datasets(raw_datasets)
         stages = self.stages(self.mapping(data.get("stages"), "stages"), datasets, region)
         evaluation = self.mapping(data.get("evaluation"), "evaluation")
-        return Catalog(self.path, root, data_roots, plugins, datasets, stages, evaluation, ceiling)
+        return Catalog(self.path, root, data_roots, plugins, datasets, stages, evaluation, ceiling, joint)
+
+    def joint_take(self, raw: dict, datasets: dict) -> tuple[dict, JointTake]:
+        """The datasets with the joint take's sequences given to each it names (``<take>.<dataset>``; the joint
+        ``defaults`` under each dataset's own), and the JointTake."""
+        self.known_keys(raw, JOINT_TAKE_KEYS, "joint_take")
+        names = raw.get("datasets")
+        if not isinstance(names, list) or not names:
+            raise CatalogError(f"{self.where('joint_take', 'datasets')}: expected a list of the datasets that film the "
+                               f"joint take (one per system), e.g. [dmc, uuo, suit]; got {names!r}")
+        takes = self.mapping(raw.get("sequences"), "joint_take", "sequences")
+        if not takes:
+            raise CatalogError(f"{self.where('joint_take')}: a joint take needs 'sequences: {{id: {{motion: ..., "
+                               "seed: ...}}}}', the performances every dataset films")
+        kinds = registry.dataset_kinds()
+        out = dict(datasets)
+        for name in names:
+            if name not in datasets:
+                raise CatalogError(f"{self.where('joint_take', 'datasets')}: no dataset {name!r}"
+                                   f"{registry.did_you_mean(str(name), datasets)}; declare it under datasets:")
+            body = dict(self.mapping(datasets[name], "datasets", name))
+            options = getattr(kinds.get(body.get("kind")), "options", None) or ()
+            if "sequences" not in options or "defaults" not in options:
+                raise CatalogError(f"{self.where('datasets', name, 'kind')}: a {body.get('kind')!r} dataset cannot "
+                                   "film a joint take (it takes no sequences and defaults); use a studio kind")
+            if body.get("sequences"):
+                raise CatalogError(f"{self.where('datasets', name, 'sequences')}: dataset {name!r} films the joint "
+                                   "take; its sequences are the joint take's, so leave its own out")
+            body["defaults"] = {**self.mapping(raw.get("defaults"), "joint_take", "defaults"),
+                                **self.mapping(body.get("defaults"), "datasets", name, "defaults")}
+            body["sequences"] = {f"{take}.{name}": copy.deepcopy(fields) for take, fields in takes.items()}
+            for key, line in list(self.lines.items()):  # errors in a take's fields name the joint take's line
+                if key[:2] == ("joint_take", "sequences") and len(key) > 2:
+                    self.lines[("datasets", name, "sequences", f"{key[2]}.{name}", *key[3:])] = line
+            out[name] = body
+        return out, JointTake(tuple(str(n) for n in names), tuple(str(t) for t in takes))
 
     def storage_root(self, root: str) -> str:
         """The storage root: a local folder (resolved against the catalog; not a file) or a URL of a filesystem

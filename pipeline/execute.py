@@ -24,15 +24,16 @@ from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from typing import Iterator
 
-import numpy as np
 import xarray as xr
 
 from mocapflow.pipeline import registry
+from mocapflow.pipeline.checkpoints import Checkpoint
 from mocapflow.pipeline.datasets import read_frames
 from mocapflow.pipeline.errors import InputWarning, MocapflowError, StorageError
 from mocapflow.pipeline.locks import no_space
 from mocapflow.pipeline.models import load_weights
 from mocapflow.pipeline.plan import WorkItem, now
+from mocapflow.pipeline.samples import samples_input, select_variables
 from mocapflow.pipeline.storage import Store
 from mocapflow.tasks.shared.cache import BoundedCache
 
@@ -163,11 +164,13 @@ def _unit_member(item: WorkItem, unit: Unit, store: Store, loader: "_UnitInputs"
     def produce(started: float) -> tuple[int, bool]:
         written = 0
         if not store.resume_region(stage, key, unit.start, unit.stop):
+            cpu = time.process_time()
             if unit.first or not store.pending_lineage(stage, key):
                 store.begin(stage, key, item.lineage(started=now(), host=socket.gethostname()))
             out = _compute_region(item, store, unit.start, unit.stop, load=loader.for_member(item))
             store.write_region(stage, key, item.stage.schema, out, item.sequence.n_frames, unit.start,
-                               unit.stop, seconds=time.perf_counter() - started)
+                               unit.stop, seconds=time.perf_counter() - started,
+                               cpu_seconds=time.process_time() - cpu)
             loader.keep(item, out)
             written = 1
         if unit.last and not _commit_if_whole(item, store):
@@ -238,20 +241,20 @@ class _UnitInputs:
             if source not in self.loaded:
                 names, a, b = self.wanted[source]
                 self.loaded[source] = _load_input(self.store, up, view, a, b, names, partial=True)
-            ds = _select(self.loaded[source], variables, up)
+            ds = select_variables(self.loaded[source], variables, up)
             return ds.sel(frame=slice(lo, hi - 1)) if "frame" in ds.dims else ds
 
         return load
 
     def _from_memory(self, up, view, lo: int, hi: int, variables) -> xr.Dataset:
-        ds = _select(self.memory[up.stage], variables, up)
+        ds = select_variables(self.memory[up.stage], variables, up)
         assert hi <= self.unit.stop, (up.stage, hi, self.unit.stop)  # groups hold no look-ahead halo
         if lo >= self.unit.start:
             return ds.sel(frame=slice(lo, hi - 1))
         tail = self.tails.get(up.stage)
         if tail is not None and tail["frame"].size and int(tail["frame"][0]) <= lo and \
                 int(tail["frame"][-1]) == self.unit.start - 1:
-            earlier = _select(tail, variables, up)
+            earlier = select_variables(tail, variables, up)
             earlier = earlier.sel(frame=slice(lo, self.unit.start - 1))
         else:
             earlier = _load_input(self.store, up, view, lo, self.unit.start, variables, partial=True)
@@ -274,10 +277,10 @@ def _produce(item: WorkItem, store: Store) -> int:
     for start, stop in spans(item):
         if store.resume_region(stage, key, start, stop):
             continue
-        t0 = time.perf_counter()
+        t0, cpu = time.perf_counter(), time.process_time()
         out = _compute_region(item, store, start, stop)
         store.write_region(stage, key, schema, out, item.sequence.n_frames, start, stop,
-                           seconds=time.perf_counter() - t0)
+                           seconds=time.perf_counter() - t0, cpu_seconds=time.process_time() - cpu)
         written += 1
         log.debug("%s: frames %d-%d written", item.partition.id, start, stop)
     if not _commit_if_whole(item, store):
@@ -301,7 +304,8 @@ def _compute_region(item: WorkItem, store: Store, start: int, stop: int, load=No
     if spec.source:
         return read_frames(item.dataset, item.sequence, start, stop)
     if spec.partition == "dataset":
-        inputs = {role: _load_samples(store, up, spec.reads.get(role)) for role, up in item.upstream.items()}
+        inputs = {role: samples_input(store, up, spec.reads.get(role), spec.streams.get(role, ()))
+                  for role, up in item.upstream.items()}
     else:
         lo = max(0, start - spec.halo[0])
         hi = min(item.sequence.n_frames, stop + spec.halo[1])
@@ -310,6 +314,8 @@ def _compute_region(item: WorkItem, store: Store, start: int, stop: int, load=No
                 return _load_input(store, up, item.partition.view, lo, hi, variables)
         inputs = {role: load(up, lo, hi, spec.reads.get(role)) for role, up in item.upstream.items()}
     weights = {name: load_weights(path, sha) for name, (path, sha) in item.weights.items()}  # cached per worker
+    if spec.checkpoints:
+        weights["checkpoint"] = Checkpoint(store, item.partition.stage, item.key)
     with every_core() if spec.partition == "dataset" else nullcontext():
         out = spec.fn(**inputs, config=item.stage.params, **weights)
     if not isinstance(out, xr.Dataset):
@@ -338,50 +344,6 @@ def every_core() -> Iterator[None]:
         cv2.setNumThreads(before[1])
 
 
-def _select(ds: xr.Dataset, variables, up) -> xr.Dataset:
-    """``ds`` with only ``variables`` (None: all), less those that ``up``'s schema marks optional and ``ds`` lacks."""
-    if variables is None:
-        return ds
-    optional = {name for name, spec in up.schema.variables.items() if not spec.required}
-    return ds[[v for v in variables if v in ds.variables or v not in optional]]
-
-
-def _load_samples(store: Store, up, variables=None) -> xr.Dataset:
-    """A per-dataset stage's input: every (sequence, view, frame) of the upstream as one ``sample`` dim.
-
-    Each sample carries ``sequence``, ``view`` and ``frame`` coordinates; variables without a frame
-    dimension (calibration, say) are left out, since samples of different sequences cannot share them.
-    The samples are read one partition at a time into arrays sized for all of them, so reading takes the
-    memory of the result plus one partition (a training set can be many GB; concatenating loaded parts
-    would take twice that).
-    """
-    parts = []  # (sequence, the partition's artifact, lazily opened)
-    for sequence, keys in up.by_sequence.items():
-        for key in keys.values():
-            ds = _select(store.open(up.stage, key, up.schema), variables, up)
-            parts.append((sequence, ds.drop_vars([n for n, v in ds.data_vars.items() if "frame" not in v.dims])))
-    sizes = [int(np.prod([ds.sizes[d] for d in ("view", "frame") if d in ds.dims])) for _, ds in parts]
-    ends = np.cumsum(sizes)
-    columns, first = {}, None
-    for (sequence, ds), end, size in zip(parts, ends, sizes):
-        # loaded before stacking: stacking the lazily indexed zarr arrays reads them point by point (15x slower)
-        stacked = ds.load().stack(sample=[d for d in ("view", "frame") if d in ds.dims]).transpose("sample", ...)
-        stacked = stacked.reset_index("sample").assign_coords(sequence=("sample", np.full(size, sequence, dtype=object)))
-        if first is None:
-            first = stacked
-            columns = {name: np.empty((int(ends[-1]), *v.shape[1:]), v.dtype)  # (sample, ...) for all the parts
-                       for name, v in stacked.variables.items() if v.dims[:1] == ("sample",)}
-        for name, column in columns.items():
-            column[end - size:end] = stacked.variables[name].values
-    if first is None:
-        raise StorageError(f"stage {up.stage!r} has no partition to read samples from; run it first")
-    sample = {name: (first.variables[name].dims, column, first.variables[name].attrs) for name, column in columns.items()}
-    return xr.Dataset({name: sample[name] for name in first.data_vars},
-                      coords={**{name: first.coords[name] for name in first.coords if name not in sample},
-                              **{name: sample[name] for name in first.coords if name in sample}},
-                      attrs=first.attrs)
-
-
 def _load_input(store: Store, up, view: str | None, lo: int, hi: int, variables=None,
                 partial: bool = False) -> xr.Dataset:
     """Upstream artifact for this partition's view(s) and frames [lo, hi) (only ``variables``), in memory.
@@ -389,7 +351,7 @@ def _load_input(store: Store, up, view: str | None, lo: int, hi: int, variables=
     parts = []
     for key in up.keys.values():
         ds = store.open(up.stage, key, up.schema, partial=partial)
-        ds = _select(ds, variables, up)
+        ds = select_variables(ds, variables, up)
         if up.partition == "sequence" and view is not None and "view" in ds.dims:  # a slice: zarr reads it 3x faster
             at = [str(v) for v in ds["view"].values].index(str(view))
             ds = ds.isel(view=slice(at, at + 1))

@@ -46,6 +46,12 @@ class TaskSpec:
     ``reads`` names the variables a role needs (all when absent), so large unused arrays such as
     ground truth are never loaded. Parameters whose field carries ``metadata={"runtime": True}`` (how a
     task runs, not what it computes: a batch size, a device, worker processes) stay out of cache keys.
+
+    A per-dataset task (a training) may declare ``streams`` (role -> its large variables): that input then
+    arrives as ``tasks.shared.samples.Samples``, the large variables read one sample at a time, so the set need
+    not fit in memory. With ``checkpoints`` it also takes ``checkpoint`` (``load() -> dict | None``,
+    ``save(dict)``): state it saves survives a killed run, and the next run of the same partition (same cache
+    key) gets it back; the engine drops it once the partition is committed.
     """
 
     name: str
@@ -60,6 +66,8 @@ class TaskSpec:
     reads: Mapping[str, tuple[str, ...]] = field(default_factory=dict)  # role -> the variables it needs
     weights_params: tuple[str, ...] = ()
     packaged_weights: Mapping[str, str] = field(default_factory=dict)  # param -> file in mocapflow.models, when empty
+    streams: Mapping[str, tuple[str, ...]] = field(default_factory=dict)  # role -> variables read per sample
+    checkpoints: bool = False  # the task takes ``checkpoint`` (per-dataset tasks only)
     source: bool = False
     description: str = ""
 
@@ -158,6 +166,33 @@ class ReportSection:
 
 
 @dataclass(frozen=True)
+class Capture:
+    """One system's capture of one sequence, as `mocapflow compare` scores it: the 20 template joints
+    (tasks/shared/body.py JOINT_NAMES order) per frame, the studio's truth of the same frames, and the surface where
+    the system gives one. Frames are the sequence's own; ``fps`` puts them on the take's clock (frame / fps)."""
+
+    stage: str  # the stage whose output is compared
+    fps: float
+    joints: Any  # (frame, 20, 3) m, NaN where the system gives none
+    truth: Any  # (frame, 20, 3) m, the studio's
+    surface_error_mm: Any = None  # (frame,) median distance of the surface given from the true skin, or None
+    surface: Any = None  # (frame, point, 3) m, a few points of the surface for the 3D view, or None
+    needs: Mapping[str, str] = field(default_factory=dict)  # what the capture needs: cameras, markers, a prior
+
+
+@dataclass(frozen=True)
+class Comparer:
+    """How `mocapflow compare` reads one system. ``stage(catalog, stages)``: of a dataset's stages (topological
+    order), the one whose output it compares, or None; ``capture(catalog, plan, store, stage, sequence)`` ->
+    :class:`Capture`; ``requirements``: a line on what the system needs, whatever the take."""
+
+    system: str
+    stage: Callable[[Any, list], str | None]
+    capture: Callable[..., Capture]
+    requirements: str = ""
+
+
+@dataclass(frozen=True)
 class System:
     """Everything one capture system (or source of data) adds to the engine, declared in one place."""
 
@@ -170,6 +205,7 @@ class System:
     exporters: tuple[Exporter, ...] = ()
     report: tuple[ReportSection, ...] = ()
     weights: Mapping[str, Callable[[Any], dict]] = field(default_factory=dict)  # schema -> tensors of its artifact
+    compare: Comparer | None = None  # how `mocapflow compare` reads its captures
 
 
 _REGISTRY: dict[str, TaskSpec] = {}
@@ -186,6 +222,10 @@ def register(spec: TaskSpec) -> TaskSpec:
     if not spec.params.__dataclass_params__.frozen:
         raise CatalogError(f"task {spec.name!r}: params {spec.params.__name__} must be frozen "
                            "(@dataclass(frozen=True)): a stage's config never changes under a worker")
+    if (spec.streams or spec.checkpoints) and spec.partition != "dataset":
+        raise CatalogError(f"task {spec.name!r} is partitioned per {spec.partition!r} but declares "
+                           f"{'streams' if spec.streams else 'checkpoints'}, which only a per-dataset task (a training) "
+                           "may; drop them or partition it per dataset")
     roles = task_parameters(spec)
     if isinstance(spec.fn, Lazy):
         spec = dataclasses.replace(spec, fn=dataclasses.replace(spec.fn, roles=roles))
@@ -196,8 +236,9 @@ def register(spec: TaskSpec) -> TaskSpec:
 
 
 def task_parameters(spec: TaskSpec) -> tuple[str, ...]:
-    """The parameters a task's function takes, in order: its input roles, ``config``, its weight parameters."""
-    return (*spec.inputs, "config", *spec.weights_params)
+    """The parameters a task's function takes, in order: its input roles, ``config``, its weight parameters,
+    ``checkpoint`` where it keeps one."""
+    return (*spec.inputs, "config", *spec.weights_params, *(("checkpoint",) if spec.checkpoints else ()))
 
 
 def check_signature(what: str, fn: Callable[..., Any], roles: tuple[str, ...]) -> None:
@@ -279,6 +320,11 @@ def evaluators() -> list[Evaluator]:
 def exporters(fmt: str | None = None) -> list[Exporter]:
     """The registered exporters (of one --format), in system order."""
     return [e for s in systems() for e in s.exporters if fmt is None or e.format == fmt]
+
+
+def comparers() -> list[Comparer]:
+    """The systems' compare hooks, in system order."""
+    return [s.compare for s in systems() if s.compare is not None]
 
 
 def report_sections() -> list[ReportSection]:

@@ -218,10 +218,11 @@ class Store:
         self._put(self._marker(stage, key, "lineage.json"), json.dumps(lineage, indent=1).encode())
 
     def write_region(self, stage: str, key: str, schema: ArtifactSchema, ds: xr.Dataset,
-                     n_frames: int, start: int, stop: int, seconds: float = 0.0) -> None:
+                     n_frames: int, start: int, stop: int, seconds: float = 0.0,
+                     cpu_seconds: float | None = None) -> None:
         """Write frames [start, stop) of ``ds`` (validated), initializing the store on first use; the region's
-        marker records the ``seconds`` it took and the digest of every chunk written (``_init``'s, those of the
-        template)."""
+        marker records the ``seconds`` it took, the worker process's ``cpu_seconds`` meanwhile (where measured)
+        and the digest of every chunk written (``_init``'s, those of the template)."""
         check(schema, ds, f"output of stage {stage!r} frames {start}-{stop}")
         frames = ds["frame"].values if "frame" in ds.coords else None
         if frames is not None and not np.array_equal(frames, np.arange(start, stop)):
@@ -242,6 +243,8 @@ class Store:
         else:
             write_zarr_region(target, ds, start, stop, digests=digests)
         marker = {"seconds": round(seconds, 6), "chunks": digests}
+        if cpu_seconds is not None:
+            marker["cpu_seconds"] = round(cpu_seconds, 6)
         self._put(self._marker(stage, key, f"_regions/{start:08d}-{stop:08d}"), json.dumps(marker).encode())
 
     def region_seconds(self, stage: str, key: str) -> float:
@@ -250,6 +253,14 @@ class Store:
         for path in self.fs.glob(self._marker(stage, key, "_regions/*")):
             total += _region_record(self.fs.cat_file(path)).get("seconds", 0.0)
         return total
+
+    def region_cpu_seconds(self, stage: str, key: str) -> float | None:
+        """The worker's CPU seconds recorded by the written regions of a version; None where a region has none
+        (written before they were recorded)."""
+        records = [_region_record(self.fs.cat_file(p)) for p in self.fs.glob(self._marker(stage, key, "_regions/*"))]
+        if not records or any("cpu_seconds" not in r for r in records):
+            return None
+        return sum(r["cpu_seconds"] for r in records)
 
     def pending_lineage(self, stage: str, key: str) -> dict:
         """The lineage written by ``begin`` ({} if none)."""
@@ -268,8 +279,27 @@ class Store:
         recorded = {**self._collect_digests(stage, key), "meta": self._metadata_digests(stage, key)}
         self._put(self._marker(stage, key, "digests.json"), json.dumps(recorded).encode())
         self._put(self._marker(stage, key, "_COMPLETE"), str(time.time()).encode())
+        self.drop_checkpoint(stage, key)  # the committed artifact supersedes it
         if self.fs.exists(self._marker(stage, key, "_DAMAGED")):
             self.fs.rm_file(self._marker(stage, key, "_DAMAGED"))
+
+    # ---- a long task's checkpoint ----------------------------------------------------------------
+    def save_checkpoint(self, stage: str, key: str, data: bytes) -> None:
+        """Keep ``data`` as the checkpoint of an uncommitted version (written whole, then moved in place)."""
+        path = self._marker(stage, key, "_checkpoint")
+        self._put(path + ".partial", data)
+        self.fs.mv(path + ".partial", path)
+
+    def checkpoint(self, stage: str, key: str) -> bytes | None:
+        """The checkpoint saved for a version, None if there is none."""
+        try:
+            return self.fs.cat_file(self._marker(stage, key, "_checkpoint"))
+        except FileNotFoundError:
+            return None
+
+    def drop_checkpoint(self, stage: str, key: str) -> None:
+        if self.fs.exists(self._marker(stage, key, "_checkpoint")):
+            self.fs.rm_file(self._marker(stage, key, "_checkpoint"))
 
     # ---- reading -------------------------------------------------------------------------
     def open(self, stage: str, key: str, schema: ArtifactSchema, partial: bool = False) -> xr.Dataset:

@@ -10,7 +10,7 @@ _PER_REFLECTOR = ("view", "frame", "reflector")
 
 FCN_SAMPLES = register_schema(ArtifactSchema(
     name="fcn_samples",
-    version=1,
+    version=2,
     coords=_VIEW_FRAME,
     variables={
         "depth_image": VarSpec(("view", "frame", "y", "x", "rgb"), "uint8", description="I_CD at the sample scale"),
@@ -21,7 +21,7 @@ FCN_SAMPLES = register_schema(ArtifactSchema(
         "gt_pixels": VarSpec(_PER_REFLECTOR, "int32", "px", description="visible pixels of each reflector"),
     },
     required_attrs={"sample_scale": float},
-    frame_chunk=8,
+    frame_chunk=1,  # the training reads one sample (view-frame) at a time: a chunk per frame decodes only it
     description="FCN training samples: both input streams and the ground truth, at the sample scale",
 ))
 

@@ -52,3 +52,61 @@ stages:
   hidden: {task: hide_corners, inputs: [points], params: {share: 0.2, run_frames: [1, 2]}}
   filled: {task: fill_suit, inputs: {points: hidden, images: images}}
 """
+
+# One performance filmed by the three systems (pipeline/catalog.py JointTake): DeepMoCap and UUO at 30 fps, the
+# suit at 10 fps (every third instant shared); the suit's 3D half on truth labels, to keep the test short.
+JOINT_CATALOG = """\
+data_roots: [.]
+storage: {root: storage/, region_frames: 32}
+joint_take:
+  datasets: [dmc, uuo, suit]
+  defaults: {fps: 30.0, frames: 30, start_s: 0.2}
+  sequences:
+    squat: {motion: classic_squat, seed: 21}
+datasets:
+  dmc:
+    kind: studio
+    defaults: {views: 3, noise: 1.0, body: mesh}
+  uuo:
+    kind: studio_markers
+    defaults: {views: 1}
+    markers: {count: 30, ghosts: 1}
+  suit:
+    kind: studio_suit
+    suit: small
+    cameras: {count: 4, width: 384, height: 512}
+    defaults: {fps: 10.0, frames: 10}
+stages:
+  frames: {task: ingest, dataset: dmc}
+  masks: {task: reflector_mask, inputs: [frames]}
+  flow: {task: dis, inputs: [frames]}
+  heatmaps: {task: fcn_heatmaps, inputs: {masks: masks, flow: flow}}
+  reflectors2d: {task: greedy_reflectors, inputs: {heatmaps: heatmaps, masks: masks}}
+  markers3d: {task: fuse_views, inputs: {reflectors: reflectors2d, masks: masks, frames: frames}}
+  smoothed: {task: kalman, inputs: {markers: markers3d}}
+  skeleton: {task: calibrate_skeleton, inputs: {markers: smoothed}}
+  poses: {task: solve_poses, inputs: {skeleton: skeleton, markers: smoothed, views: markers3d}}
+  markers: {task: ingest_markers, dataset: uuo}
+  segments: {task: rigid_segments, inputs: [markers]}
+  prior:
+    task: simulated_prior
+    inputs: [markers]
+    params: {rotation_deg: 0.0, yaw_deg: 0.0, lost: 0.0, phenotype_noise: 0.0, drift_m: 0.0}
+  yaw0:
+    task: solve_hypothesis
+    inputs: [markers, segments, prior]
+    params: &fast
+      yaw_deg: 0.0
+      matching: {frames: 12, iterations: 12}
+      pose_fit: {rounds: 3, iterations: 10}
+      ik: {iterations: 40}
+  yaw180: {task: solve_hypothesis, inputs: [markers, segments, prior], params: {<<: *fast, yaw_deg: 180.0}}
+  solve:
+    task: best_hypothesis
+    inputs: {markers: markers, yaw0: yaw0, yaw90: yaw0, yaw180: yaw180, yaw270: yaw180}
+    params: {ik: {iterations: 40}}
+  images: {task: ingest_suit, dataset: suit}
+  labels: {task: oracle_labels, inputs: [images], params: {noise_px: 0.2, wrong: 0.02}}
+  points: {task: triangulate_corners, inputs: {labels: labels, images: images}}
+  filled: {task: fill_suit, inputs: {points: points, images: images}}
+"""

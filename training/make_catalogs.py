@@ -1,8 +1,9 @@
 """Write the FCN's training and validation catalogs (training/catalog.yaml, training/catalog_athletic.yaml,
-training/validation.yaml, training/validation_athletic.yaml).
+training/validation.yaml, training/validation_athletic.yaml, and on the mesh body training/catalog_mesh.yaml and
+training/validation_mesh.yaml).
 
 Only the studio's procedural motions are used; the real CMU clips are reserved for the held-out
-benchmark (benchmarks/catalog.yaml). The split is by subject and by motion: validation subjects (seeds
+benchmark (benchmarks/capsule.yaml). The split is by subject and by motion: validation subjects (seeds
 500+) and its two exercises never appear in training. Every sequence gets its own random camera
 layout, heading, speed and amplitude. Half of the training sequences also get a random ``variation``
 (posture, heading and drift overlaid on the exercise, tasks/studio/motion.py) so that the network does
@@ -33,6 +34,7 @@ VALIDATION_EXERCISES = ("alternate_side_reaches", "side_step_knee_elbow")
 TRAIN_EXERCISES = tuple(e for e in EXERCISES if e not in VALIDATION_EXERCISES and e not in ATHLETIC)
 ROLL_DEG = 3.0  # a real rig's sensors sit 1-3 degrees off level
 BLOOM_PX = (0, 4)  # saturation round each reflector, whole pixels: 3 gives a real Kinect v2's 100-400 px regions
+MESH_BLOOM_PX = (2, 4)  # on the mesh body: 46-311 px regions with 2, 134-524 px with 4 (docs/studio.md)
 HERE = Path(__file__).parent
 
 
@@ -60,13 +62,13 @@ HEADER = """# {title}
 data_roots: [.]
 
 storage:
-  root: ../storage/training
+  root: ../storage/{root}
   region_frames: 16
 
 datasets:
   {name}:
     kind: studio
-    defaults: {{frames: {frames}, fps: 30.0, views: 3, noise: 1.0, random_layout: true}}
+    defaults: {{frames: {frames}, fps: 30.0, views: 3, noise: 1.0, random_layout: true{extra}}}
     sequences:
 """
 
@@ -104,7 +106,7 @@ def main() -> None:
     shipped = "\n".join(sequences(TRAIN_EXERCISES, 64, 100, rng)) + "\n"
     varied = np.random.default_rng(2026)  # its own stream: the sequences above and validation stay as they were
     shipped += "\n".join(sequences(TRAIN_EXERCISES, 64, 164, varied, variation=(0.5, 1.0))) + "\n"
-    train = HEADER.format(title="Training set of the two-stream FCN", name="train", frames=32,
+    train = HEADER.format(root="training", extra="", title="Training set of the two-stream FCN", name="train", frames=32,
                           usage="mocapflow train   (writes models/deepmocap_fcn.pt)")
     (HERE / "catalog.yaml").write_text(train + shipped + STAGES.format(name="train") + TRAIN_STAGES)
     athletic = np.random.default_rng(2036)  # their own streams: the groups above stay as they were
@@ -116,10 +118,11 @@ def main() -> None:
     title = ("Training set of the next two-stream FCN: the shipped set, the athletic motions, rolled rings and\n"
              "# reflector regions the size of a real Kinect v2's\n"
              "# (the shipped weights were trained on training/catalog.yaml)")
-    train = HEADER.format(title=title, name="train", frames=32,
+    train = HEADER.format(root="training", extra="", title=title, name="train", frames=32,
                           usage="mocapflow train --catalog training/catalog_athletic.yaml --out FILE")
     (HERE / "catalog_athletic.yaml").write_text(train + shipped + broad + STAGES.format(name="train") + TRAIN_STAGES)
-    validation = HEADER.format(title="Validation set of the two-stream FCN (c_min sweep, Fig. 12)", name="validation",
+    validation = HEADER.format(root="training", extra="", title="Validation set of the two-stream FCN (c_min sweep, Fig. 12)",
+                               name="validation",
                                frames=40, usage="mocapflow evaluate --catalog training/validation.yaml")
     validation += "\n".join(sequences(VALIDATION_EXERCISES, 6, 500, rng)) + "\n"
     varied_validation = np.random.default_rng(2027)  # its own stream: the six sequences above stay as they were
@@ -128,11 +131,39 @@ def main() -> None:
     (HERE / "validation.yaml").write_text(validation)
     title = ("Validation set of the next two-stream FCN: the athletic motions, rolled rings and real-sized\n"
              "# reflector regions, performed by validation subjects")
-    beyond = HEADER.format(title=title, name="validation", frames=40,
+    beyond = HEADER.format(root="training", extra="", title=title, name="validation", frames=40,
                            usage="mocapflow evaluate --catalog training/validation_athletic.yaml")
     beyond += "\n".join(sequences(tuple(ATHLETIC), 7, 520, np.random.default_rng(2047), speed=(0.8, 1.2),
                                    amplitude=(0.85, 1.05), roll_deg=ROLL_DEG, bloom_px=BLOOM_PX)) + "\n"
     (HERE / "validation_athletic.yaml").write_text(beyond + STAGES.format(name="validation") + VALIDATION_STAGES)
+    mesh_catalogs()
+
+
+def mesh_catalogs() -> None:
+    """The realistic set: the mesh body with its reflectors on the skin, real-sized reflector regions, rolled rings,
+    the exercises (textbook and varied) and the athletic motions; subjects of their own (seeds 1000+, validation
+    540+), so that no subject is shared with the capsule sets or the benchmarks."""
+    mesh = ", body: mesh"
+    rng = np.random.default_rng(2050)
+    both = dict(roll_deg=ROLL_DEG, bloom_px=MESH_BLOOM_PX)
+    lines = (sequences(TRAIN_EXERCISES, 64, 1000, rng, **both)
+             + sequences(TRAIN_EXERCISES, 96, 1064, rng, variation=(0.3, 1.0), **both)
+             + sequences(tuple(ATHLETIC), 70, 1160, rng, speed=(0.8, 1.2), amplitude=(0.85, 1.05), **both))
+    title = ("Training set of the two-stream FCN on the mesh body: real-sized reflector regions, rolled rings, the\n"
+             "# exercises and the athletic motions")
+    train = HEADER.format(root="training_mesh", extra=mesh, title=title, name="train", frames=32,
+                          usage="mocapflow train --catalog training/catalog_mesh.yaml --out FILE")
+    (HERE / "catalog_mesh.yaml").write_text(train + "\n".join(lines) + "\n" + STAGES.format(name="train")
+                                            + TRAIN_STAGES)
+    rng = np.random.default_rng(2051)
+    lines = (sequences(VALIDATION_EXERCISES, 8, 540, rng, variation=(0.0, 1.0), **both)
+             + sequences(tuple(ATHLETIC), 7, 548, rng, speed=(0.8, 1.2), amplitude=(0.85, 1.05), **both))
+    title = ("Validation set of the two-stream FCN on the mesh body: the validation exercises and the athletic motions,\n"
+             "# real-sized reflector regions, rolled rings, validation subjects")
+    validation = HEADER.format(root="training_mesh", extra=mesh, title=title, name="validation", frames=40,
+                               usage="mocapflow evaluate --catalog training/validation_mesh.yaml")
+    (HERE / "validation_mesh.yaml").write_text(validation + "\n".join(lines) + "\n" + STAGES.format(name="validation")
+                                               + VALIDATION_STAGES)
 
 
 if __name__ == "__main__":

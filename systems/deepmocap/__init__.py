@@ -8,7 +8,7 @@ section (report.py) and the reader of its trained weights. The kernels are in ta
 
 from mocapflow.pipeline.registry import System
 from mocapflow.schemas import fcn, markers, raw, skeleton, stages
-from mocapflow.systems.deepmocap import evaluate, export, readers, report, tasks
+from mocapflow.systems.deepmocap import compare, evaluate, export, readers, report, tasks
 from mocapflow.tasks.deepmocap.training import weights_from_dataset
 
 SYSTEM = System(
@@ -23,4 +23,5 @@ SYSTEM = System(
     exporters=export.EXPORTERS,
     report=(report.SECTION,),
     weights={"fcn_weights": weights_from_dataset},
+    compare=compare.COMPARER,
 )

@@ -59,7 +59,8 @@ def overlay(ir: np.ndarray, xy: np.ndarray, gt_uv: np.ndarray, names: list[str],
     """IR image with estimated reflectors (filled, labelled; a ``recovered`` one a hollow dot) and the true ones
     (rings).  (y, x), (reflector, 2) x2, (reflector,) bool"""
     ir = ir.astype(np.float64)
-    top = max(float(np.percentile(ir, 99.0)), 1.0)  # the body's IR, not the saturated reflectors, sets the gain
+    unsaturated = ir[ir < 0.5 * ir.max()] if (ir < 0.5 * ir.max()).any() else ir  # not the reflectors' regions
+    top = max(float(np.percentile(unsaturated, 99.0)), 1.0)  # the body's IR sets the gain
     img = cv2.cvtColor(np.clip(ir / top * 255.0, 0, 255).astype(np.uint8), cv2.COLOR_GRAY2BGR)
     for r, name in enumerate(names):
         if np.isfinite(gt_uv[r]).all():
@@ -71,8 +72,8 @@ def overlay(ir: np.ndarray, xy: np.ndarray, gt_uv: np.ndarray, names: list[str],
             cv2.putText(img, name, (p[0] + 4, p[1] - 4), FONT, 0.3, colour(r, len(names)), 1, cv2.LINE_AA)
     cv2.putText(img, title, (8, 20), FONT, 0.55, WHITE, 1, cv2.LINE_AA)
     if img.shape[0] >= 200:  # the legend, where the image has room for it
-        cv2.putText(img, "dot: estimate (hollow: recovered)   ring: ground truth", (8, img.shape[0] - 10), FONT, 0.4,
-                    WHITE, 1, cv2.LINE_AA)
+        legend = "dot: estimate (hollow: recovered)" + ("   ring: ground truth" if np.isfinite(gt_uv).any() else "")
+        cv2.putText(img, legend, (8, img.shape[0] - 10), FONT, 0.4, WHITE, 1, cv2.LINE_AA)
     return img
 
 
@@ -98,20 +99,26 @@ def skeleton_panel(est: np.ndarray, gt: np.ndarray, title: str, size: int = 260)
     return np.hstack(panels)
 
 
-def figures(folder: Path, raw: xr.Dataset, reflectors: xr.Dataset, poses: xr.Dataset, result: dict) -> list[Path]:
-    """Write the report's PNGs for one sequence (``raw``, its 2D reflectors and poses) and the overall figures."""
-    folder.mkdir(parents=True, exist_ok=True)
+def label_views(raw: xr.Dataset, reflectors: xr.Dataset, frame: int) -> np.ndarray:
+    """Every view's image at ``frame`` with the labelled 2D reflectors over it, side by side (the true ones as
+    rings where ``raw`` has them: a recording has none, and its labels are what a user judges)."""
     names = [str(n) for n in reflectors["reflector"].values]
-    frame = int(raw.sizes["frame"] // 2)
     views = []
     for view in raw["view"].values:
         est = reflectors.sel(view=view).isel(frame=frame)
-        gt = raw.sel(view=view).isel(frame=frame)
-        uv = np.where(gt["gt_visible"].values[:, None], gt["gt_reflectors2d"].values, np.nan)
-        views.append(overlay(gt["ir"].values, np.stack([est["x"].values, est["y"].values], 1), uv, names,
+        seen = raw.sel(view=view).isel(frame=frame)
+        uv = (np.where(seen["gt_visible"].values[:, None], seen["gt_reflectors2d"].values, np.nan)
+              if "gt_reflectors2d" in seen else np.full((len(names), 2), np.nan))
+        views.append(overlay(seen["ir"].values, np.stack([est["x"].values, est["y"].values], 1), uv, names,
                              f"{view}, frame {frame}", est["recovered"].values if "recovered" in est else None))
+    return np.hstack(views)
+
+
+def figures(folder: Path, raw: xr.Dataset, reflectors: xr.Dataset, poses: xr.Dataset, result: dict) -> list[Path]:
+    """Write the report's PNGs for one sequence (``raw``, its 2D reflectors and poses) and the overall figures."""
+    folder.mkdir(parents=True, exist_ok=True)
     out = [folder / "reflectors.png", folder / "skeleton.png", folder / "pck.png", folder / "joint_errors.png"]
-    write_png(out[0], np.hstack(views))
+    write_png(out[0], label_views(raw, reflectors, int(raw.sizes["frame"] // 2)))
     picks = np.linspace(0, poses.sizes["frame"] - 1, 4).round().astype(int)
     write_png(out[1], np.vstack([skeleton_panel(poses["position"].values[i], raw["gt_joints"].values[i],
                                                 f"frame {i}") for i in picks]))
@@ -128,15 +135,27 @@ def figures(folder: Path, raw: xr.Dataset, reflectors: xr.Dataset, poses: xr.Dat
 
 def accuracy_figures(folder: Path, catalog, plan, store, result: dict) -> list[Path]:
     """The DeepMoCap figures (2D estimates over IR, skeletons, PCK, per-joint error) of the first sequence, where
-    the catalog has 2D reflectors and poses."""
+    the catalog has 2D reflectors and poses and the data ground truth; without ground truth (a recording), the
+    labels over each view of every sequence's middle frame."""
     stage_2d, poses = stage_writing(catalog, "reflectors2d"), stage_writing(catalog, "poses")
     source = stage_writing(catalog, "raw_sequence")
-    if stage_2d is None or poses is None or source is None or "poses" not in result:
+    if stage_2d is None or source is None:
         return []
-    seq = plan.sequences[0]
-    raw = plan.open(store, source, seq.id)
-    reflectors = xr.concat([plan.open(store, stage_2d, seq.id, v).sel(view=v).load() for v in seq.views], dim="view")
-    return figures(folder, raw, reflectors, plan.open(store, poses, seq.id).load(), result)
+
+    def opened(seq):
+        raw = plan.open(store, source, seq.id)
+        return raw, xr.concat([plan.open(store, stage_2d, seq.id, v).sel(view=v).load() for v in seq.views], "view")
+
+    if poses is not None and "poses" in result:
+        raw, reflectors = opened(plan.sequences[0])
+        return figures(folder, raw, reflectors, plan.open(store, poses, plan.sequences[0].id).load(), result)
+    folder.mkdir(parents=True, exist_ok=True)
+    out = []
+    for seq in plan.sequences:
+        raw, reflectors = opened(seq)
+        out.append(folder / f"labels_{seq.id}.png")
+        write_png(out[-1], label_views(raw, reflectors, int(raw.sizes["frame"] // 2)))
+    return out
 
 
 # The evaluation's JSON keys, named for a reader: (label, scale, unit)

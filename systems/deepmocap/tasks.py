@@ -62,7 +62,9 @@ TASKS = (
     TaskSpec(
         name="train_fcn", fn=training.train_fcn, version="3",
         params=training.TrainConfig, output="fcn_weights", partition="dataset",
-        inputs={"samples": "fcn_samples"}, description="train the two-stream multi-stage FCN (seeded; GPU if present)",
+        inputs={"samples": "fcn_samples"}, streams={"samples": training.IMAGES}, checkpoints=True,
+        description="train the two-stream multi-stage FCN (seeded; GPU if present; images streamed from storage, "
+                    "resumable from its checkpoint)",
     ),
     TaskSpec(
         name="fcn_heatmaps", fn=Lazy("mocapflow.tasks.deepmocap.heatmaps", "fcn_heatmaps"), version="3",

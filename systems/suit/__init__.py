@@ -9,7 +9,7 @@ figures) and the reader of its trained networks. Its takes come from the studio 
 
 from mocapflow.pipeline.registry import System
 from mocapflow.schemas import suit
-from mocapflow.systems.suit import evaluate, export, report, tasks
+from mocapflow.systems.suit import compare, evaluate, export, report, tasks
 from mocapflow.tasks.shared.weights import unpack
 
 SYSTEM = System(
@@ -23,4 +23,5 @@ SYSTEM = System(
     exporters=export.EXPORTERS,
     report=(report.SECTION,),
     weights={"suit_net_weights": unpack},
+    compare=compare.COMPARER,
 )

@@ -8,7 +8,7 @@ Everything the system adds to the engine, declared in one place: its task specs 
 
 from mocapflow.pipeline.registry import System
 from mocapflow.schemas import raw, uuo
-from mocapflow.systems.uuo import evaluate, export, readers, report, tasks
+from mocapflow.systems.uuo import compare, evaluate, export, readers, report, tasks
 
 SYSTEM = System(
     name="uuo",
@@ -19,4 +19,5 @@ SYSTEM = System(
     evaluators=(evaluate.EVALUATOR,),
     exporters=export.EXPORTERS,
     report=(report.SECTION,),
+    compare=compare.COMPARER,
 )

@@ -6,11 +6,14 @@ augmented crops from every sample of a dataset — scale [0.6, 1.1], rotation ±
 left and right reflector labels, shifted crops around the subject (§5.1.1) — builds the targets of
 Eq. 4-6 and minimizes the loss of Eq. 2-3 with Adam, seeded, on a GPU when there is one (the forward
 pass in bfloat16 where the hardware has it; the loss and the weights stay float32). With ``workers``
-> 0, worker processes draw the augmented batches, so a GPU is not left waiting on them.
+> 0, worker processes draw the augmented batches, so a GPU is not left waiting on them. The images are read one
+sample at a time as batches are drawn (tasks/shared/samples.py), so the set need not fit in memory, and the state
+is checkpointed every ``checkpoint_every`` iterations, so a killed training continues where it stopped.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 from dataclasses import asdict, dataclass, field
@@ -21,6 +24,7 @@ import xarray as xr
 
 from mocapflow.tasks.deepmocap import targets
 from mocapflow.tasks.shared.reflectors import REFLECTOR_NAMES
+from mocapflow.tasks.shared.samples import InMemorySamples, Samples
 from mocapflow.tasks.shared.weights import pack, unpack
 
 log = logging.getLogger(__name__)
@@ -89,8 +93,12 @@ class TrainConfig:
     # processes that draw the augmented batches (per_batch_seeds only; 0: the training process): a GPU waits
     # on the crops otherwise (one process draws 300-500 crops/s). Which batches are drawn does not depend on it.
     workers: int = field(default=0, metadata={"runtime": True})
+    # iterations between checkpoints (a killed training continues from the last; the weights are the same)
+    checkpoint_every: int = field(default=200, metadata={"runtime": True})
 
     def __post_init__(self):
+        if self.checkpoint_every < 1:
+            raise ValueError(f"checkpoint_every must be >= 1 iteration, got {self.checkpoint_every}")
         if self.workers < 0:
             raise ValueError(f"workers must be >= 0 (0 = draw batches in the training process), got {self.workers}")
         if self.workers and not self.per_batch_seeds:
@@ -171,8 +179,15 @@ def augmented(sample: dict, rng: np.random.Generator, *, size: int, stride: int,
             targets.flow_fields(uv_prev, uv, visible, grid, config.sigma_r))
 
 
-def train_fcn(samples: xr.Dataset, config: TrainConfig) -> xr.Dataset:
-    """Train the network on ``samples`` (dims sample, y, x, ...); the weights as a flat vector with their layout."""
+IMAGES = ("depth_image", "flow_image")  # a sample's large variables, read one sample at a time (streamed)
+TABLE = ("box", "gt_uv", "gt_uv_prev", "gt_pixels")  # its small ones, in memory for every sample
+
+
+def train_fcn(samples: xr.Dataset | Samples, config: TrainConfig, checkpoint=None) -> xr.Dataset:
+    """Train the network on ``samples`` (dims sample, y, x, ...; a loaded dataset or samples streamed from
+    storage); the weights as a flat vector with their layout. With a ``checkpoint`` (``load() -> dict | None``,
+    ``save(dict)``), the state is saved every ``checkpoint_every`` iterations and a saved state is continued
+    from: the weights are those of an uninterrupted run."""
     import torch
 
     from mocapflow.tasks.deepmocap import fcn
@@ -180,9 +195,11 @@ def train_fcn(samples: xr.Dataset, config: TrainConfig) -> xr.Dataset:
     arch = fcn.FcnArchitecture(input_size=config.input_size, stream_width=config.stream_width,
                                fused_width=config.fused_width, stage_width=config.stage_width, stages=config.stages,
                                flow_stream=config.flow_stream, off_branch=config.off_branch)
-    crop = CropConfig(sample_scale=float(samples.attrs.get("sample_scale", 0.5)), margin=config.margin,
+    if isinstance(samples, xr.Dataset):
+        samples = InMemorySamples(samples, IMAGES)
+    crop = CropConfig(sample_scale=float(samples.table.attrs.get("sample_scale", 0.5)), margin=config.margin,
                       min_side=config.min_side)
-    pool = _sample_pool(samples, config)
+    pool = SamplePool(samples, config)
     torch.manual_seed(config.seed)
     device = "cuda" if torch.cuda.is_available() else "cpu"
     model = fcn.TwoStreamFCN(arch).to(device).train()
@@ -190,48 +207,113 @@ def train_fcn(samples: xr.Dataset, config: TrainConfig) -> xr.Dataset:
     optimizer = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     schedule = torch.optim.lr_scheduler.OneCycleLR(optimizer, max_lr=config.learning_rate,
                                                    total_steps=config.iterations, pct_start=0.1)
-    losses, started = [], time.perf_counter()
-    for iteration, batch in enumerate(_batches(pool, arch, crop, config)):
-        depth, flow, s_target, l_target = (torch.as_tensor(column) for column in batch)
+    run = _Progress.start(checkpoint.load() if checkpoint is not None else None, model, optimizer, schedule, config)
+    stream = Batches(pool, arch, crop, config, start=run.iteration, rng_state=run.rng_state)
+    for batch in stream:  # the batches from run.iteration on
+        depth, flow, s_target, l_target = (torch.as_tensor(column).to(device) for column in batch)  # uint8 images
         with torch.autocast(device, dtype=torch.bfloat16, enabled=mixed):
-            outputs = model(fcn.to_input(depth).to(device), fcn.to_input(flow).to(device) if arch.flow_stream else None)
+            outputs = model(fcn.to_input(depth), fcn.to_input(flow) if arch.flow_stream else None)
         outputs = [(s.float(), None if f is None else f.float()) for s, f in outputs]  # the loss in float32
-        l_target = l_target.reshape(len(depth), -1, *l_target.shape[-2:]).to(device)  # (batch, 52, g, g)
-        s_target = s_target.to(device)
+        l_target = l_target.reshape(len(depth), -1, *l_target.shape[-2:])  # (batch, 52, g, g)
         weight = 1.0 + config.foreground_weight * s_target[:, :fcn.N_REFLECTORS].amax(dim=1, keepdim=True)
         loss = fcn.stage_losses(outputs, s_target, l_target, weight)
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
         schedule.step()
-        losses.append(loss.item())
-        if iteration % 100 == 0 or iteration == config.iterations - 1:
-            log.info("iteration %d/%d: loss %.3f (%.0f s)", iteration, config.iterations,
-                     np.mean(losses[-100:]), time.perf_counter() - started)
-    return weights_dataset(model.cpu(), crop, config, losses, n_samples=len(pool["box"]),
-                           seconds=time.perf_counter() - started, device=device + (" bfloat16" if mixed else ""))
+        run.step(loss.item())
+        if checkpoint is not None and run.iteration % config.checkpoint_every == 0 and run.iteration < config.iterations:
+            checkpoint.save(run.state(model, optimizer, schedule, stream.rng_state()))
+    return weights_dataset(model.cpu(), crop, config, run.losses, n_samples=len(pool),
+                           seconds=run.seconds(), device=device + (" bfloat16" if mixed else ""))
 
 
-def _batch(pool: dict, rng: np.random.Generator, *, arch, crop: CropConfig, config: TrainConfig):
+class _Progress:
+    """Where a training stands: the next iteration, the losses so far, the seconds of this run and the earlier
+    ones; logs its progress and makes the state a checkpoint keeps."""
+
+    def __init__(self, iteration: int, losses: list[float], earlier_s: float, rng_state: str, total: int):
+        self.iteration, self.losses, self.earlier_s, self.rng_state, self.total = (iteration, losses, earlier_s,
+                                                                                   rng_state, total)
+        self.started = time.perf_counter()
+        self.resumed_at = iteration
+
+    @classmethod
+    def start(cls, state: dict | None, model, optimizer, schedule, config: TrainConfig) -> "_Progress":
+        """A fresh run, or the one ``state`` saved (its model, optimizer and schedule restored)."""
+        if state is None:
+            return cls(0, [], 0.0, "", config.iterations)
+        if int(state["iterations"]) != config.iterations:  # a cache key covers it; a stale file would be a bug
+            raise ValueError(f"checkpoint of a {int(state['iterations'])}-iteration training, this one has "
+                             f"{config.iterations}; delete the checkpoint")
+        model.load_state_dict(state["model"])
+        optimizer.load_state_dict(state["optimizer"])
+        schedule.load_state_dict(state["schedule"])
+        run = cls(int(state["iteration"]), [float(x) for x in state["losses"]], float(state["seconds"]),
+                  str(state["rng"]), config.iterations)
+        log.info("resuming the training at iteration %d/%d (%.0f s trained before)", run.iteration, run.total,
+                 run.earlier_s)
+        return run
+
+    def step(self, loss: float) -> None:
+        self.losses.append(loss)
+        done, self.iteration = self.iteration, self.iteration + 1
+        if done % 100 == 0 or self.iteration == self.total:
+            rate = (self.iteration - self.resumed_at) / max(time.perf_counter() - self.started, 1e-9)
+            log.info("iteration %d/%d: loss %.3f (%.0f s, %.2f it/s, %.0f s to go)", done, self.total,
+                     np.mean(self.losses[-100:]), self.seconds(), rate, (self.total - self.iteration) / rate)
+
+    def seconds(self) -> float:
+        return self.earlier_s + time.perf_counter() - self.started
+
+    def state(self, model, optimizer, schedule, rng_state: str) -> dict:
+        import torch
+
+        return {"iteration": self.iteration, "iterations": self.total, "model": model.state_dict(),
+                "optimizer": optimizer.state_dict(), "schedule": schedule.state_dict(),
+                "losses": torch.tensor(self.losses, dtype=torch.float64), "seconds": self.seconds(), "rng": rng_state}
+
+
+class SamplePool:
+    """The samples a training draws from: every ``frame_step``-th frame of each view with at least one reflector
+    seen; their small variables in memory, their images read when drawn."""
+
+    def __init__(self, samples: Samples, config: TrainConfig):
+        table = samples.table
+        keep = (table["frame"].values % config.frame_step == 0) & (table["gt_pixels"].values >= config.min_pixels).any(-1)
+        if not keep.any():
+            raise ValueError("no training sample sees a reflector; check the training dataset")
+        self.index = np.nonzero(keep)[0]
+        self.small = {k: table[k].values[self.index] for k in TABLE}
+        self.samples = samples
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def __getitem__(self, i: int) -> dict:
+        return {**{k: v[i] for k, v in self.small.items()}, **self.samples.read(int(self.index[i]), IMAGES)}
+
+
+def _batch(pool: SamplePool, rng: np.random.Generator, *, arch, crop: CropConfig, config: TrainConfig):
     """One iteration's augmented crops, stacked: depth and flow (batch, size, size, 3) uint8,
     S* (batch, 27, g, g) and L* (batch, 26, 2, g, g) float32."""
-    crops = [augmented({k: v[i] for k, v in pool.items()}, rng, size=arch.input_size, stride=arch.stride, crop=crop,
-                       config=config) for i in rng.integers(0, len(pool["box"]), config.batch)]
+    crops = [augmented(pool[int(i)], rng, size=arch.input_size, stride=arch.stride, crop=crop, config=config)
+             for i in rng.integers(0, len(pool), config.batch)]
     return tuple(np.stack(column) for column in zip(*crops))
 
 
-class _SeededBatches:
-    """Batch ``i`` drawn from its own generator seeded ``(seed, i)``, so any worker process draws it alike
-    (a map-style dataset of ``iterations`` batches for torch's DataLoader)."""
+class SeededBatches:
+    """Batch ``start + i`` drawn from its own generator seeded ``(seed, start + i)``, so any worker process draws it
+    alike (a map-style dataset of the batches from ``start`` on, for torch's DataLoader)."""
 
-    def __init__(self, pool: dict, arch, crop: CropConfig, config: TrainConfig):
-        self.pool, self.arch, self.crop, self.config = pool, arch, crop, config
+    def __init__(self, pool: SamplePool, arch, crop: CropConfig, config: TrainConfig, start: int = 0):
+        self.pool, self.arch, self.crop, self.config, self.start = pool, arch, crop, config, start
 
     def __len__(self) -> int:
-        return self.config.iterations
+        return self.config.iterations - self.start
 
     def __getitem__(self, i: int):
-        rng = np.random.default_rng([self.config.seed, i])
+        rng = np.random.default_rng([self.config.seed, self.start + i])
         return _batch(self.pool, rng, arch=self.arch, crop=self.crop, config=self.config)
 
 
@@ -243,30 +325,44 @@ def _one_thread(_worker: int) -> None:
     torch.set_num_threads(1)
 
 
-def _batches(pool: dict, arch, crop: CropConfig, config: TrainConfig):
-    """The training batches in order: one seeded stream, or per-batch seeds drawn here or in ``workers`` processes."""
-    if not config.per_batch_seeds:
-        rng = np.random.default_rng(config.seed)
-        for _ in range(config.iterations):
-            yield _batch(pool, rng, arch=arch, crop=crop, config=config)
-        return
-    if not config.workers:
-        batches = _SeededBatches(pool, arch, crop, config)
-        yield from (batches[i] for i in range(len(batches)))
-        return
-    from torch.utils.data import DataLoader
+class Batches:
+    """The training batches in order from iteration ``start``: one seeded stream (its generator's state at
+    ``start`` given as ``rng_state``, JSON), or per-batch seeds drawn here or in ``workers`` processes."""
 
-    # fork: the workers share the sample pool (up to a few GB) instead of each unpickling a copy. cv2's
-    # thread pool does not survive a fork (a worker's first warp would wait on it forever), so cv2 stays
-    # on one thread in this process while the workers run.
-    threads = cv2.getNumThreads()
-    cv2.setNumThreads(1)
-    try:
-        yield from DataLoader(_SeededBatches(pool, arch, crop, config), batch_size=None, shuffle=False,
-                              num_workers=config.workers, prefetch_factor=4, worker_init_fn=_one_thread,
-                              multiprocessing_context="fork")
-    finally:
-        cv2.setNumThreads(threads)
+    def __init__(self, pool: SamplePool, arch, crop: CropConfig, config: TrainConfig, start: int = 0,
+                 rng_state: str = ""):
+        self.pool, self.arch, self.crop, self.config, self.start = pool, arch, crop, config, start
+        self.rng = np.random.default_rng(config.seed)
+        if rng_state:
+            self.rng.bit_generator.state = json.loads(rng_state)
+        elif start and not config.per_batch_seeds:
+            raise ValueError(f"resuming one seeded stream at batch {start} needs its generator's state")
+
+    def rng_state(self) -> str:
+        """The single stream's generator state now (what the next batch is drawn from); '' for per-batch seeds."""
+        return "" if self.config.per_batch_seeds else json.dumps(self.rng.bit_generator.state)
+
+    def __iter__(self):
+        if not self.config.per_batch_seeds:
+            for _ in range(self.start, self.config.iterations):
+                yield _batch(self.pool, self.rng, arch=self.arch, crop=self.crop, config=self.config)
+            return
+        batches = SeededBatches(self.pool, self.arch, self.crop, self.config, self.start)
+        if not self.config.workers:
+            yield from (batches[i] for i in range(len(batches)))
+            return
+        from torch.utils.data import DataLoader
+
+        # fork: the workers share the sample pool instead of each unpickling a copy. cv2's thread pool does not
+        # survive a fork (a worker's first warp would wait on it forever), so cv2 stays on one thread in this
+        # process while the workers run.
+        threads = cv2.getNumThreads()
+        cv2.setNumThreads(1)
+        try:
+            yield from DataLoader(batches, batch_size=None, shuffle=False, num_workers=self.config.workers,
+                                  prefetch_factor=4, worker_init_fn=_one_thread, multiprocessing_context="fork")
+        finally:
+            cv2.setNumThreads(threads)
 
 
 def _bfloat16_ok(device: str) -> bool:
@@ -279,15 +375,6 @@ def _bfloat16_ok(device: str) -> bool:
         return bool(torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported())
     except (AttributeError, RuntimeError):  # a build without the query: stay in float32
         return False
-
-
-def _sample_pool(samples: xr.Dataset, config: TrainConfig) -> dict:
-    """Every ``frame_step``-th frame of each view with at least one reflector seen, as numpy arrays."""
-    keep = (samples["frame"].values % config.frame_step == 0) & (samples["gt_pixels"].values >= config.min_pixels).any(-1)
-    if not keep.any():
-        raise ValueError("no training sample sees a reflector; check the training dataset")
-    chosen = samples.isel(sample=np.nonzero(keep)[0])
-    return {k: chosen[k].values for k in ("depth_image", "flow_image", "box", "gt_uv", "gt_uv_prev", "gt_pixels")}
 
 
 def weights_dataset(model, crop: CropConfig, config: TrainConfig, losses, *, n_samples: int, seconds: float,

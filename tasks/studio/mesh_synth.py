@@ -86,11 +86,12 @@ def view_frame(rig: MeshRig, view: render.View, scene: MeshScene, f: int, normal
     flow_prev = np.zeros_like(flow)
     flow.reshape(-1, 3)[idx] = (barycentric(verts[f + 1][corners], bary) - here) @ view.R.T
     flow_prev.reshape(-1, 3)[idx] = (here - barycentric(verts[max(f - 1, 0)][corners], bary)) @ view.R.T
-    depth = render.kinect_depth(t * view.rays[..., 2], cos, reflector, rng, rig.spec.noise)
+    hot = render.saturated(reflector, rig.spec.ir_bloom_px)  # a real sensor saturates round each reflector
+    depth = render.kinect_depth(t * view.rays[..., 2], cos, hot, rng, rig.spec.noise)
     albedo = view.bg_albedo.copy()
     rest = barycentric(rig.body.vertices[corners], bary)
     albedo.ravel()[idx] = render.ALBEDO["body"] * render.cloth_texture(rig.face_part[face], rest)
-    ir = render.kinect_ir(t, cos, albedo, reflector, rng, rig.spec.noise)
+    ir = render.kinect_ir(t, cos, albedo, hot, rng, rig.spec.noise)
     pixels = np.bincount(rid[reflector].astype(np.int64), minlength=len(rig.placements)).astype(np.int32)
     return render.Frame(depth, ir, rid, body_mask, flow, flow_prev, pixels)
 

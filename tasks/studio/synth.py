@@ -63,9 +63,6 @@ class SequenceSpec:
         if not 0 <= self.ir_bloom_px <= 20:
             raise ValueError(f"ir_bloom_px must be within 0-20 pixels (a real Kinect v2's reflector regions need about 3), "
                              f"got {self.ir_bloom_px}")
-        if self.ir_bloom_px and self.body != "capsule":
-            raise ValueError(f"ir_bloom_px ({self.ir_bloom_px}) is a setting of the capsule body's renderer; the mesh "
-                             "body's sensor model has its own, so leave ir_bloom_px out")
         if self.variation < 0:
             raise ValueError(f"variation must be >= 0 (0 = the textbook exercise), got {self.variation}")
         if self.body not in BODIES:

@@ -115,9 +115,11 @@ def test_a_misspelt_dataset_option_stops_the_run_before_any_stage(toy_project):
     assert not (project / "storage").exists()
 
 
-SHIPPED_CATALOGS = ("catalog.yaml", "benchmarks/catalog.yaml", "benchmarks/athletic.yaml", "benchmarks/real_rig.yaml",
-                    "benchmarks/real_appearance.yaml", "benchmarks/uuo_c3d_example.yaml", "training/catalog.yaml",
-                    "training/catalog_athletic.yaml", "training/validation.yaml", "training/validation_athletic.yaml",
+SHIPPED_CATALOGS = ("catalog.yaml", "benchmarks/catalog.yaml", "benchmarks/capsule.yaml", "benchmarks/athletic.yaml",
+                    "benchmarks/real_rig.yaml", "benchmarks/real_appearance.yaml", "benchmarks/uuo_c3d_example.yaml",
+                    "training/catalog.yaml", "training/catalog_athletic.yaml", "training/validation.yaml",
+                    "training/validation_athletic.yaml",
+                    "training/catalog_mesh.yaml", "training/validation_mesh.yaml",
                     "training/tracker.yaml", "demo")
 
 

@@ -88,7 +88,7 @@ def test_every_builtin_task_takes_its_inputs_config_and_weights():
 def test_runtime_fields_are_the_marked_ones():
     assert registry.runtime_fields(Params) == ("batch",)
     assert registry.runtime_fields(registry.get("fcn_heatmaps").params) == ("batch",)
-    assert registry.runtime_fields(registry.get("train_fcn").params) == ("workers",)
+    assert registry.runtime_fields(registry.get("train_fcn").params) == ("workers", "checkpoint_every")
     assert registry.runtime_fields(registry.get("primal_dual").params) == ("device",)
 
 
@@ -117,3 +117,21 @@ def test_planning_imports_no_torch():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
     assert registry.get("read_codes").fn.resolve()  # the stage itself still imports
+
+
+def test_a_checkpointing_task_takes_checkpoint_and_only_a_training_may_stream_or_keep_one(monkeypatch):
+    monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))
+
+    def trains(frames: xr.Dataset, config: Params, checkpoint) -> xr.Dataset:
+        return frames
+
+    per_dataset = dataclasses.replace(spec(trains), partition="dataset", checkpoints=True,
+                                      streams={"frames": ("image",)})
+    assert registry.task_parameters(per_dataset) == ("frames", "config", "checkpoint")
+    registry.register(per_dataset)
+    with pytest.raises(CatalogError, match="takes \\(frames, config, checkpoint\\) but the engine calls it with "
+                                           "\\(frames, config\\)"):
+        registry.register(spec(trains))
+    for extra in ({"checkpoints": True}, {"streams": {"frames": ("image",)}}):
+        with pytest.raises(CatalogError, match="partitioned per 'view' but declares .* only a per-dataset task"):
+            registry.register(spec(trains, **extra))

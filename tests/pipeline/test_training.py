@@ -2,11 +2,13 @@
 plain-tensor weights reproducibly, caches them, and the inference stages run on what it wrote."""
 
 import hashlib
+import subprocess
+import sys
 
 import numpy as np
 import torch
 
-from conftest import last_json, mocapflow
+from conftest import env_with_plugins, last_json, mocapflow, wait_for
 from mocapflow.pipeline.catalog import load_catalog
 from mocapflow.pipeline.plan import build_plan
 from mocapflow.pipeline.storage import Store
@@ -98,3 +100,28 @@ def test_batch_processes_draw_the_same_batches_whatever_their_number(tmp_path):
     assert sha[2, True] == sha[1, True] == sha[0, True]  # batch i is seeded (seed, i), whichever process draws it
     assert runs[2, True]["key"] == runs[0, True]["key"]  # workers is a run-time setting: not in the cache key
     assert sha[0, False] != sha[0, True]  # one stream, as the shipped weights were trained
+
+
+def test_a_killed_training_continues_from_its_checkpoint_to_the_same_weights(tmp_path):
+    (tmp_path / "catalog.yaml").write_text(CATALOG)
+    longer = ("--set", "stages.weights.params.iterations=12", "--set", "stages.weights.params.checkpoint_every=3")
+    command = [sys.executable, "-m", "mocapflow.cli.commands", "-v", "train", "--catalog", "catalog.yaml",
+               "--out", "killed.pt", *longer]
+    process = subprocess.Popen(command, cwd=tmp_path, env=env_with_plugins(), stdout=subprocess.DEVNULL,
+                               stderr=subprocess.STDOUT)
+    try:
+        wait_for(lambda: list((tmp_path / "storage" / "weights").glob("*/_checkpoint")), timeout=500,
+                 what="the training's first checkpoint")
+    finally:
+        process.kill()
+        process.wait()
+    assert not (tmp_path / "killed.pt").exists()
+    resumed = last_json(mocapflow("-v", "train", "--catalog", "catalog.yaml", "--out", "resumed.pt", "--json", *longer,
+                                  cwd=tmp_path, timeout=600))
+    logs = "".join(p.read_text() for p in (tmp_path / "storage" / "logs").glob("run-*.log"))
+    assert "resuming the training at iteration" in logs
+    assert not list((tmp_path / "storage" / "weights").glob("*/_checkpoint"))  # dropped by the commit
+    whole = last_json(mocapflow("train", "--catalog", "catalog.yaml", "--out", "whole.pt", "--json", *longer,
+                                "--set", "storage.root=other", "--set", "stages.weights.params.checkpoint_every=100",
+                                cwd=tmp_path, timeout=600))
+    assert whole["key"] == resumed["key"] and whole["sha256"] == resumed["sha256"]  # as if never killed

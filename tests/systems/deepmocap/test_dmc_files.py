@@ -110,6 +110,10 @@ def test_a_deepmocap_recording_reads_back_as_the_take_it_was_written_from_and_is
 
     page = (tmp_path / "rep" / "report.html").read_text()
     assert "No ground truth in these recordings" in page and "from stage <code>smoothed</code>" in page
+    labels = cv2.imread(str(tmp_path / "rep" / "labels_take1.png"))  # each view with its labels drawn, to judge
+    assert '<img src="labels_take1.png">' in page and labels.shape[1] == 2 * arrays["ir"].shape[-1]
+    coloured = (labels.max(-1).astype(int) - labels.min(-1)) > 60  # the label dots and names; the image is grey
+    assert 200 < coloured.sum() < 0.05 * coloured.size
     rows = {cells[0]: cells[1:] for cells in (re.findall(r"<td>([^<]*)</td>", row)
                                               for row in re.findall(r"<tr>(<td>.*?)</tr>", page)) if len(cells) == 7}
     assert len(rows) == 26  # every reflector, with its views and residual

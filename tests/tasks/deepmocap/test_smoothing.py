@@ -1,7 +1,8 @@
 """Temporal filtering: the Kalman stage fills a short gap, rejects an outlier, gives up after max_gap,
 does not extrapolate a track's end, starts tracks only on confirmed measurements (with one filter and with
 the two-model IMM), keeps the reflector rather than a ghost of it that competes for its label, keeps a track
-among outliers no other track takes, and never joins tracks the reflector cannot move between; the IMM keeps a limb that accelerates to 12 m/s where the slow filter gates it out, and
+among outliers no other track takes, and never joins tracks the reflector cannot move between; the IMM keeps a limb
+that accelerates to 12 m/s where the slow filter gates it out, and
 is no worse on a slow track; Butterworth keeps a slow motion and removes noise."""
 
 from dataclasses import replace

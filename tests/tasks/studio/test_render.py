@@ -196,5 +196,17 @@ def test_ir_bloom_widens_the_saturated_regions_to_a_real_kinects_and_keeps_the_t
     assert (plain.depth.values[0, 0][ring] > 0).mean() > 0.5  # where the plain sensor read the body or the room
     with pytest.raises(ValueError, match="ir_bloom_px must be within"):
         SequenceSpec("elbow_flexion", ir_bloom_px=-1)
-    with pytest.raises(ValueError, match="capsule body's renderer"):
-        SequenceSpec("elbow_flexion", ir_bloom_px=3, body="mesh")
+
+
+def test_the_mesh_body_blooms_like_the_capsules():
+    """Real-sized reflector regions on the mesh body too: saturated IR and no depth round each reflector, the
+    ground truth (the reflectors' own pixels) unchanged."""
+    spec = dict(frames=2, seed=1, noise=0.0, body="mesh")
+    plain = synthesize(build_rig(SequenceSpec("elbow_flexion", **spec)), 0, 1)
+    bloomed = synthesize(build_rig(SequenceSpec("elbow_flexion", ir_bloom_px=3, **spec)), 0, 1)
+    np.testing.assert_array_equal(plain.gt_reflector_id.values, bloomed.gt_reflector_id.values)
+    rid = bloomed.gt_reflector_id.values[0, 0] >= 0
+    ring = render.saturated(rid, 3) & ~rid
+    hot = bloomed.ir.values[0, 0] >= render.IR_REFLECTOR
+    assert ring.sum() > rid.sum() and hot[ring].all() and (bloomed.depth.values[0, 0][ring] == 0).all()
+    assert not (plain.ir.values[0, 0] >= render.IR_REFLECTOR)[ring].all()
