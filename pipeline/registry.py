@@ -20,6 +20,7 @@ import dataclasses
 import difflib
 import importlib
 import inspect
+import re
 import types
 import typing
 from dataclasses import dataclass, field
@@ -374,6 +375,9 @@ def build_params(spec: TaskSpec, raw: Mapping[str, Any], where: Callable[[str], 
         raise CatalogError(f"{where('')}: invalid parameters for task {spec.name!r}: {exc}") from exc
 
 
+_YAML11_MISSED_FLOAT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
+
+
 def coerce(value: Any, hint: Any, where: str) -> Any:
     """Accept ``value`` for type ``hint`` (int for float, list for tuple) or raise CatalogError."""
     origin = typing.get_origin(hint)
@@ -409,6 +413,8 @@ def coerce(value: Any, hint: Any, where: str) -> Any:
         return _build_dataclass(hint, value, where)
     if hint is float and isinstance(value, (int, float)) and not isinstance(value, bool):
         return float(value)
+    if hint is float and isinstance(value, str) and _YAML11_MISSED_FLOAT.fullmatch(value):
+        return float(value)  # YAML 1.1 reads 1e-3 (no dot) as a string
     if hint is int and isinstance(value, bool):
         raise CatalogError(f"{where}: expected int, got {value!r}")
     if isinstance(hint, type) and isinstance(value, hint):

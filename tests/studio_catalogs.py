@@ -1,16 +1,7 @@
 """Small studio catalogs that run fast, shared by the tests of one system's engine run and of its report."""
 
-UUO_CATALOG = """\
-data_roots: [.]
-storage: {root: storage/, region_frames: 8}
-datasets:
-  uuo:
-    kind: studio_markers
-    defaults: {frames: 24, views: 1}
-    markers: {count: 30, ghosts: 1}
-    sequences:
-      reach: {motion: side_reaches, seed: 8}
-stages:
+# UUO's first stages with an exact prior and fast solver settings (`*fast`), shared by the catalogs below
+UUO_FAST_STAGES = """\
   markers: {task: ingest_markers, dataset: uuo}
   segments: {task: rigid_segments, inputs: [markers]}
   prior:
@@ -25,6 +16,21 @@ stages:
       matching: {frames: 12, iterations: 12}
       pose_fit: {rounds: 3, iterations: 10}
       ik: {iterations: 40}
+"""
+
+
+UUO_CATALOG = """\
+data_roots: [.]
+storage: {root: storage/, region_frames: 8}
+datasets:
+  uuo:
+    kind: studio_markers
+    defaults: {frames: 24, views: 1}
+    markers: {count: 30, ghosts: 1}
+    sequences:
+      reach: {motion: side_reaches, seed: 8}
+stages:
+""" + UUO_FAST_STAGES + """\
   yaw90: {task: solve_hypothesis, inputs: [markers, segments, prior], params: {<<: *fast, yaw_deg: 90.0}}
   yaw180: {task: solve_hypothesis, inputs: [markers, segments, prior], params: {<<: *fast, yaw_deg: 180.0}}
   yaw270: {task: solve_hypothesis, inputs: [markers, segments, prior], params: {<<: *fast, yaw_deg: 270.0}}
@@ -86,20 +92,7 @@ stages:
   smoothed: {task: kalman, inputs: {markers: markers3d}}
   skeleton: {task: calibrate_skeleton, inputs: {markers: smoothed}}
   poses: {task: solve_poses, inputs: {skeleton: skeleton, markers: smoothed, views: markers3d}}
-  markers: {task: ingest_markers, dataset: uuo}
-  segments: {task: rigid_segments, inputs: [markers]}
-  prior:
-    task: simulated_prior
-    inputs: [markers]
-    params: {rotation_deg: 0.0, yaw_deg: 0.0, lost: 0.0, phenotype_noise: 0.0, drift_m: 0.0}
-  yaw0:
-    task: solve_hypothesis
-    inputs: [markers, segments, prior]
-    params: &fast
-      yaw_deg: 0.0
-      matching: {frames: 12, iterations: 12}
-      pose_fit: {rounds: 3, iterations: 10}
-      ik: {iterations: 40}
+""" + UUO_FAST_STAGES + """\
   yaw180: {task: solve_hypothesis, inputs: [markers, segments, prior], params: {<<: *fast, yaw_deg: 180.0}}
   solve:
     task: best_hypothesis

@@ -86,6 +86,13 @@ TRAIN_STAGES = """  samples: {task: fcn_samples, inputs: {masks: masks, flow: fl
     params: {iterations: 6000, batch: 16, seed: 0}
 """
 
+TUNE_STAGES = """  samples: {task: fcn_samples, inputs: {masks: masks, flow: flow, frames: frames}}
+  weights:                      # the shipped network fine-tuned; `mocapflow train` writes it to --out
+    task: train_fcn
+    inputs: {samples: samples}
+    params: {init: ../models/deepmocap_fcn.pt, iterations: 2400, learning_rate: 1.0e-3, batch: 16, seed: 0}
+"""
+
 VALIDATION_STAGES = """  heatmaps: {task: fcn_heatmaps, inputs: {masks: masks, flow: flow}, params: {precision: auto}}
   reflectors2d: {task: greedy_reflectors, inputs: {heatmaps: heatmaps, masks: masks}, params: {c_min: 0.0}}
   markers3d: {task: fuse_views, inputs: {reflectors: reflectors2d, masks: masks, frames: frames}}
@@ -136,13 +143,15 @@ def main() -> None:
     beyond += "\n".join(sequences(tuple(ATHLETIC), 7, 520, np.random.default_rng(2047), speed=(0.8, 1.2),
                                    amplitude=(0.85, 1.05), roll_deg=ROLL_DEG, bloom_px=BLOOM_PX)) + "\n"
     (HERE / "validation_athletic.yaml").write_text(beyond + STAGES.format(name="validation") + VALIDATION_STAGES)
-    mesh_catalogs()
+    mesh_catalogs(shipped)
 
 
-def mesh_catalogs() -> None:
+def mesh_catalogs(shipped: str) -> None:
     """The realistic set: the mesh body with its reflectors on the skin, real-sized reflector regions, rolled rings,
     the exercises (textbook and varied) and the athletic motions; subjects of their own (seeds 1000+, validation
-    540+), so that no subject is shared with the capsule sets or the benchmarks."""
+    540+), so that no subject is shared with the capsule sets or the benchmarks. The fine-tuning set
+    (catalog_mesh_tune.yaml) is it beside the shipped network's capsule sequences (``shipped``), so that the tuned
+    network keeps what it read on the capsules."""
     mesh = ", body: mesh"
     rng = np.random.default_rng(2050)
     both = dict(roll_deg=ROLL_DEG, bloom_px=MESH_BLOOM_PX)
@@ -155,6 +164,14 @@ def mesh_catalogs() -> None:
                           usage="mocapflow train --catalog training/catalog_mesh.yaml --out FILE")
     (HERE / "catalog_mesh.yaml").write_text(train + "\n".join(lines) + "\n" + STAGES.format(name="train")
                                             + TRAIN_STAGES)
+    capsules = "".join(line[:-1] + ", body: capsule}\n" for line in shipped.splitlines())
+    title = ("Fine-tuning set of the two-stream FCN: the mesh body's training set (catalog_mesh.yaml) and the\n"
+             "# shipped network's capsule sequences (catalog.yaml), starting from the shipped weights")
+    tune = HEADER.format(root="training_mesh", extra=mesh, title=title, name="train", frames=32,
+                         usage="mocapflow train --catalog training/catalog_mesh_tune.yaml --out FILE")
+    tune = tune.replace("data_roots: [.]", "data_roots: [., ../models]")
+    (HERE / "catalog_mesh_tune.yaml").write_text(tune + "\n".join(lines) + "\n" + capsules + STAGES.format(name="train")
+                                                 + TUNE_STAGES)
     rng = np.random.default_rng(2051)
     lines = (sequences(VALIDATION_EXERCISES, 8, 540, rng, variation=(0.0, 1.0), **both)
              + sequences(tuple(ATHLETIC), 7, 548, rng, speed=(0.8, 1.2), amplitude=(0.85, 1.05), **both))

@@ -80,6 +80,9 @@ class TrainConfig:
     flip: bool = True
     margin: float = 1.3
     min_side: float = 50.0
+    # a weights file written by `mocapflow train` to start from (fine-tuning; its architecture must be this one's);
+    # empty: from scratch
+    init: str = ""
     # optimization
     iterations: int = 6000
     batch: int = 16
@@ -183,11 +186,13 @@ IMAGES = ("depth_image", "flow_image")  # a sample's large variables, read one s
 TABLE = ("box", "gt_uv", "gt_uv_prev", "gt_pixels")  # its small ones, in memory for every sample
 
 
-def train_fcn(samples: xr.Dataset | Samples, config: TrainConfig, checkpoint=None) -> xr.Dataset:
+def train_fcn(samples: xr.Dataset | Samples, config: TrainConfig, checkpoint=None, init: dict | None = None
+              ) -> xr.Dataset:
     """Train the network on ``samples`` (dims sample, y, x, ...; a loaded dataset or samples streamed from
     storage); the weights as a flat vector with their layout. With a ``checkpoint`` (``load() -> dict | None``,
     ``save(dict)``), the state is saved every ``checkpoint_every`` iterations and a saved state is continued
-    from: the weights are those of an uninterrupted run."""
+    from: the weights are those of an uninterrupted run. ``init``: the tensors of the file ``config.init`` names
+    (the engine loads them), the weights the training starts from."""
     import torch
 
     from mocapflow.tasks.deepmocap import fcn
@@ -202,7 +207,8 @@ def train_fcn(samples: xr.Dataset | Samples, config: TrainConfig, checkpoint=Non
     pool = SamplePool(samples, config)
     torch.manual_seed(config.seed)
     device = "cuda" if torch.cuda.is_available() else "cpu"
-    model = fcn.TwoStreamFCN(arch).to(device).train()
+    model = fcn.TwoStreamFCN(arch) if init is None else _started_from(init, arch, config.init)
+    model = model.to(device).train()
     mixed = config.bfloat16 and _bfloat16_ok(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     schedule = torch.optim.lr_scheduler.OneCycleLR(optimizer, max_lr=config.learning_rate,
@@ -226,6 +232,22 @@ def train_fcn(samples: xr.Dataset | Samples, config: TrainConfig, checkpoint=Non
             checkpoint.save(run.state(model, optimizer, schedule, stream.rng_state()))
     return weights_dataset(model.cpu(), crop, config, run.losses, n_samples=len(pool),
                            seconds=run.seconds(), device=device + (" bfloat16" if mixed else ""))
+
+
+def _started_from(init: dict, arch, name: str):
+    """A network of ``arch`` holding the weights of ``init`` (fine-tuning)."""
+    from mocapflow.tasks.deepmocap import fcn
+
+    found = dict(init.get("architecture", {}))
+    wanted = asdict(arch)
+    differ = {k: (found.get(k), v) for k, v in wanted.items() if found.get(k) != v}
+    if differ:
+        listed = ", ".join(f"{k}: {a!r} in the file, {b!r} here" for k, (a, b) in sorted(differ.items()))
+        raise ValueError(f"init weights {name} are another architecture ({listed}); set those params to the "
+                         "file's or train from scratch (init: \"\")")
+    model = fcn.TwoStreamFCN(arch)
+    model.load_state_dict(init["state"])
+    return model
 
 
 class _Progress:

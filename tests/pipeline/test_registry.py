@@ -99,6 +99,11 @@ def test_build_params_coerces_and_names_the_bad_key():
         registry.build_params(spec(good), {"factr": 3}, where=lambda k: f"stages.probe.{k}")
     with pytest.raises(CatalogError, match=r"batch: expected int, got True"):
         registry.build_params(spec(good), {"batch": True})
+    # YAML 1.1 reads an exponent without a dot as a string: a float field takes it, a word stays refused
+    assert registry.build_params(spec(good), {"factor": "5e-3"}).factor == 0.005
+    assert registry.build_params(spec(good), {"factor": "-1E+2"}).factor == -100.0
+    with pytest.raises(CatalogError, match=r"factor: expected float, got str 'e5'"):
+        registry.build_params(spec(good), {"factor": "e5"})
 
 
 def test_an_unknown_task_suggests_the_nearest():

@@ -125,3 +125,27 @@ def test_a_killed_training_continues_from_its_checkpoint_to_the_same_weights(tmp
                                 "--set", "storage.root=other", "--set", "stages.weights.params.checkpoint_every=100",
                                 cwd=tmp_path, timeout=600))
     assert whole["key"] == resumed["key"] and whole["sha256"] == resumed["sha256"]  # as if never killed
+
+
+def test_a_training_starts_from_a_weights_file_of_its_architecture_and_refuses_another(tmp_path):
+    (tmp_path / "catalog.yaml").write_text(CATALOG)
+    mocapflow("train", "--catalog", "catalog.yaml", "--out", "start.pt", cwd=tmp_path, timeout=600)
+    start = torch.load(tmp_path / "start.pt", weights_only=True)["state"]
+    still = ("--set", "stages.weights.params.learning_rate=1e-12")  # Adam's steps are ~lr: the weights stay put
+    tuned = last_json(mocapflow("train", "--catalog", "catalog.yaml", "--out", "tuned.pt", "--json", *still,
+                                "--set", "stages.weights.params.init=start.pt", cwd=tmp_path, timeout=600))
+    scratch = last_json(mocapflow("train", "--catalog", "catalog.yaml", "--out", "scratch.pt", "--json", *still,
+                                  cwd=tmp_path, timeout=600))
+    assert tuned["key"] != scratch["key"]  # the file is part of the key
+    ends = {name: torch.load(tmp_path / f"{name}.pt", weights_only=True)["state"] for name in ("tuned", "scratch")}
+    convs = [k for k, t in start.items() if k.endswith("weight") and t.ndim == 4]
+    assert len(convs) > 10
+    assert max(float((ends["tuned"][k] - start[k]).abs().max()) for k in convs) < 1e-6  # started from the file
+    # and the same steps from a fresh network (seed 0, as the file's) end elsewhere: the file was what was read
+    assert max(float((ends["scratch"][k] - start[k]).abs().max()) for k in convs) > 1e-3
+
+    wider = mocapflow("train", "--catalog", "catalog.yaml", "--out", "wider.pt", "--set",
+                      "stages.weights.params.init=start.pt", "--set", "stages.weights.params.stream_width=16",
+                      cwd=tmp_path, check=False, timeout=600)
+    assert wider.returncode != 0 and not (tmp_path / "wider.pt").exists()
+    assert "init weights" in wider.stderr and "stream_width: 8 in the file, 16 here" in wider.stderr
