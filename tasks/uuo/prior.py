@@ -66,7 +66,7 @@ class SimulatedPriorConfig:
     phenotype_noise: float = 0.1  # std of the phenotype parameters' error (clipped to [0, 1])
     other_rotation_deg: float = 3.0  # realistic: std of the other bones' smooth error (every bone degraded)
     flip_per_s: float = 0.3  # realistic: rate per limb bone of depth flips (the limb swung through the view axis)
-    flip_deg: tuple[float, float] = (40.0, 70.0)  # ... each flip's angle, drawn in this range ...
+    flip_deg: tuple[float, float] = (30.0, 55.0)  # ... each flip's angle, drawn in this range ...
     flip_s: tuple[float, float] = (0.4, 1.2)  # ... and held this long (ramped in and out over 0.1 s)
     lean_deg: float = 5.0  # realistic: std of a systematic lean of the upper body, varying slowly (lean_s)
     lean_s: float = 2.0
