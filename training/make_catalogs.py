@@ -93,6 +93,14 @@ TUNE_STAGES = """  samples: {task: fcn_samples, inputs: {masks: masks, flow: flo
     params: {init: ../models/deepmocap_fcn.pt, iterations: 2400, learning_rate: 1.0e-3, batch: 16, seed: 0}
 """
 
+SMALL_STAGES = """  samples: {task: fcn_samples, inputs: {masks: masks, flow: flow, frames: frames}}
+  weights:                      # a small network taught by the fine-tuned large one and by the truth
+    task: train_fcn
+    inputs: {samples: samples}
+    params: {stream_width: 16, fused_width: 32, stage_width: 28, teacher: ../models/deepmocap_fcn_mesh_large.pt,
+             distill: 0.5, iterations: 4000, batch: 16, seed: 0}
+"""
+
 VALIDATION_STAGES = """  heatmaps: {task: fcn_heatmaps, inputs: {masks: masks, flow: flow}, params: {precision: auto}}
   reflectors2d: {task: greedy_reflectors, inputs: {heatmaps: heatmaps, masks: masks}, params: {c_min: 0.0}}
   markers3d: {task: fuse_views, inputs: {reflectors: reflectors2d, masks: masks, frames: frames}}
@@ -172,6 +180,13 @@ def mesh_catalogs(shipped: str) -> None:
     tune = tune.replace("data_roots: [.]", "data_roots: [., ../models]")
     (HERE / "catalog_mesh_tune.yaml").write_text(tune + "\n".join(lines) + "\n" + capsules + STAGES.format(name="train")
                                                  + TUNE_STAGES)
+    title = ("Distillation set of the small two-stream FCN (0.19 GMAC a crop): the fine-tuning set, its targets\n"
+             "# blended with the maps of the fine-tuned large network")
+    small = HEADER.format(root="training_mesh", extra=mesh, title=title, name="train", frames=32,
+                          usage="mocapflow train --catalog training/catalog_mesh_small.yaml --out FILE")
+    small = small.replace("data_roots: [.]", "data_roots: [., ../models]")
+    (HERE / "catalog_mesh_small.yaml").write_text(small + "\n".join(lines) + "\n" + capsules
+                                                  + STAGES.format(name="train") + SMALL_STAGES)
     rng = np.random.default_rng(2051)
     lines = (sequences(VALIDATION_EXERCISES, 8, 540, rng, variation=(0.0, 1.0), **both)
              + sequences(tuple(ATHLETIC), 7, 548, rng, speed=(0.8, 1.2), amplitude=(0.85, 1.05), **both))
