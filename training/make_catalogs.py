@@ -98,7 +98,7 @@ SMALL_STAGES = """  samples: {task: fcn_samples, inputs: {masks: masks, flow: fl
     task: train_fcn
     inputs: {samples: samples}
     params: {stream_width: 16, fused_width: 32, stage_width: 28, teacher: ../models/deepmocap_fcn_mesh_large.pt,
-             distill: 0.5, iterations: 4000, batch: 16, seed: 0}
+             distill: 0.5, iterations: 3000, batch: 16, seed: 0}
 """
 
 VALIDATION_STAGES = """  heatmaps: {task: fcn_heatmaps, inputs: {masks: masks, flow: flow}, params: {precision: auto}}
