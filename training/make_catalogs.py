@@ -90,7 +90,7 @@ TUNE_STAGES = """  samples: {task: fcn_samples, inputs: {masks: masks, flow: flo
   weights:                      # the shipped network fine-tuned; `mocapflow train` writes it to --out
     task: train_fcn
     inputs: {samples: samples}
-    params: {init: ../models/deepmocap_fcn.pt, iterations: 2400, learning_rate: 1.0e-3, batch: 16, seed: 0}
+    params: {init: ../models/deepmocap_fcn.pt, iterations: 800, learning_rate: 1.0e-3, batch: 16, seed: 0}
 """
 
 SMALL_STAGES = """  samples: {task: fcn_samples, inputs: {masks: masks, flow: flow, frames: frames}}
@@ -98,7 +98,7 @@ SMALL_STAGES = """  samples: {task: fcn_samples, inputs: {masks: masks, flow: fl
     task: train_fcn
     inputs: {samples: samples}
     params: {stream_width: 16, fused_width: 32, stage_width: 28, teacher: ../models/deepmocap_fcn_mesh_large.pt,
-             distill: 0.5, iterations: 3000, batch: 16, seed: 0}
+             distill: 0.5, iterations: 1500, batch: 16, seed: 0}
 """
 
 VALIDATION_STAGES = """  heatmaps: {task: fcn_heatmaps, inputs: {masks: masks, flow: flow}, params: {precision: auto}}
