@@ -42,8 +42,9 @@ def catalog_text(frames: int, preset: str, motion: str = str(CLIP), weights: Pat
     held_out["stages"]["flow"].setdefault("params", {})["preset"] = preset
     roots = [".", str(SHARED)]
     if weights is not None:
-        held_out["stages"]["heatmaps"].setdefault("params", {})["weights"] = str(weights.resolve())
-        roots.append(str(weights.resolve().parent))
+        weights = weights.resolve()
+        held_out["stages"]["heatmaps"].setdefault("params", {})["weights"] = str(weights)
+        roots.append(str(weights.parent))
     dataset = {"kind": "studio", "defaults": {**held_out["datasets"]["heldout"]["defaults"], "frames": frames},
                "sequences": {"take": {"motion": motion, "seed": 9105}}}
     return yaml.safe_dump({"data_roots": roots, "storage": {"root": "storage/", "region_frames": 16},

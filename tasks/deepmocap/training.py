@@ -245,18 +245,15 @@ def train_fcn(samples: xr.Dataset | Samples, config: TrainConfig, checkpoint=Non
 
 
 def _started_from(init: dict, arch, name: str):
-    """A network of ``arch`` holding the weights of ``init`` (fine-tuning)."""
+    """The network of ``init`` (fine-tuning), which must be of ``arch``."""
     from mocapflow.tasks.deepmocap import fcn
 
-    found = dict(init.get("architecture", {}))
-    wanted = asdict(arch)
-    differ = {k: (found.get(k), v) for k, v in wanted.items() if found.get(k) != v}
+    model = fcn.unpack(init)
+    found, wanted = asdict(model.arch), asdict(arch)
+    differ = [f"{k}: {found[k]!r} in the file, {v!r} here" for k, v in sorted(wanted.items()) if found[k] != v]
     if differ:
-        listed = ", ".join(f"{k}: {a!r} in the file, {b!r} here" for k, (a, b) in sorted(differ.items()))
-        raise ValueError(f"init weights {name} are another architecture ({listed}); set those params to the "
-                         "file's or train from scratch (init: \"\")")
-    model = fcn.TwoStreamFCN(arch)
-    model.load_state_dict(init["state"])
+        raise ValueError(f"init weights {name} are another architecture ({', '.join(differ)}); set those params "
+                         "to the file's or train from scratch (init: \"\")")
     return model
 
 
@@ -272,7 +269,6 @@ class _Teacher:
                              f"{arch.input_size}; their maps must share a grid: set input_size to "
                              f"{model.arch.input_size} or choose another teacher")
         self.model, self.share, self.device, self.mixed = model.to(device), config.distill, device, mixed
-        self.flow_stream = model.arch.flow_stream
 
     def blend(self, depth, flow, s_target, l_target):
         import torch
@@ -280,7 +276,7 @@ class _Teacher:
         from mocapflow.tasks.deepmocap import fcn
 
         with torch.no_grad(), torch.autocast(self.device, dtype=torch.bfloat16, enabled=self.mixed):
-            s, fields = self.model(fcn.to_input(depth), fcn.to_input(flow) if self.flow_stream else None)[-1]
+            s, fields = self.model(fcn.to_input(depth), fcn.to_input(flow) if self.model.arch.flow_stream else None)[-1]
         s_target = self.share * s.float() + (1.0 - self.share) * s_target
         if fields is not None:
             l_target = self.share * fields.float() + (1.0 - self.share) * l_target
