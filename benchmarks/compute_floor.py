@@ -5,7 +5,7 @@ runs in one of ``--workers`` fresh processes; fusion, smoothing, calibration and
 main one. The wall time counts from this script's first line (its imports included) to the poses, so
 it compares with `python benchmarks/pipeline.py`'s, which counts a fresh `mocapflow run`:
 
-    python benchmarks/compute_floor.py [--frames 90] [--repeats 3] [--workers 2] [--motion jumping_jack]
+    python benchmarks/compute_floor.py [--frames 90] [--repeats 3] [--workers 2] [--motion jumping_jack] [--weights FILE]
 """
 
 from __future__ import annotations
@@ -97,6 +97,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--motion", help="a BVH file or a studio exercise (default: the CMU walk)")
+    parser.add_argument("--weights", type=Path, help="the network's weights file (default: the shipped one)")
     parser.add_argument("--folder", help=argparse.SUPPRESS)  # one timed repeat in a fresh process
     args = parser.parse_args()
     if args.folder:
@@ -107,7 +108,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         motion = args.motion or str(pipeline.CLIP)
-        (folder / "catalog.yaml").write_text(pipeline.catalog_text(args.frames, "fast", motion))
+        (folder / "catalog.yaml").write_text(pipeline.catalog_text(args.frames, "fast", motion, args.weights))
         pipeline.mocapflow(folder, "run", "--until", "frames")
         walls = [float(subprocess.run([sys.executable, __file__, "--folder", tmp, "--workers", str(args.workers)],
                                       check=True, capture_output=True, text=True).stdout.split()[-1])

@@ -5,7 +5,7 @@ core at a batch of 8, medians of interleaved calls, and how far each path's maps
 held-out crops (CMU walk, held-out subject seed, random layout):
 
     pip install -e ".[bench]"          # onnxruntime, onnx
-    taskset -c 0 python benchmarks/fcn_runtimes.py
+    taskset -c 0 python benchmarks/fcn_runtimes.py [--weights FILE]   # default: the shipped weights
 
 ``peaks_moved`` (``_over_1_cell``): the share of (crop, reflector) peaks of PyTorch float32's maps (confidence
 >= 0.3) whose cell moved (by more than one cell) in the other path's maps; ``max_abs_s``: the largest confidence
@@ -14,6 +14,7 @@ change. The 2D mAP of a path comes from the held-out catalog (``--set stages.hea
 
 from __future__ import annotations
 
+import argparse
 import io
 import json
 import os
@@ -120,8 +121,10 @@ def compare(reference: np.ndarray, other: np.ndarray) -> dict:
 
 
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--weights", type=Path, default=WEIGHTS, help="weights file (default: the shipped one)")
     torch.set_num_threads(1)
-    weights = torch.load(WEIGHTS, weights_only=True)
+    weights = torch.load(parser.parse_args().weights, weights_only=True)
     held_out = crops(SequenceSpec("bvh", frames=24, seed=9100, random_layout=True, start_s=1.0), weights,
                      HELD_OUT.read_text())
     calibration = crops(SequenceSpec("jumping_jack", frames=16, seed=100, random_layout=True), weights)

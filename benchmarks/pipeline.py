@@ -6,7 +6,7 @@ The recording itself (the studio render, standing in for the sensors) is made on
 each repeat deletes every other stage's artifacts and reruns. The stages are the held-out catalog's
 (benchmarks/capsule.yaml); held-out motion (CMU walk), held-out subject seed and a random camera layout:
 
-    python benchmarks/pipeline.py [--frames 90] [--repeats 3] [--workers 2]
+    python benchmarks/pipeline.py [--frames 90] [--repeats 3] [--workers 2] [--weights FILE]
 
 The CMU clips give at most about 140 frames at 30 fps; longer takes, where the per-take costs (process start,
 skeleton calibration) weigh less, run on a studio exercise: ``--motion jumping_jack --frames 300``.
@@ -34,14 +34,20 @@ SHARED = ROOT.parent / "shared" / "data"
 CLIP = SHARED / "motions" / "cmu_12_01_walk.bvh"
 
 
-def catalog_text(frames: int, preset: str, motion: str = str(CLIP)) -> str:
+def catalog_text(frames: int, preset: str, motion: str = str(CLIP), weights: Path | None = None) -> str:
     """The held-out catalog's stage chain (benchmarks/capsule.yaml) on one sequence of ``frames`` frames of
-    ``motion`` (a BVH file or a studio exercise), its `dis` flow at DIS ``preset``."""
+    ``motion`` (a BVH file or a studio exercise), its `dis` flow at DIS ``preset``, the network of ``weights``
+    (None: the shipped one)."""
     held_out = yaml.safe_load((ROOT / "benchmarks" / "capsule.yaml").read_text())
     held_out["stages"]["flow"].setdefault("params", {})["preset"] = preset
+    roots = [".", str(SHARED)]
+    if weights is not None:
+        weights = weights.resolve()
+        held_out["stages"]["heatmaps"].setdefault("params", {})["weights"] = str(weights)
+        roots.append(str(weights.parent))
     dataset = {"kind": "studio", "defaults": {**held_out["datasets"]["heldout"]["defaults"], "frames": frames},
                "sequences": {"take": {"motion": motion, "seed": 9105}}}
-    return yaml.safe_dump({"data_roots": [".", str(SHARED)], "storage": {"root": "storage/", "region_frames": 16},
+    return yaml.safe_dump({"data_roots": roots, "storage": {"root": "storage/", "region_frames": 16},
                            "datasets": {"heldout": dataset}, "stages": held_out["stages"]}, sort_keys=False)
 
 
@@ -64,10 +70,11 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--preset", default="fast", help="DIS preset of the `dis` flow (the issue's fast variant)")
     parser.add_argument("--motion", default=str(CLIP), help="a BVH file or a studio exercise (default: the CMU walk)")
+    parser.add_argument("--weights", type=Path, help="the network's weights file (default: the shipped one)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
-        (folder / "catalog.yaml").write_text(catalog_text(args.frames, args.preset, args.motion))
+        (folder / "catalog.yaml").write_text(catalog_text(args.frames, args.preset, args.motion, args.weights))
         mocapflow(folder, "run", "--until", "frames")
         walls, per_stage = [], defaultdict(list)
         for _ in range(args.repeats):

@@ -86,11 +86,11 @@ TRAIN_STAGES = """  samples: {task: fcn_samples, inputs: {masks: masks, flow: fl
     params: {iterations: 6000, batch: 16, seed: 0}
 """
 
-TUNE_STAGES = """  samples: {task: fcn_samples, inputs: {masks: masks, flow: flow, frames: frames}}
-  weights:                      # the shipped network fine-tuned; `mocapflow train` writes it to --out
+FROM_SHIPPED_STAGES = """  samples: {{task: fcn_samples, inputs: {{masks: masks, flow: flow, frames: frames}}}}
+  weights:                      # {comment}
     task: train_fcn
-    inputs: {samples: samples}
-    params: {init: ../models/deepmocap_fcn.pt, iterations: 2400, learning_rate: 1.0e-3, batch: 16, seed: 0}
+    inputs: {{samples: samples}}
+    params: {params}
 """
 
 VALIDATION_STAGES = """  heatmaps: {task: fcn_heatmaps, inputs: {masks: masks, flow: flow}, params: {precision: auto}}
@@ -165,13 +165,20 @@ def mesh_catalogs(shipped: str) -> None:
     (HERE / "catalog_mesh.yaml").write_text(train + "\n".join(lines) + "\n" + STAGES.format(name="train")
                                             + TRAIN_STAGES)
     capsules = "".join(line[:-1] + ", body: capsule}\n" for line in shipped.splitlines())
-    title = ("Fine-tuning set of the two-stream FCN: the mesh body's training set (catalog_mesh.yaml) and the\n"
-             "# shipped network's capsule sequences (catalog.yaml), starting from the shipped weights")
-    tune = HEADER.format(root="training_mesh", extra=mesh, title=title, name="train", frames=32,
-                         usage="mocapflow train --catalog training/catalog_mesh_tune.yaml --out FILE")
-    tune = tune.replace("data_roots: [.]", "data_roots: [., ../models]")
-    (HERE / "catalog_mesh_tune.yaml").write_text(tune + "\n".join(lines) + "\n" + capsules + STAGES.format(name="train")
-                                                 + TUNE_STAGES)
+    beside = "\n".join(lines) + "\n" + capsules + STAGES.format(name="train")
+    _write_from_shipped(
+        "catalog_mesh_tune.yaml", beside,
+        "Fine-tuning set of the two-stream FCN: the mesh body's training set (catalog_mesh.yaml) and the\n"
+        "# shipped network's capsule sequences (catalog.yaml), starting from the shipped weights",
+        "the shipped network fine-tuned; `mocapflow train` writes it to --out",
+        "{init: ../models/deepmocap_fcn.pt, iterations: 800, learning_rate: 1.0e-3, batch: 16, seed: 0}")
+    _write_from_shipped(
+        "catalog_mesh_small.yaml", beside,
+        "Distillation set of the small two-stream FCN (0.19 GMAC a crop): the fine-tuning set, its targets\n"
+        "# blended with the maps of the fine-tuned large network",
+        "a small network taught by the fine-tuned large one and by the truth",
+        "{stream_width: 16, fused_width: 32, stage_width: 28, teacher: ../models/deepmocap_fcn_mesh_large.pt,\n"
+        "             distill: 0.5, iterations: 1500, batch: 16, seed: 0}")
     rng = np.random.default_rng(2051)
     lines = (sequences(VALIDATION_EXERCISES, 8, 540, rng, variation=(0.0, 1.0), **both)
              + sequences(tuple(ATHLETIC), 7, 548, rng, speed=(0.8, 1.2), amplitude=(0.85, 1.05), **both))
@@ -181,6 +188,14 @@ def mesh_catalogs(shipped: str) -> None:
                                usage="mocapflow evaluate --catalog training/validation_mesh.yaml")
     (HERE / "validation_mesh.yaml").write_text(validation + "\n".join(lines) + "\n" + STAGES.format(name="validation")
                                                + VALIDATION_STAGES)
+
+
+def _write_from_shipped(name: str, sequences_and_stages: str, title: str, comment: str, params: str) -> None:
+    """A catalog of the mesh body's and the shipped capsule sequences whose training reads ``models/``."""
+    head = HEADER.format(root="training_mesh", extra=", body: mesh", title=title, name="train", frames=32,
+                         usage=f"mocapflow train --catalog training/{name} --out FILE")
+    head = head.replace("data_roots: [.]", "data_roots: [., ../models]")
+    (HERE / name).write_text(head + sequences_and_stages + FROM_SHIPPED_STAGES.format(comment=comment, params=params))
 
 
 if __name__ == "__main__":

@@ -63,7 +63,7 @@ TASKS = (
         name="train_fcn", fn=training.train_fcn, version="3",
         params=training.TrainConfig, output="fcn_weights", partition="dataset",
         inputs={"samples": "fcn_samples"}, streams={"samples": training.IMAGES}, checkpoints=True,
-        weights_params=("init",),
+        weights_params=("init", "teacher"),
         description="train the two-stream multi-stage FCN (seeded; GPU if present; images streamed from storage, "
                     "resumable from its checkpoint)",
     ),

@@ -83,6 +83,10 @@ class TrainConfig:
     # a weights file written by `mocapflow train` to start from (fine-tuning; its architecture must be this one's);
     # empty: from scratch
     init: str = ""
+    # a trained network's weights file (same input_size) whose maps each target also holds: distillation, the
+    # target being `distill` x the teacher's last-stage maps + (1 - distill) x the truth; empty: the truth alone
+    teacher: str = ""
+    distill: float = 0.5
     # optimization
     iterations: int = 6000
     batch: int = 16
@@ -104,6 +108,8 @@ class TrainConfig:
             raise ValueError(f"checkpoint_every must be >= 1 iteration, got {self.checkpoint_every}")
         if self.workers < 0:
             raise ValueError(f"workers must be >= 0 (0 = draw batches in the training process), got {self.workers}")
+        if not 0.0 <= self.distill <= 1.0:
+            raise ValueError(f"distill is the teacher's share of each target, in [0, 1]; got {self.distill}")
         if self.workers and not self.per_batch_seeds:
             raise ValueError(f"workers = {self.workers} draws batches in other processes, which needs "
                              "per_batch_seeds: true (one seeded stream cannot be shared); set both")
@@ -186,13 +192,14 @@ IMAGES = ("depth_image", "flow_image")  # a sample's large variables, read one s
 TABLE = ("box", "gt_uv", "gt_uv_prev", "gt_pixels")  # its small ones, in memory for every sample
 
 
-def train_fcn(samples: xr.Dataset | Samples, config: TrainConfig, checkpoint=None, init: dict | None = None
-              ) -> xr.Dataset:
+def train_fcn(samples: xr.Dataset | Samples, config: TrainConfig, checkpoint=None, init: dict | None = None,
+              teacher: dict | None = None) -> xr.Dataset:
     """Train the network on ``samples`` (dims sample, y, x, ...; a loaded dataset or samples streamed from
     storage); the weights as a flat vector with their layout. With a ``checkpoint`` (``load() -> dict | None``,
     ``save(dict)``), the state is saved every ``checkpoint_every`` iterations and a saved state is continued
     from: the weights are those of an uninterrupted run. ``init``: the tensors of the file ``config.init`` names
-    (the engine loads them), the weights the training starts from."""
+    (the engine loads them), the weights the training starts from; ``teacher``: those of ``config.teacher``, the
+    network whose maps the targets blend in (distillation)."""
     import torch
 
     from mocapflow.tasks.deepmocap import fcn
@@ -210,6 +217,7 @@ def train_fcn(samples: xr.Dataset | Samples, config: TrainConfig, checkpoint=Non
     model = fcn.TwoStreamFCN(arch) if init is None else _started_from(init, arch, config.init)
     model = model.to(device).train()
     mixed = config.bfloat16 and _bfloat16_ok(device)
+    teach = None if teacher is None else _Teacher(teacher, arch, config, device, mixed)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     schedule = torch.optim.lr_scheduler.OneCycleLR(optimizer, max_lr=config.learning_rate,
                                                    total_steps=config.iterations, pct_start=0.1)
@@ -222,6 +230,8 @@ def train_fcn(samples: xr.Dataset | Samples, config: TrainConfig, checkpoint=Non
         outputs = [(s.float(), None if f is None else f.float()) for s, f in outputs]  # the loss in float32
         l_target = l_target.reshape(len(depth), -1, *l_target.shape[-2:])  # (batch, 52, g, g)
         weight = 1.0 + config.foreground_weight * s_target[:, :fcn.N_REFLECTORS].amax(dim=1, keepdim=True)
+        if teach is not None:
+            s_target, l_target = teach.blend(depth, flow, s_target, l_target)
         loss = fcn.stage_losses(outputs, s_target, l_target, weight)
         optimizer.zero_grad()
         loss.backward()
@@ -235,19 +245,42 @@ def train_fcn(samples: xr.Dataset | Samples, config: TrainConfig, checkpoint=Non
 
 
 def _started_from(init: dict, arch, name: str):
-    """A network of ``arch`` holding the weights of ``init`` (fine-tuning)."""
+    """The network of ``init`` (fine-tuning), which must be of ``arch``."""
     from mocapflow.tasks.deepmocap import fcn
 
-    found = dict(init.get("architecture", {}))
-    wanted = asdict(arch)
-    differ = {k: (found.get(k), v) for k, v in wanted.items() if found.get(k) != v}
+    model = fcn.unpack(init)
+    found, wanted = asdict(model.arch), asdict(arch)
+    differ = [f"{k}: {found[k]!r} in the file, {v!r} here" for k, v in sorted(wanted.items()) if found[k] != v]
     if differ:
-        listed = ", ".join(f"{k}: {a!r} in the file, {b!r} here" for k, (a, b) in sorted(differ.items()))
-        raise ValueError(f"init weights {name} are another architecture ({listed}); set those params to the "
-                         "file's or train from scratch (init: \"\")")
-    model = fcn.TwoStreamFCN(arch)
-    model.load_state_dict(init["state"])
+        raise ValueError(f"init weights {name} are another architecture ({', '.join(differ)}); set those params "
+                         "to the file's or train from scratch (init: \"\")")
     return model
+
+
+class _Teacher:
+    """The network a smaller one learns from: its last stage's maps blended into each target (distillation)."""
+
+    def __init__(self, weights: dict, arch, config: TrainConfig, device: str, mixed: bool):
+        from mocapflow.tasks.deepmocap import fcn
+
+        model = fcn.unpack(weights)
+        if model.arch.input_size != arch.input_size:
+            raise ValueError(f"teacher {config.teacher} reads {model.arch.input_size}-pixel crops, this network "
+                             f"{arch.input_size}; their maps must share a grid: set input_size to "
+                             f"{model.arch.input_size} or choose another teacher")
+        self.model, self.share, self.device, self.mixed = model.to(device), config.distill, device, mixed
+
+    def blend(self, depth, flow, s_target, l_target):
+        import torch
+
+        from mocapflow.tasks.deepmocap import fcn
+
+        with torch.no_grad(), torch.autocast(self.device, dtype=torch.bfloat16, enabled=self.mixed):
+            s, fields = self.model(fcn.to_input(depth), fcn.to_input(flow) if self.model.arch.flow_stream else None)[-1]
+        s_target = self.share * s.float() + (1.0 - self.share) * s_target
+        if fields is not None:
+            l_target = self.share * fields.float() + (1.0 - self.share) * l_target
+        return s_target, l_target
 
 
 class _Progress:

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mocapflow.tasks.shared import body
-from mocapflow.tasks.shared.mesh_body import MeshBody, mesh_body, random_phenotype
+from mocapflow.tasks.shared.mesh_body import HEIGHT_RANGE_M, MeshBody, mesh_body, random_phenotype
 from mocapflow.tasks.studio import bvh, mesh_motion, motion
 
 
@@ -33,9 +33,10 @@ class Take:
 
 
 def mesh_subject(spec) -> tuple[MeshBody, body.Subject]:
-    """The take's Anny body (from its own random stream ``[seed, 2]``) and the template subject of its height."""
+    """The take's Anny body (from its own random stream ``[seed, 2]``) and the template subject of its height
+    (a body asked for at the range's end measures a few micrometres past it: held to the range)."""
     body_ = mesh_body(random_phenotype(np.random.default_rng([spec.seed, 2]), spec.subject_height))
-    return body_, body.Subject(height=body_.height)
+    return body_, body.Subject(height=float(np.clip(body_.height, *HEIGHT_RANGE_M)))
 
 
 def performed_motion(spec, subject: body.Subject, bvh_text: str | None) -> motion.Motion:

@@ -149,3 +149,26 @@ def test_a_training_starts_from_a_weights_file_of_its_architecture_and_refuses_a
                       cwd=tmp_path, check=False, timeout=600)
     assert wider.returncode != 0 and not (tmp_path / "wider.pt").exists()
     assert "init weights" in wider.stderr and "stream_width: 8 in the file, 16 here" in wider.stderr
+
+
+def test_a_network_learns_from_a_teacher_s_maps_of_the_same_grid(tmp_path):
+    (tmp_path / "catalog.yaml").write_text(CATALOG)
+    mocapflow("train", "--catalog", "catalog.yaml", "--out", "teacher.pt", cwd=tmp_path, timeout=600)
+    store = Store(load_catalog(tmp_path / "catalog.yaml", ()).root)
+
+    def first_loss(*settings: str) -> float:
+        run = last_json(mocapflow("train", "--catalog", "catalog.yaml", "--out", "student.pt", "--json",
+                                  "--set", "stages.weights.params.init=teacher.pt", *settings, cwd=tmp_path, timeout=600))
+        return float(store.open("weights", run["key"], get_schema("fcn_weights"))["loss"].values[0])
+
+    truth = first_loss()
+    # a student that is the teacher, taught by it alone: its targets are nearly its own maps (batch statistics
+    # in training against running ones in the teacher), far nearer than the truth a 3-step network misses
+    taught = first_loss("--set", "stages.weights.params.teacher=teacher.pt", "--set", "stages.weights.params.distill=1")
+    half = first_loss("--set", "stages.weights.params.teacher=teacher.pt")
+    assert taught < 0.5 * half < 0.5 * truth
+
+    other = mocapflow("train", "--catalog", "catalog.yaml", "--out", "small.pt", "--set",
+                      "stages.weights.params.teacher=teacher.pt", "--set", "stages.weights.params.input_size=96",
+                      cwd=tmp_path, check=False, timeout=600)
+    assert other.returncode != 0 and "teacher teacher.pt reads 64-pixel crops, this network 96" in other.stderr

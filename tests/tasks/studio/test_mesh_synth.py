@@ -72,3 +72,14 @@ def test_the_same_spec_renders_the_same_bytes_and_the_capsule_body_is_unchanged(
     mesh_cams = [v.cam.cam_to_world for v in rig.views]
     assert all(np.array_equal(a, v.cam.cam_to_world) for a, v in zip(mesh_cams, capsule.views))  # one layout per seed
     assert "body" not in synthesize(capsule, 0, 1).attrs
+
+
+@pytest.mark.parametrize("height", [1.50, 2.00])
+def test_a_body_asked_for_at_the_end_of_the_height_range_is_filmed(height):
+    # the mesh measures its own height a few micrometres off the one asked for; the take must not refuse it
+    spec = SequenceSpec("crossing_legs", frames=2, seed=1227, body="mesh", subject_height=height)
+    rig = build_rig(spec)
+    assert abs(rig.body.height - height) < 1e-4 and abs(rig.subject.height - height) < 1e-4
+    assert 1.50 <= rig.subject.height <= 2.00
+    raw = synthesize(rig, 0, 2)
+    assert raw.sizes["frame"] == 2 and raw.gt_pixels.values.max() > 0
