@@ -13,7 +13,7 @@ demo: install
 	$(BIN)/mocapflow demo
 
 test: install
-	$(BIN)/python -m pytest -q -n auto
+	$(BIN)/python -m pytest -q -n auto --durations=40
 
 install: $(VENV)/.installed
 

@@ -19,7 +19,7 @@ import numpy as np
 
 def main() -> None:
     from mocapflow.systems.studio import specs as studio_io
-    from mocapflow.tasks.studio import uuo_takes as uuo
+    from mocapflow.tasks.studio import synth, uuo_takes as uuo
     from mocapflow.tasks.uuo import prior, segmentation, solve
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -33,7 +33,7 @@ def main() -> None:
     args = ap.parse_args()
     spec, _, _ = studio_io.make_spec({"motion": args.motion, "seed": args.seed, "frames": args.frames,
                                       "body": "mesh", "views": 1}, "probe", lambda p: p)
-    rig = studio_io.build_rig(spec, None)
+    rig = synth.build_rig(spec, None)
     layout = uuo.layout(rig.body, np.random.default_rng([args.seed, 3]), args.markers, args.part)
     paths = uuo.marker_paths(rig.body, layout, rig.take.posed.vertices[:rig.n_frames])
     captured = uuo.capture(paths, uuo.MarkerFaults(dropout=0.002, ghosts=3), np.random.default_rng([args.seed, 4]))

@@ -82,6 +82,11 @@ def score_take(truth_of: dict, solved) -> dict:
     out["part_right"] = float((solved["part"].values[labelled] == true_part[labelled]).mean()) if labelled.any() \
         else float("nan")
     out["hypothesis_yaw_deg"] = float(solved.attrs.get("yaw_deg", np.nan))
+    out["facing_error_deg"] = metrics.facing_error_deg(joints, truth, names)
+    swapped, sided = metrics.side_swaps(true_part[labelled], solved["part"].values[labelled])
+    out["side_swap_rate"] = swapped / sided if sided else float("nan")
+    out["turned"] = float(out["facing_error_deg"] > metrics.TURNED_DEG)  # counted over takes by _summary
+    out["mirrored"] = float(sided > 0 and swapped > metrics.MIRRORED_SHARE * sided)
     return out
 
 
@@ -149,6 +154,8 @@ def _summary(rows: list[dict]) -> dict:
     out["stages_mpjpe_mm"] = {s: float(np.nanmedian([r["stages_mpjpe_mm"].get(s, np.nan) for r in rows]))
                               for s in sorted(stage_names)}
     out["takes"] = len(rows)
+    for failure in ("turned", "mirrored"):  # takes solved turned around or mirrored: a count, not a median
+        out[f"{failure}_takes"] = int(sum(r.get(failure, 0.0) for r in rows))
     return out
 
 
@@ -164,7 +171,8 @@ def uuo_headline(result: dict) -> dict:
         if i == 0:
             out.update({"uuo_stage": stage, "uuo_mpjpe_mm": o["mpjpe_mm"], "uuo_mpjve_mm": o["mpjve_mm"],
                         "uuo_v2v_mm": o["v2v_mm"], "uuo_m2s_mm": o["m2s_mm"],
-                        "uuo_ghost_label_rate": o["ghost_label_rate"]})
+                        "uuo_ghost_label_rate": o["ghost_label_rate"], "uuo_turned_takes": o["turned_takes"],
+                        "uuo_mirrored_takes": o["mirrored_takes"]})
             if "prior_aligned_mpjpe_mm" in o:
                 out["uuo_prior_aligned_mpjpe_mm"] = o["prior_aligned_mpjpe_mm"]
             for layout, lr in r["layouts"].items():
@@ -183,7 +191,7 @@ def uuo_table(result: dict) -> list[str]:
     if any("reference" in r for r in result.values()):
         return reference_table(result)
     rows = [("UUO stage", "layout", "takes", "MPJPE mm (p90)", "part MPJPE (p90)", "MPJVE mm/frame", "V2V mm",
-             "m2s mm (truth)", "labelled", "right part", "ghosts labelled", "prior aligned mm")]
+             "m2s mm (truth)", "labelled", "right part", "ghosts labelled", "prior aligned mm", "turned / mirrored")]
     for stage, r in result.items():
         for layout, lr in [("all", r["overall"])] + list(r["layouts"].items()):
             part = lr.get("part_mpjpe_mm", float("nan"))
@@ -194,8 +202,11 @@ def uuo_table(result: dict) -> list[str]:
                          f"{lr['m2s_mm']:.1f} ({lr['m2s_truth_mm']:.1f})", f"{lr['labelled']:.0%}",
                          f"{lr['part_right']:.0%}",
                          "-" if np.isnan(lr["ghost_label_rate"]) else f"{lr['ghost_label_rate']:.0%}",
-                         "-" if np.isnan(prior) else f"{prior:.1f}"))
-    lines = ["median over takes (90th percentile)"] + format_rows(rows)
+                         "-" if np.isnan(prior) else f"{prior:.1f}",
+                         f"{lr['turned_takes']} / {lr['mirrored_takes']}"))
+    lines = ["median over takes (90th percentile); turned / mirrored: takes solved turned around (facing off by "
+             f"more than {metrics.TURNED_DEG:.0f} degrees) or mirrored (most sided labels on the other side)"] \
+        + format_rows(rows)
     stage_rows = [("UUO stage", "after matching", "pose fit", "IK", "refined")]
     for stage, r in result.items():
         s = r["overall"]["stages_mpjpe_mm"]

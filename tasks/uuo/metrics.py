@@ -6,6 +6,10 @@
 - m2s: mean distance from each real marker sample (every frame) to the solved body's skin. A marker sits 9.5 mm above the
   skin, so the truth itself scores about 9.5 mm (``m2s_truth``).
 A partial layout is also scored on its part's joints (PART_JOINTS, the paper's Table 5 parts).
+
+Two failures the averages hide are counted per take: a body solved turned around (``facing_error_deg``: the
+solved hips face away from the true ones) and a body solved mirrored (``side_swaps``: markers of one side of the
+body labelled on the other).
 """
 
 from __future__ import annotations
@@ -74,3 +78,32 @@ def m2s(markers: np.ndarray, vertices: np.ndarray, faces: np.ndarray, frames: in
            for f in chosen]
     out = np.concatenate(out) if out else np.zeros(0)
     return float(out.mean()) if len(out) else float("nan")
+
+
+TURNED_DEG = 90.0  # a solve whose facing is off by more than this on the median frame is turned around
+MIRRORED_SHARE = 0.5  # a solve that puts more than this share of its sided labels on the other side is mirrored
+
+
+def facing_error_deg(joints: np.ndarray, truth: np.ndarray, names: list[str]) -> float:
+    """Median over frames of the angle between the solved and the true facing, degrees: the horizontal direction
+    normal to the hips' left-right axis (Z up). About 180 for a body solved turned around.
+    joints, truth (frame, joint, 3) in the order of ``names`` (the template's JOINT_NAMES)"""
+    left, right = names.index("LeftHip"), names.index("RightHip")
+
+    def heading(j):
+        across = j[:, left, :2] - j[:, right, :2]  # left minus right, horizontal
+        return np.arctan2(across[:, 0], -across[:, 1])  # the facing: across turned by -90 degrees about Z
+
+    diff = np.angle(np.exp(1j * (heading(joints) - heading(truth))))
+    return float(np.degrees(np.median(np.abs(diff))))
+
+
+def side_swaps(true_parts: np.ndarray, got_parts: np.ndarray) -> tuple[int, int]:
+    """(labels on the other side, sided labels): of the markers whose true part is on one side of the body and
+    that got a part, how many got a part of the other side.  true_parts, got_parts (marker,) part names, "" none"""
+    def side(parts):
+        return np.array([1 if "left" in p else -1 if "right" in p else 0 for p in parts])
+
+    t, g = side(true_parts), side(got_parts)
+    sided = (t != 0) & (np.asarray(got_parts) != "")
+    return int((sided & (g == -t)).sum()), int(sided.sum())

@@ -16,6 +16,7 @@ trajectory.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,6 +33,8 @@ from mocapflow.tasks.shared.solver_body import BodyFit, posed_heads, posed_verti
 from mocapflow.tasks.uuo.ik import IKConfig, inverse_kinematics
 from mocapflow.tasks.uuo.matching import MatchConfig, closest, evenly, match_parts, part_vertices
 from mocapflow.tasks.uuo.pose_fit import PoseFitConfig, fit_pose
+
+logger = logging.getLogger(__name__)
 
 STAGES = ("matching", "pose_fit", "ik", "refined")
 _BODIES: BoundedCache[tuple, tuple] = BoundedCache(2)
@@ -213,10 +216,14 @@ def _refine(markers: xr.Dataset, hypotheses: list[xr.Dataset], config: RefineCon
     chain = part_vertices(body, tuple(best.attrs["parts"]))
     valid = np.ones(m.shape[0], bool)
     vertex, distance = correspond(solver, m, solved, chain, config.correspondence)  # stage 5: stage 3 again ...
-    if not (vertex >= 0).any():
-        raise SolveError("no marker trajectory lies near the best hypothesis' body (every one unlabelled); check "
-                         "that the markers and the prior show the same take")
-    refined = inverse_kinematics(solver, m, vertex, solved, solved, valid, config.ik)  # ... and 4, anchored to 4
+    if (vertex >= 0).any():
+        refined = inverse_kinematics(solver, m, vertex, solved, solved, valid, config.ik)  # ... and 4, anchored to 4
+    else:  # no trajectory near the chosen body: it stays as stage 4 left it, every marker unlabelled
+        logger.warning("no marker trajectory lies within %.2f m of the chosen hypothesis' body (yaw %.0f): the body "
+                       "is kept unrefined and every trajectory unlabelled; check that the markers and the prior "
+                       "show the same take", config.correspondence.offset_m + config.correspondence.reject_m,
+                       best.attrs["yaw_deg"])
+        refined = solved
     stage_joints = {name: best["stage_joints"].sel(stage=name).values for name in ("matching", "pose_fit", "ik")}
     stage_joints["refined"] = posed_heads(solver, refined)[:, body.joint_bones()]
     return body_dataset(markers, body, solver, refined, vertex, distance, stage_joints,

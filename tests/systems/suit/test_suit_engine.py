@@ -6,16 +6,17 @@ from __future__ import annotations
 import numpy as np
 
 from conftest import last_json, mocapflow, read_artifacts
+from shared_runs import copy_run, shared_run
 from studio_catalogs import SUIT_CATALOG as CATALOG
 from mocapflow.tasks.shared.cameras import camera_of
 
 
-def test_suit_takes_are_labelled_triangulated_and_scored_through_the_engine(tmp_path):
-    (tmp_path / "catalog.yaml").write_text(CATALOG)
-    first = last_json(mocapflow("run", "--json", cwd=tmp_path))
+def test_suit_takes_are_labelled_triangulated_and_scored_through_the_engine(request, tmp_path):
+    first = shared_run(request, "suit", CATALOG)  # the session's one run of the catalog (the report reads it too)
+    project = copy_run(request, "suit", tmp_path / "project")
     assert sorted(first["executed"]) == sorted(["images/sq", "points/sq", "hidden/sq", "filled/sq"]
                                                + [f"labels/sq/cam{v:02d}" for v in range(4)])
-    stored = {pid: arrays for (pid, _), arrays in read_artifacts(tmp_path / "storage").items()}
+    stored = {pid: arrays for (pid, _), arrays in read_artifacts(project / "storage").items()}
     images, points = stored["images/sq"], stored["points/sq"]
     assert images["image"].shape == (4, 3, 512, 384) and images["gt_corners"].shape[1] > 1000
     ds = _calibration(images)
@@ -33,13 +34,13 @@ def test_suit_takes_are_labelled_triangulated_and_scored_through_the_engine(tmp_
     np.testing.assert_array_equal(filled["observed"], seen)
     np.testing.assert_array_equal(filled["position"][seen], stored["hidden/sq"]["position"][seen])
     assert np.isfinite(filled["position"]).all()  # every corner of every frame
-    scores = last_json(mocapflow("evaluate", "--json", cwd=tmp_path))  # cached: scores only
+    scores = last_json(mocapflow("evaluate", "--json", cwd=project))  # cached: scores only
     assert scores["suit_fill_err_median_mm"] < 5.0
     assert scores["suit_wrong_labels"] > 0 and 0.9 < scores["suit_detect_rate"] < 1.0  # 2 % planted misreads
     assert abs(scores["suit_err3d_median_mm"] - np.median(1000 * error)) < 1e-3
-    again = last_json(mocapflow("run", "--json", cwd=tmp_path))
+    again = last_json(mocapflow("run", "--json", cwd=project))
     assert again["executed"] == []
-    _check_exports(tmp_path, filled, images)
+    _check_exports(project, filled, images)
 
 
 def _check_exports(tmp_path, filled: dict, images: dict) -> None:

@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 
 from conftest import mocapflow, read_artifacts
+from shared_runs import copy_run, shared_run
 from studio_catalogs import SUIT_CATALOG as CATALOG
 
 
@@ -30,16 +31,16 @@ def check_png(path) -> np.ndarray:
     return img
 
 
-def test_the_report_of_a_suit_catalog_shows_its_corners_and_the_filled_suit(tmp_path):
-    (tmp_path / "catalog.yaml").write_text(CATALOG)
-    mocapflow("run", cwd=tmp_path, timeout=900)
-    proc = mocapflow("report", "--out", "rep", cwd=tmp_path, timeout=600)
+def test_the_report_of_a_suit_catalog_shows_its_corners_and_the_filled_suit(request, tmp_path):
+    shared_run(request, "suit", CATALOG)  # the session's one run of the catalog (the engine's test reads it too)
+    project = copy_run(request, "suit", tmp_path / "project")
+    proc = mocapflow("report", "--out", "rep", cwd=project, timeout=600)
     for name in FIGURES:
         assert f"wrote rep/{name}.png" in proc.stdout
-        check_png(tmp_path / "rep" / f"{name}.png")
-    page = (tmp_path / "rep" / "report.html").read_text()
+        check_png(project / "rep" / f"{name}.png")
+    page = (project / "rep" / "report.html").read_text()
     assert all(f'src="{name}.png"' in page or f"src='{name}.png'" in page for name in FIGURES)
-    stored = {pid: arrays for (pid, _), arrays in read_artifacts(tmp_path / "storage").items()}
+    stored = {pid: arrays for (pid, _), arrays in read_artifacts(project / "storage").items()}
     filled, images = stored["filled/sq"], stored["images/sq"]
     n = filled["position"].shape[1]
     seq = viewer_data(page)["sequences"][0]
@@ -50,7 +51,7 @@ def test_the_report_of_a_suit_catalog_shows_its_corners_and_the_filled_suit(tmp_
     np.testing.assert_allclose(shown, filled["position"][:, ::step], atol=6e-4)
     assert seq["markers"][0] and all(isinstance(m, str) and m for m in seq["markers"])  # named by code and vertex
     assert "suit: hidden corners filled, 3D error median" in page  # the evaluation's headline, named
-    three_d = check_png(tmp_path / "rep" / "suit_corners_3d_sq.png")
+    three_d = check_png(project / "rep" / "suit_corners_3d_sq.png")
     assert three_d.shape == (600, 1200, 3)  # front and side
     frame = filled["position"].shape[0] // 2  # the figure's frame: filled (orange) and observed (green) corners
     assert (~filled["observed"][frame]).any() and filled["observed"][frame].any()

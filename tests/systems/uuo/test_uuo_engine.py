@@ -6,32 +6,34 @@ import numpy as np
 import pytest
 
 from conftest import last_json, mocapflow, read_artifacts
+from shared_runs import copy_run, shared_run
 from studio_catalogs import UUO_CATALOG as CATALOG
 
 
-def test_unlabelled_markers_are_solved_through_the_engine_and_one_hypothesis_reruns_alone(tmp_path):
-    (tmp_path / "catalog.yaml").write_text(CATALOG)
-    first = last_json(mocapflow("run", "--json", cwd=tmp_path))
+def test_unlabelled_markers_are_solved_through_the_engine_and_one_hypothesis_reruns_alone(request, tmp_path):
+    first = shared_run(request, "uuo", CATALOG)  # the session's one run of the catalog (the report reads it too)
+    project = copy_run(request, "uuo", tmp_path / "project")
     assert sorted(first["executed"]) == sorted(f"{s}/reach" for s in ("markers", "segments", "prior", "yaw0", "yaw90",
                                                                        "yaw180", "yaw270", "solve"))
-    stored = {pid: arrays for (pid, _), arrays in read_artifacts(tmp_path / "storage").items()}
+    stored = {pid: arrays for (pid, _), arrays in read_artifacts(project / "storage").items()}
     markers, solved = stored["markers/reach"], stored["solve/reach"]
     assert solved["joints"].shape == (24, 20, 3) and solved["bone_rotation"].shape == (24, 104, 4)
     error = np.linalg.norm(solved["joints"] - markers["gt_joints"], axis=-1).mean()
     assert error < 0.12, error  # 24 frames, light settings: placed and posed (a wrong half turn: 30 cm and more)
     real = markers["gt_source"] >= 0
     assert (solved["vertex"][real] >= 0).mean() > 0.8  # most markers labelled with a body vertex
-    scores = last_json(mocapflow("evaluate", "--json", cwd=tmp_path))  # everything cached: scores only
+    scores = last_json(mocapflow("evaluate", "--json", cwd=project))  # everything cached: scores only
     assert scores["uuo_stage"] == "solve" and scores["uuo_mpjpe_mm"] == pytest.approx(1000 * error, rel=1e-5)
     assert scores["uuo_body30_mpjpe_mm"] == scores["uuo_mpjpe_mm"]  # the one layout: 30 markers on the body
     assert 5 < scores["uuo_m2s_mm"] < 60 and scores["uuo_v2v_mm"] > 0 and scores["uuo_mpjve_mm"] > 0
     assert scores["uuo_body30_mpjpe_p90_mm"] == scores["uuo_body30_mpjpe_mm"]  # one take: its median and p90
     assert scores["uuo_prior_aligned_mpjpe_mm"] < 1.0  # the catalog's exact prior (form: mild, no error)
     assert scores["uuo_ghost_label_rate"] == (solved["vertex"][~real] >= 0).mean()  # a labelled ghost: a false label
-    (tmp_path / "catalog.yaml").write_text(CATALOG.replace("yaw_deg: 270.0}", "yaw_deg: 270.0, outlier_m: 0.11}"))
-    again = last_json(mocapflow("run", "--json", cwd=tmp_path))
+    assert scores["uuo_turned_takes"] == 0 and scores["uuo_mirrored_takes"] == 0  # placed and posed the right way
+    (project / "catalog.yaml").write_text(CATALOG.replace("yaw_deg: 270.0}", "yaw_deg: 270.0, outlier_m: 0.11}"))
+    again = last_json(mocapflow("run", "--json", cwd=project))
     assert sorted(again["executed"]) == ["solve/reach", "yaw270/reach"]  # one hypothesis changed: it and the choice
-    (tmp_path / "catalog.yaml").write_text(CATALOG.replace("pose_fit: {rounds: 3", "pose_fit: {round: 3"))
-    proc = mocapflow("run", cwd=tmp_path, check=False)
+    (project / "catalog.yaml").write_text(CATALOG.replace("pose_fit: {rounds: 3", "pose_fit: {round: 3"))
+    proc = mocapflow("run", cwd=project, check=False)
     assert proc.returncode == 2
     assert "PoseFitConfig has no field 'round' (did you mean 'rounds'?)" in proc.stderr

@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 
 from conftest import mocapflow
+from shared_runs import copy_run, shared_run
 from studio_catalogs import UUO_CATALOG as CATALOG
 from mocapflow.tasks.shared.body import JOINT_NAMES, PARENTS
 
@@ -27,11 +28,11 @@ def check_png(path, min_size=(200, 200)) -> np.ndarray:
     return img
 
 
-def test_the_report_of_a_uuo_catalog_shows_the_solved_body(tmp_path):
-    (tmp_path / "catalog.yaml").write_text(CATALOG)
-    mocapflow("run", cwd=tmp_path, timeout=1200)
-    proc = mocapflow("report", "--out", "rep", cwd=tmp_path, timeout=600)
-    out = tmp_path / "rep"
+def test_the_report_of_a_uuo_catalog_shows_the_solved_body(request, tmp_path):
+    shared_run(request, "uuo", CATALOG)  # the session's one run of the catalog (the engine's test reads it too)
+    project = copy_run(request, "uuo", tmp_path / "project")
+    proc = mocapflow("report", "--out", "rep", cwd=project, timeout=600)
+    out = project / "rep"
     for name in ("markers_on_mesh_reach", "joint_errors_reach", "error_over_time_reach", "trajectories_reach"):
         assert f"wrote rep/{name}.png" in proc.stdout
         check_png(out / f"{name}.png")

@@ -37,3 +37,25 @@ def test_m2s_counts_every_frame_unless_told_fewer():
     surface = np.broadcast_to(vertices, (40, 4, 3))
     assert metrics.m2s(markers, surface, faces) == pytest.approx(np.arange(40).mean() / 1000.0)
     assert metrics.m2s(markers, surface, faces, frames=2) == pytest.approx(39 / 2000.0)  # frames 0 and 39
+
+
+def test_a_body_turned_around_faces_180_degrees_off_and_a_small_turn_counts_its_angle():
+    from mocapflow.tasks.shared.body import JOINT_NAMES
+
+    names = list(JOINT_NAMES)
+    truth = np.zeros((3, len(names), 3))
+    truth[:, names.index("LeftHip")] = [0.1, 0.0, 0.9]  # hips across X: facing along -Y or +Y, either way the same
+    truth[:, names.index("RightHip")] = [-0.1, 0.0, 0.9]
+    turned = truth * [-1, -1, 1]  # half a turn about Z
+    assert metrics.facing_error_deg(turned, truth, names) == pytest.approx(180.0)
+    c, s = np.cos(np.radians(30)), np.sin(np.radians(30))
+    small = truth @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]).T
+    small[0] = turned[0]  # one frame of three turned around: the median frame decides
+    assert metrics.facing_error_deg(small, truth, names) == pytest.approx(30.0)
+    assert metrics.facing_error_deg(truth, truth, names) == 0.0
+
+
+def test_side_swaps_count_sided_labels_put_on_the_other_side():
+    true = np.array(["upperarm_left", "upperarm_left", "thigh_right", "torso", "shank_left", "hand_right"])
+    got = np.array(["upperarm_right", "upperarm_left", "thigh_left", "torso", "", "hand_right"])
+    assert metrics.side_swaps(true, got) == (2, 4)  # the unlabelled shank and the torso are not sided labels

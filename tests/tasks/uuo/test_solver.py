@@ -187,3 +187,23 @@ def test_close_hypotheses_are_told_apart_by_the_priors_pose_and_one_side_per_rig
     assert solve.choose([hyp(1.0, 10, 0.0), hyp(1.1, 5, 0.2)], config) == 0
     with pytest.raises(solve.SolveError, match="close >= 1"):
         solve.RefineConfig(close=0.5)
+
+
+def test_a_chosen_body_far_from_every_marker_is_kept_unrefined_and_labels_nothing(take, caplog):
+    """A hypothesis no trajectory lies near (a partial layout matched to the wrong place) still gives the take a
+    body: stage 4's, every trajectory unlabelled, with a warning; the benchmark keeps the take and scores it."""
+    fit = solve.body_fit(prior.simulated_prior(take, prior.SimulatedPriorConfig(form="mild", rotation_deg=0.0,
+                                                                                 yaw_deg=0.0, lost=0.0)))
+    away = dataclasses.replace(fit, root=fit.root + [3.0, 0.0, 0.0])  # the body 3 m beside the markers
+    body = mb.mesh_body(mb.Phenotype(**take.attrs["phenotype"]))
+    solver = SolverBody(body)
+    heads = {name: np.zeros((FRAMES, 20, 3)) for name in ("matching", "pose_fit", "ik")}
+    hypothesis = solve.body_dataset(take, body, solver, away, np.full(take.sizes["marker"], -1),
+                                    np.full(take.sizes["marker"], np.inf), heads,
+                                    {"yaw_deg": 0.0, "chamfer": 1.0, "parts": list(matching.PART_NAMES)})
+    with caplog.at_level("WARNING", logger="mocapflow.tasks.uuo.solve"):
+        kept = solve.single_hypothesis(take, hypothesis, solve.RefineConfig())
+    assert (kept["vertex"].values == -1).all() and (kept["part"].values == "").all()
+    np.testing.assert_allclose(kept["root"].values, away.root)
+    np.testing.assert_allclose(kept["joints"].values, hypothesis["joints"].values, atol=1e-6)
+    assert "no marker trajectory lies within 0.11 m of the chosen hypothesis' body" in caplog.text
