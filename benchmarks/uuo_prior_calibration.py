@@ -46,7 +46,7 @@ def main() -> None:
             n = rig.n_frames
             quats = Rotation.from_matrix(rig.take.rotations[:n].reshape(-1, 3, 3)).as_quat().reshape(n, -1, 4)
             config = prior.SimulatedPriorConfig(form=args.form, seed=seed, **overrides)
-            out = prior._degraded(np.arange(n), dataclasses.asdict(rig.body.phenotype), quats, rig.take.root[:n],
+            out = prior.degraded_body(np.arange(n), dataclasses.asdict(rig.body.phenotype), quats, rig.take.root[:n],
                                   rig.take.posed.heads[:n][:, rig.body.joint_bones()], 30.0, config, "simulated")
             rows.append((out.attrs["pa_mpjpe_mm"], out.attrs["registered_mpjpe_mm"], out.attrs["aligned_mpjpe_mm"]))
             print(f"{name:26s} seed {seed}: PA {rows[-1][0]:6.1f}  RR {rows[-1][1]:6.1f}  aligned {rows[-1][2]:6.1f} mm")

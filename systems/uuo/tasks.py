@@ -26,7 +26,7 @@ TASKS = (
         description="group unlabelled markers by the bone they ride: spread of pairwise distances, agglomerative clustering",
     ),
     TaskSpec(
-        name="simulated_prior", fn=prior.simulated_prior, version="3", params=prior.SimulatedPriorConfig,
+        name="simulated_prior", fn=prior.simulated_prior, version="4", params=prior.SimulatedPriorConfig,
         output="body_prior", partition="sequence", inputs={"markers": "raw_markers"}, whole_sequence=True,
         description="the studio's true body degraded like a monocular estimate (rotation errors, yaw, size, position, "
                     "lost frames)",
@@ -46,7 +46,7 @@ TASKS = (
                     "inverse kinematics (§3.4-3.5, stages 2-4)",
     ),
     TaskSpec(
-        name="best_hypothesis", fn=solve.best_hypothesis, version="2", params=solve.RefineConfig,
+        name="best_hypothesis", fn=solve.best_hypothesis, version="3", params=solve.RefineConfig,
         output="uuo_body", partition="sequence", whole_sequence=True,
         inputs={"markers": "raw_markers", "yaw0": "uuo_body", "yaw90": "uuo_body", "yaw180": "uuo_body",
                 "yaw270": "uuo_body"},
@@ -55,7 +55,7 @@ TASKS = (
                     "prior and rigid groups kept to one side), refined (stage 5)",
     ),
     TaskSpec(
-        name="single_hypothesis", fn=solve.single_hypothesis, version="2", params=solve.RefineConfig,
+        name="single_hypothesis", fn=solve.single_hypothesis, version="3", params=solve.RefineConfig,
         output="uuo_body", partition="sequence", whole_sequence=True, inputs={"markers": "raw_markers", "yaw0": "uuo_body"},
         reads={"markers": ("position",)},
         description="one root-yaw hypothesis, refined (the paper's '- MHT' ablation, Table 3)",
@@ -76,7 +76,7 @@ TASKS = (
                     "to them",
     ),
     TaskSpec(
-        name="reference_prior", fn=prior.reference_prior, version="2", params=prior.SimulatedPriorConfig,
+        name="reference_prior", fn=prior.reference_prior, version="3", params=prior.SimulatedPriorConfig,
         output="body_prior", partition="sequence", inputs={"markers": "raw_markers", "reference": "uuo_body"},
         reads={"markers": ("position",), "reference": ("bone_rotation", "root", "joints")}, whole_sequence=True,
         description="a solved reference body (a recorded take's labelled solve) degraded like a monocular estimate",

@@ -26,6 +26,7 @@ single yaw offset). Implementations of the stage ``prior``:
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -71,7 +72,7 @@ class SimulatedPriorConfig:
     lean_deg: float = 5.0  # realistic: std of a systematic lean of the upper body, varying slowly (lean_s)
     lean_s: float = 2.0
     jitter_deg: float = 1.5  # realistic: std of a per-frame rotation jitter of every articulated joint
-    seed: int = 0
+    seed: int = 0  # mixed with each take's own key (take_key): one seed gives every take of a catalog its own errors
 
     def __post_init__(self):
         lo, hi = self.scale_range
@@ -109,9 +110,18 @@ def _smooth_noise(rng: np.random.Generator, shape: tuple, sigma_frames: float) -
     return noise
 
 
+def take_key(phenotype: dict, root: np.ndarray) -> int:
+    """A number that tells takes apart (the subject's phenotype and where the body starts), mixed into the prior's
+    seed: each take of a catalog gets errors of its own, and the same take always the same ones."""
+    values = np.array([float(phenotype[k]) for k in sorted(phenotype)] + [float(v) for v in np.asarray(root)[0]])
+    return int.from_bytes(hashlib.sha256(np.round(values, 9).tobytes()).digest()[:8], "little")
+
+
 def degrade(body: MeshBody, rotations: np.ndarray, root: np.ndarray, fps: float, config: SimulatedPriorConfig,
-            rng: np.random.Generator) -> dict:
-    """The prior's bone rotations (frame, bone, 3, 3), root (frame, 3), validity (frame,) and phenotype."""
+            key: int) -> dict:
+    """The prior's bone rotations (frame, bone, 3, 3), root (frame, 3), validity (frame,) and phenotype; the draws
+    come from ``config.seed`` and the take's ``key`` (take_key)."""
+    rng = np.random.default_rng([config.seed, key])
     n, n_bones = rotations.shape[:2]
     noise = _smooth_noise(rng, (n, n_bones, 3), config.correlation_s * fps)
     noise *= np.radians(config.rotation_deg) / np.sqrt(3)
@@ -119,7 +129,7 @@ def degrade(body: MeshBody, rotations: np.ndarray, root: np.ndarray, fps: float,
     local = local_rotations(rotations, body.bone_parents)
     local = Rotation.from_rotvec(noise.reshape(-1, 3)).as_matrix().reshape(n, n_bones, 3, 3) @ local
     if config.form == "realistic":  # its own stream: the mild form's draws stay as they were
-        local = monocular_errors(body, local, fps, config, np.random.default_rng([config.seed, 7]))
+        local = monocular_errors(body, local, fps, config, np.random.default_rng([config.seed, key, 7]))
     yaw = Rotation.from_euler("z", rng.uniform(-config.yaw_deg, config.yaw_deg), degrees=True).as_matrix()
     local[:, 0] = yaw @ local[:, 0]  # the root's world orientation, turned by one yaw for the take
     world = world_rotations(local, body.bone_parents)
@@ -254,7 +264,7 @@ def simulated_prior(markers: xr.Dataset, config: SimulatedPriorConfig) -> xr.Dat
     if missing:
         raise PriorError(f"a simulated prior degrades the studio's truth, and these markers lack {missing}; use "
                          "prior: file (a monocular estimate you bring) or prior: none on recorded markers")
-    return _degraded(markers["frame"].values, markers.attrs["phenotype"], markers["gt_bone_rotations"].values,
+    return degraded_body(markers["frame"].values, markers.attrs["phenotype"], markers["gt_bone_rotations"].values,
                      markers["gt_root"].values, markers["gt_joints"].values, float(markers.attrs["fps"]), config,
                      "simulated")
 
@@ -266,16 +276,16 @@ def reference_prior(markers: xr.Dataset, reference: xr.Dataset, config: Simulate
         raise PriorError(f"the reference body has {reference.sizes['frame']} frames and the markers "
                          f"{markers.sizes['frame']}; solve the reference on the same take")
     fps = float(markers.attrs.get("fps", reference.attrs.get("fps", 0.0)))
-    return _degraded(markers["frame"].values, reference.attrs["phenotype"], reference["bone_rotation"].values,
+    return degraded_body(markers["frame"].values, reference.attrs["phenotype"], reference["bone_rotation"].values,
                      reference["root"].values, reference["joints"].values, fps, config, "reference")
 
 
-def _degraded(frames: np.ndarray, phenotype: dict, quats: np.ndarray, root: np.ndarray, truth_joints: np.ndarray,
-              fps: float, config: SimulatedPriorConfig, source: str) -> xr.Dataset:
+def degraded_body(frames: np.ndarray, phenotype: dict, quats: np.ndarray, root: np.ndarray, truth_joints: np.ndarray,
+                  fps: float, config: SimulatedPriorConfig, source: str) -> xr.Dataset:
     """A body (bone quaternions (frame, bone, 4), root (frame, 3)) degraded by ``degrade``, as a body_prior."""
     body = mesh_body(Phenotype(**phenotype))
     rotations = Rotation.from_quat(quats.reshape(-1, 4)).as_matrix().reshape(quats.shape[:2] + (3, 3))
-    out = degrade(body, rotations, root, fps, config, np.random.default_rng(config.seed))
+    out = degrade(body, rotations, root, fps, config, take_key(phenotype, root))
     prior_body = mesh_body(out["phenotype"])
     posed = pose_mesh(prior_body, out["rotations"], out["root"])
     joints = posed.heads[:, prior_body.joint_bones()]
