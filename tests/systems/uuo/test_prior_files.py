@@ -52,7 +52,7 @@ def test_a_json_prior_with_null_for_a_lost_frame(tmp_path):
     ({"joints": _joints(), "fps": 25.0}, r"key 'fps' is 25.0, the marker recording's rate is 30.0; resample"),
     ({"joints": _joints(), "fps": 30.0, "joint_names": np.array(JOINT_NAMES[:-1] + ("Toe",))},
      r"key 'joint_names' lacks \['RightFoot'\]; .*rename"),
-    ({"joints": _joints(), "fps": 30.0, "up": "x"}, r"key 'up' is 'x'; use one of \['z', 'y'\]"),
+    ({"joints": _joints(), "fps": 30.0, "up": "x"}, r"key 'up' is 'x'; use one of \['auto', 'z', 'y'\]"),
     ({"joints": _joints(), "fps": 30.0, "betas": np.zeros(10)}, r"unknown key\(s\) \['betas'\]"),
     ({"joints": np.where(np.arange(20)[None, :, None] == 3, np.nan, _joints()), "fps": 30.0},
      r"frame 0 is partly NaN; a lost frame is NaN in every joint"),
@@ -137,7 +137,7 @@ def test_a_frame_window_crops_the_markers_and_their_prior_alike_and_takes_overri
         np.savez(tmp_path / "priors" / f"{take}.npz", joints=_joints(frames=10), fps=50.0)
     (tmp_path / "catalog.yaml").write_text(
         "data_roots: [.]\ndatasets:\n  lab:\n    kind: markers\n    path: takes\n    pattern: '*.trc'\n"
-        "    prior: priors\n    frames: [2, 7]\n    takes: {b: {up: y, frames: [4, 6]}}\n"
+        "    prior: priors\n    up: z\n    frames: [2, 7]\n    takes: {b: {up: y, frames: [4, 6]}}\n"
         "stages:\n  markers: {task: ingest_markers, dataset: lab}\n")
     catalog = load_catalog(tmp_path / "catalog.yaml")
     seqs = {s.id: s for s in discover(catalog, catalog.datasets["lab"])}
