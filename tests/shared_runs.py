@@ -1,10 +1,10 @@
-"""A studio catalog run once per test session and copied into each test that reads it.
+"""A studio catalog run once per pytest run and copied into each test that reads it.
 
 Several tests look at the same small run from different sides (the engine's cache, the report, the exports).
 ``shared_run`` runs the catalog the first time a test asks for it, under a lock that the pytest-xdist workers
-of one session share, and later tests of any worker copy the finished project into their own folder, so
-that none of them changes what another reads. The folder lives under the session's own temporary root: a
-later session (or another checkout) never sees it.
+of one pytest run share, and later tests of any worker copy the finished project into their own folder, so
+that none of them changes what another reads. The folder lives under that run's own temporary root: a
+later run (or another checkout) never sees it.
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ from pathlib import Path
 from conftest import last_json, mocapflow
 
 
-def _session_root(request) -> Path:
-    """A folder shared by the xdist workers of this session only (the controller's test run id names it)."""
+def _run_root(request) -> Path:
+    """A folder shared by the xdist workers of this pytest run only (the controller's test run id names it)."""
     factory = request.getfixturevalue("tmp_path_factory")
     worker = getattr(request.config, "workerinput", None)
     if worker is None:
@@ -27,9 +27,9 @@ def _session_root(request) -> Path:
 
 
 def shared_run(request, name: str, catalog: str, timeout: float = 1200) -> dict:
-    """Run ``catalog`` (its text) once for the session under the name ``name``; the JSON summary of that first
+    """Run ``catalog`` (its text) once for the pytest run under the name ``name``; the JSON summary of that first
     `mocapflow run --json`. Copy the project with ``copy_run``."""
-    folder = _session_root(request) / name
+    folder = _run_root(request) / name
     folder.parent.mkdir(parents=True, exist_ok=True)
     with open(folder.parent / f"{name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # the other workers wait here while the first one runs it
@@ -45,6 +45,6 @@ def shared_run(request, name: str, catalog: str, timeout: float = 1200) -> dict:
 
 
 def copy_run(request, name: str, to: Path) -> Path:
-    """A private copy of the session's run ``name`` (run it first with ``shared_run``) at ``to``."""
-    shutil.copytree(_session_root(request) / name, to, ignore=shutil.ignore_patterns("run.json"))
+    """A private copy of the pytest run's run ``name`` (run it first with ``shared_run``) at ``to``."""
+    shutil.copytree(_run_root(request) / name, to, ignore=shutil.ignore_patterns("run.json"))
     return to

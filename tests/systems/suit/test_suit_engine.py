@@ -12,7 +12,7 @@ from mocapflow.tasks.shared.cameras import camera_of
 
 
 def test_suit_takes_are_labelled_triangulated_and_scored_through_the_engine(request, tmp_path):
-    first = shared_run(request, "suit", CATALOG)  # the session's one run of the catalog (the report reads it too)
+    first = shared_run(request, "suit", CATALOG)  # the pytest run's one run of the catalog (the report reads it too)
     project = copy_run(request, "suit", tmp_path / "project")
     assert sorted(first["executed"]) == sorted(["images/sq", "points/sq", "hidden/sq", "filled/sq"]
                                                + [f"labels/sq/cam{v:02d}" for v in range(4)])

@@ -32,7 +32,7 @@ def check_png(path) -> np.ndarray:
 
 
 def test_the_report_of_a_suit_catalog_shows_its_corners_and_the_filled_suit(request, tmp_path):
-    shared_run(request, "suit", CATALOG)  # the session's one run of the catalog (the engine's test reads it too)
+    shared_run(request, "suit", CATALOG)  # the pytest run's one run of the catalog (the engine's test reads it too)
     project = copy_run(request, "suit", tmp_path / "project")
     proc = mocapflow("report", "--out", "rep", cwd=project, timeout=600)
     for name in FIGURES:

@@ -11,7 +11,7 @@ from studio_catalogs import UUO_CATALOG as CATALOG
 
 
 def test_unlabelled_markers_are_solved_through_the_engine_and_one_hypothesis_reruns_alone(request, tmp_path):
-    first = shared_run(request, "uuo", CATALOG)  # the session's one run of the catalog (the report reads it too)
+    first = shared_run(request, "uuo", CATALOG)  # the pytest run's one run of the catalog (the report reads it too)
     project = copy_run(request, "uuo", tmp_path / "project")
     assert sorted(first["executed"]) == sorted(f"{s}/reach" for s in ("markers", "segments", "prior", "yaw0", "yaw90",
                                                                        "yaw180", "yaw270", "solve"))

@@ -29,7 +29,7 @@ def check_png(path, min_size=(200, 200)) -> np.ndarray:
 
 
 def test_the_report_of_a_uuo_catalog_shows_the_solved_body(request, tmp_path):
-    shared_run(request, "uuo", CATALOG)  # the session's one run of the catalog (the engine's test reads it too)
+    shared_run(request, "uuo", CATALOG)  # the pytest run's one run of the catalog (the engine's test reads it too)
     project = copy_run(request, "uuo", tmp_path / "project")
     proc = mocapflow("report", "--out", "rep", cwd=project, timeout=600)
     out = project / "rep"
