@@ -59,7 +59,7 @@ class SimulatedPriorConfig:
     form: str = "realistic"  # realistic | mild
     rotation_deg: float = 6.5  # std of each articulated joint's rotation error (PRIOR_BONES): PA-MPJPE about 54 mm
     correlation_s: float = 0.4  # how long an error lasts (Gaussian smoothing of the error curves)
-    drift_m: float = 0.13  # std of a slow error of the body's position (monocular depth, drift): RR about 140 mm
+    drift_m: float = 0.13  # std of a slow error of the body's position (monocular depth, drift): RR about 140 mm (mild)
     drift_s: float = 1.0  # how long a drift lasts
     yaw_deg: float = 180.0  # the root's yaw offset is drawn in [-yaw_deg, yaw_deg]
     scale_range: tuple[float, float] = (0.85, 1.15)  # one size factor for the take
