@@ -70,6 +70,11 @@ def part_of_bone(name: str) -> str:
     return f"{side}_{limb}" if side and limb else "torso"  # spine, clavicles, shoulders
 
 
+def part_sides(parts) -> np.ndarray:
+    """The side of each fine part: 1 left, -1 right, 0 neither (torso, head, hips, no part).  (n,) names -> (n,)"""
+    return np.array([1 if p.startswith("left") else -1 if p.startswith("right") else 0 for p in parts], dtype=int)
+
+
 class MeshBodyError(ValueError):
     """A phenotype or pose the mesh body cannot take."""
 

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from mocapflow.tasks.shared.mesh_body import part_sides
+
 PART_JOINTS = {  # Milef et al. 2024, Table 5, on the template's joints
     "left_leg": ("LeftHip", "LeftKnee", "LeftAnkle", "LeftFoot"),
     "right_leg": ("RightHip", "RightKnee", "RightAnkle", "RightFoot"),
@@ -101,9 +103,6 @@ def facing_error_deg(joints: np.ndarray, truth: np.ndarray, names: list[str]) ->
 def side_swaps(true_parts: np.ndarray, got_parts: np.ndarray) -> tuple[int, int]:
     """(labels on the other side, sided labels): of the markers whose true part is on one side of the body and
     that got a part, how many got a part of the other side.  true_parts, got_parts (marker,) part names, "" none"""
-    def side(parts):
-        return np.array([1 if "left" in p else -1 if "right" in p else 0 for p in parts])
-
-    t, g = side(true_parts), side(got_parts)
+    t, g = part_sides(true_parts), part_sides(got_parts)
     sided = (t != 0) & (np.asarray(got_parts) != "")
     return int((sided & (g == -t)).sum()), int(sided.sum())

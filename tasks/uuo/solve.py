@@ -25,7 +25,8 @@ from scipy.spatial.transform import Rotation
 
 from mocapflow.tasks.shared.body import JOINT_NAMES
 from mocapflow.tasks.shared.cache import BoundedCache
-from mocapflow.tasks.shared.mesh_body import PHENOTYPE_NAMES, MeshBody, Phenotype, mesh_body, part_of_bone
+from mocapflow.tasks.shared.mesh_body import PHENOTYPE_NAMES, MeshBody, Phenotype, mesh_body, part_of_bone, \
+    part_sides
 from mocapflow.tasks.shared.kinematics import local_rotations
 from mocapflow.tasks.shared.solver_body import SolverBody
 from mocapflow.tasks.uuo.correspondence import CorrespondenceConfig, correspond
@@ -167,13 +168,13 @@ def pose_disagreement(body: MeshBody, local: np.ndarray, prior_local: np.ndarray
 def side_split(parts: np.ndarray, segments: np.ndarray) -> float:
     """The share of sided labels (left_*/right_*) of the rigid groups against their group's majority side: a rigid
     group rides one bone, so its markers are on one side.  parts, segments (marker,) -> [0, 1]"""
-    side = np.array(["left" if p.startswith("left") else "right" if p.startswith("right") else "" for p in parts])
+    side = part_sides(parts)
     against = total = 0
     for group in np.unique(segments[segments >= 0]):
-        sided = side[(segments == group) & (side != "")]
+        sided = side[(segments == group) & (side != 0)]
         if len(sided) >= 2:
             total += len(sided)
-            against += len(sided) - max((sided == "left").sum(), (sided == "right").sum())
+            against += len(sided) - max((sided == 1).sum(), (sided == -1).sum())
     return float(against / total) if total else 0.0
 
 

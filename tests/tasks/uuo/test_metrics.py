@@ -56,6 +56,6 @@ def test_a_body_turned_around_faces_180_degrees_off_and_a_small_turn_counts_its_
 
 
 def test_side_swaps_count_sided_labels_put_on_the_other_side():
-    true = np.array(["upperarm_left", "upperarm_left", "thigh_right", "torso", "shank_left", "hand_right"])
-    got = np.array(["upperarm_right", "upperarm_left", "thigh_left", "torso", "", "hand_right"])
+    true = np.array(["left_upper_arm", "left_upper_arm", "right_thigh", "torso", "left_shank", "right_hand"])
+    got = np.array(["right_upper_arm", "left_upper_arm", "left_thigh", "torso", "", "right_hand"])  # part_of_bone's
     assert metrics.side_swaps(true, got) == (2, 4)  # the unlabelled shank and the torso are not sided labels
