@@ -61,16 +61,16 @@ MATCH_PX = 1.5
 def printed_grid(suit: pt.Suit, body: mb.MeshBody, texture_px: int) -> tuple[np.ndarray, np.ndarray, int]:
     """Where the texture prints every checkerboard corner of the suit's chart: the suit's corners first (in its
     order), then the X-junctions of uncoded squares. -> face (n,), bary (n, 2), the number of suit corners"""
-    chart = np.flatnonzero((pt.uv_charts(body.uv) == 0) & body.skin)
-    s, off = suit.size.square_uv, np.asarray(suit.size.offset_uv, float)
-    lo, hi = body.uv[chart].reshape(-1, 2).min(axis=0), body.uv[chart].reshape(-1, 2).max(axis=0)
+    chart = np.flatnonzero(suit.face_panel >= 0)
+    s, off = suit.size.square_uv, np.zeros(2)
+    lo, hi = suit.face_uv[chart].reshape(-1, 2).min(axis=0), suit.face_uv[chart].reshape(-1, 2).max(axis=0)
     i0, j0 = np.floor((lo - off) / s).astype(int)
     i1, j1 = np.ceil((hi - off) / s).astype(int)
     gi, gj = np.meshgrid(np.arange(i0, i1 + 1), np.arange(j0, j1 + 1), indexing="ij")
     grid = np.column_stack([gi.ravel(), gj.ravel()])
     uv = grid * s + off  # exact grid points
     probes = np.array([(0.0, 0.0), (0.3, 0.3), (-0.3, 0.3), (0.3, -0.3), (-0.3, -0.3)]) * s
-    pf, _ = pt.locate(body.uv, chart, (uv[:, None] + probes[None]).reshape(-1, 2))
+    pf, _ = pt.locate(suit.face_uv, chart, (uv[:, None] + probes[None]).reshape(-1, 2))
     junction = (pf.reshape(len(uv), len(probes)) >= 0).all(axis=1)  # four printed squares around the point
     index = {tuple(g): n for n, g in enumerate(grid)}
     suit_idx = np.array([index[tuple(g)] for g in suit.corner_grid])
@@ -81,7 +81,7 @@ def printed_grid(suit: pt.Suit, body: mb.MeshBody, texture_px: int) -> tuple[np.
     u_p = np.ceil(uv[order, 0] * texture_px - 0.5) / texture_px
     t_p = np.floor((1 - uv[order, 1]) * texture_px - 0.5) + 0.5
     v_p = 1 - (t_p + 0.5) / texture_px
-    face, bary = pt.locate(body.uv, chart, np.column_stack([u_p, v_p]))
+    face, bary = pt.locate(suit.face_uv, chart, np.column_stack([u_p, v_p]))
     return face, bary, len(suit_idx)
 
 
@@ -104,11 +104,11 @@ def seen_junctions(rig: st.SuitRig, scene: MeshScene, v: int, board_texels: np.n
     hits = cast_view(scene, rig.cameras[v], rig.rays[v])
     hit = hits.face != NO_HIT
     uv = np.zeros(hit.shape + (2,))
-    uv[hit] = interpolate(rig.body.uv, hits.face[hit], hits.bary[hit])
+    uv[hit] = interpolate(rig.suit.face_uv, hits.face[hit], hits.bary[hit])
     t = rig.texture.shape[0]
     board = hit & board_texels[np.clip(np.rint((1 - uv[..., 1]) * t - 0.5).astype(int), 0, t - 1),
                                np.clip(np.rint(uv[..., 0] * t - 0.5).astype(int), 0, t - 1)]
-    sq = np.floor((uv - np.asarray(rig.suit.size.offset_uv)) / rig.suit.size.square_uv).astype(np.int64)
+    sq = np.floor(uv / rig.suit.size.square_uv).astype(np.int64)
     colour = np.pad(np.where(board, sq.sum(axis=-1) % 2, -1).astype(np.int8), 3, constant_values=-1)
     h, w = hit.shape
     ring = np.stack([colour[3 + dy:3 + dy + h, 3 + dx:3 + dx + w] for dx, dy in RING])  # (16, y, x)
@@ -127,7 +127,7 @@ def render_take(motion: str, seed: int, radius: float, suit_name: str, frames: r
     if path.exists():
         return dict(np.load(path))
     ref = mb.mesh_body(mb.Phenotype())
-    suit = pt.make_suit(ref.uv, ref.vertices, ref.faces, ref.skin, pt.SUITS[suit_name])
+    suit = pt.make_suit(ref, pt.SUITS[suit_name])
     if motion.endswith(".bvh"):
         spec = synth.SequenceSpec(motion="bvh", body="mesh", frames=frames.stop, views=1, seed=seed)
         rig0 = synth.build_rig(spec, (MOTIONS / motion).read_text())

@@ -46,7 +46,7 @@ def reference_suit(name: str) -> Suit:
     """The suit ``name`` printed on the reference body's UV layout (the same garment for every subject)."""
     def make() -> Suit:
         ref = mesh_body(Phenotype())
-        return make_suit(ref.uv, ref.vertices, ref.faces, ref.skin, SUITS[name])
+        return make_suit(ref, SUITS[name])
 
     return _SUITS.get_or_make(name, make)
 

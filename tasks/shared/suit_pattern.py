@@ -1,16 +1,18 @@
 """The suit's pattern (Chen et al. 2021, §3 "Suit", Fig. 2c and 8b): a checkerboard on the body, each white square
 with a unique two-letter code, each corner's identity a (code, quad vertex) key.
 
-The suit is the body's largest UV chart (torso, arms and legs: a unitard without head, hands or feet) printed with
-a checkerboard of squares ``square_uv`` wide in texture space, its grid shifted by ``offset_uv``. A white square
-that lies wholly inside the chart and whose four corners make a sound quadrilateral on the rest body gets a code
-from the 25-character alphabet (the paper's; 625 codes at most); its corners are the suit's corners. A corner's
-keys are (code, k) for every coded square it belongs to, k = 0..3 its place in the square's quad, clockwise from
-the top-left as the code reads upright (Fig. 8b): a corner between two coded squares has two keys. The grid
-squares (black and white) whose four corners all exist form the corner mesh the hole filling smooths over.
+The suit is sewn from flat panels (tasks/shared/suit_panels.py: torso, sleeves and legs, a front and a back each; a
+unitard without head, hands or feet), printed side by side with a checkerboard of squares ``square_m`` wide on the
+rest body, ``square_texels`` texels in the print. A white square that lies wholly on one panel and whose four
+corners make a sound square on the rest body (each edge within ``size_band`` of ``square_m``) gets a code from the
+25-character alphabet (the paper's; 625 codes at most); its corners are the suit's corners. A corner's keys are
+(code, k) for every coded square it belongs to, k = 0..3 its place in the square's quad, clockwise from the top-left
+as the code reads upright (Fig. 8b): a corner between two coded squares has two keys. The grid squares (black and
+white) whose four corners all exist form the corner mesh the hole filling smooths over.
 
-The pattern is data: the corners' texture coordinates, their rest-body faces and barycentric coordinates, the
-squares' codes and corners. ``texture`` prints it (squares and glyphs) for the studio's cameras.
+The pattern is data: the print's texture coordinates of every face, the corners' texture coordinates, their
+rest-body faces and barycentric coordinates, the squares' codes and corners. ``texture`` prints it (squares and
+glyphs) for the studio's cameras.
 """
 
 from __future__ import annotations
@@ -20,8 +22,9 @@ from functools import cached_property
 
 import cv2
 import numpy as np
-from scipy import sparse
-from scipy.sparse import csgraph
+
+from mocapflow.tasks.shared.mesh_body import MeshBody
+from mocapflow.tasks.shared.suit_panels import layout
 
 ALPHABET = "1234567ABCDEFGJKLMPQRTUVY"  # §3, Chen et al. 2021: symbols whose upright orientation is unambiguous
 MAX_CODES = len(ALPHABET) ** 2
@@ -34,22 +37,27 @@ class PatternError(ValueError):
 
 @dataclass(frozen=True)
 class SuitSize:
-    """A suit: its squares' width in texture space and its grid's shift (a different print, a different size)."""
+    """A suit: its squares' width on the rest body and in the print (a different print, a different size)."""
 
     name: str
-    square_uv: float
-    offset_uv: tuple[float, float] = (0.0, 0.0)
+    square_m: float
+    square_texels: int
     seed: int = 0  # which code goes on which square
-    max_aspect: float = 3.0  # a coded square's longest rest edge over its shortest, at most
-    min_edge_m: float = 0.012  # and its shortest rest edge, at least
+    size_band: float = 1.2  # each rest edge of a coded square within square_m / size_band .. square_m * size_band
+
+    @property
+    def square_uv(self) -> float:
+        """A square's width in texture coordinates."""
+        return self.square_texels / TEXELS
 
 
-# About 1,350 and 1,100 corners on the default body, like the paper's medium (1,487) and small (1,119) suits.
-# Squares and shifts are whole texels of a 2,048-texel print (and of any print 2,048 * 2^k wide), so every square
-# edge falls on a texel boundary and the printed corner is exactly the nominal one.
+# About 1,400 and 1,100 corners on the default body, like the paper's medium (1,487) and small (1,119) suits; a
+# millimetre of cloth a texel, like the cameras' pixels. Squares are whole texels of the 2,048-texel print (and of
+# any print 2,048 * 2^k wide), so every square edge falls on a texel boundary and the printed corner is exactly the
+# nominal one.
 TEXELS = 2048
-SUITS = {"medium": SuitSize("medium", 33 / TEXELS, (6 / TEXELS, 4 / TEXELS), seed=1),
-         "small": SuitSize("small", 36 / TEXELS, (22 / TEXELS, 14 / TEXELS), seed=2)}
+SUITS = {"medium": SuitSize("medium", 0.031, 28, seed=1),
+         "small": SuitSize("small", 0.035, 31, seed=2)}
 
 
 @dataclass(frozen=True)
@@ -57,6 +65,8 @@ class Suit:
     """A printed suit on one body's UV layout."""
 
     size: SuitSize
+    face_uv: np.ndarray  # (face, 3, 2) float32 the print's texture coordinates of every face of the body
+    face_panel: np.ndarray  # (face,) int the panel (suit_panels.PANELS) of each face, -1 off the suit
     codes: tuple[str, ...]  # (square,) two-letter code of each coded white square
     square_corners: np.ndarray  # (square, 4) corner index of quad vertex k = 0..3, clockwise from the upright top-left
     corner_grid: np.ndarray  # (corner, 2) int grid indices (i along u, j along v)
@@ -84,23 +94,6 @@ class Suit:
         for key, c in self.keys.items():
             out[c].append(key)
         return out
-
-
-def uv_charts(uv: np.ndarray) -> np.ndarray:
-    """Chart (connected piece of the UV layout) of every face: faces sharing a UV point share a chart.
-    uv (face, 3, 2) -> (face,) int, chart 0 the one with the most faces."""
-    key = np.round(uv.reshape(-1, 2) * 1e6).astype(np.int64)
-    _, point = np.unique(key[:, 0] * 10_000_019 + key[:, 1], return_inverse=True)
-    point = point.reshape(-1, 3)
-    rows, cols = point.ravel(), np.roll(point, 1, axis=1).ravel()
-    n = int(point.max()) + 1
-    _, label = csgraph.connected_components(sparse.coo_matrix((np.ones(len(rows)), (rows, cols)), (n, n)),
-                                            directed=False)
-    face_chart = label[point[:, 0]]
-    order = np.argsort(-np.bincount(face_chart))
-    rank = np.empty_like(order)
-    rank[order] = np.arange(len(order))
-    return rank[face_chart]
 
 
 def locate(uv: np.ndarray, faces: np.ndarray, points: np.ndarray, resolution: int = 4096) -> tuple[np.ndarray, np.ndarray]:
@@ -134,41 +127,35 @@ def locate(uv: np.ndarray, faces: np.ndarray, points: np.ndarray, resolution: in
     return face, np.column_stack([bu[pick, best], bv[pick, best]])
 
 
-def make_suit(uv: np.ndarray, vertices: np.ndarray, faces: np.ndarray, skin: np.ndarray, size: SuitSize) -> Suit:
-    """Print ``size`` on a body's largest UV chart.  uv (face, 3, 2), vertices (vertex, 3) rest, faces (face, 3),
-    skin (face,) bool."""
-    if not 0.005 <= size.square_uv <= 0.1:
-        raise PatternError(f"suit {size.name!r}: square_uv {size.square_uv} is outside [0.005, 0.1]; a square is a "
-                           "fraction of the texture's width")
-    chart = np.flatnonzero((uv_charts(uv) == 0) & skin)
-    lo, hi = uv[chart].reshape(-1, 2).min(axis=0), uv[chart].reshape(-1, 2).max(axis=0)
-    s, off = size.square_uv, np.asarray(size.offset_uv, float)
-    i0, j0 = np.floor((lo - off) / s).astype(int)
-    i1, j1 = np.ceil((hi - off) / s).astype(int)
-    gi, gj = np.meshgrid(np.arange(i0, i1 + 1), np.arange(j0, j1 + 1), indexing="ij")
-    grid = np.column_stack([gi.ravel(), gj.ravel()])  # every grid point over the chart
-    face, bary = locate(uv, chart, grid * s + off)
+def make_suit(body: MeshBody, size: SuitSize) -> Suit:
+    """Sew ``size`` for a body: its panels laid out flat (suit_panels.layout), the checkerboard printed on them."""
+    if not 8 <= size.square_texels <= TEXELS // 16 or not 0.01 <= size.square_m <= 0.1:
+        raise PatternError(f"suit {size.name!r}: a square of {size.square_m} m and {size.square_texels} texels; give "
+                           f"0.01-0.1 m and 8-{TEXELS // 16} texels of the {TEXELS}-texel print")
+    lay = layout(body, size.square_m, size.square_texels, TEXELS)
+    suit_faces = np.flatnonzero(lay.panel >= 0)
+    s = size.square_uv
+    across, up = lay.squares
+    gi, gj = np.meshgrid(np.arange(across + 1), np.arange(up + 1), indexing="ij")
+    grid = np.column_stack([gi.ravel(), gj.ravel()])  # every grid point of the print
+    face, bary = locate(lay.uv, suit_faces, grid * s)
     inside = face >= 0
     index = {tuple(g): n for n, g in enumerate(grid)}
-    # A white square (i + j even) counts when its corners, its centre and its edges' midpoints lie on the chart.
+    # A white square (i + j even) counts when it lies wholly on one panel's print, with a texel to spare all round.
     white = [(i, j) for i, j in grid if (i + j) % 2 == 0]
-    probes = np.array([(0.5, 0.5), (0.5, 0), (1, 0.5), (0.5, 1), (0, 0.5), (0.25, 0.25), (0.75, 0.75),
-                       (0.25, 0.75), (0.75, 0.25)])
-    wq = np.array(white, float)
-    pf, _ = locate(uv, chart, ((wq[:, None, :] + probes[None]) * s + off).reshape(-1, 2))
-    probes_in = (pf.reshape(len(white), len(probes)) >= 0).all(axis=1)
-    rest = _rest_points(vertices, faces, face, bary)
+    on_panel = _on_one_panel(lay.uv, lay.panel, np.array(white), size.square_texels)
+    rest = _rest_points(body.vertices, body.faces, face, bary)
     squares = []
-    for (i, j), ok in zip(white, probes_in):
+    for (i, j), ok in zip(white, on_panel):
         # Quad vertex 0..3: clockwise as the code reads upright (v up): top-left, top-right, bottom-right, bottom-left.
         quad = [index.get((i, j + 1)), index.get((i + 1, j + 1)), index.get((i + 1, j)), index.get((i, j))]
         if ok and all(q is not None and inside[q] for q in quad) and _sound(rest[quad], size):
             squares.append(quad)
     if len(squares) > MAX_CODES:
         raise PatternError(f"suit {size.name!r}: {len(squares)} coded squares but only {MAX_CODES} two-letter codes; "
-                           "make square_uv larger")
+                           "make square_m larger")
     if not squares:
-        raise PatternError(f"suit {size.name!r}: no square fits on the body's UV layout; make square_uv smaller")
+        raise PatternError(f"suit {size.name!r}: no square fits on the suit's panels; make square_m smaller")
     used = np.unique(np.array(squares).ravel())
     renumber = np.full(len(grid), -1)
     renumber[used] = np.arange(len(used))
@@ -176,8 +163,29 @@ def make_suit(uv: np.ndarray, vertices: np.ndarray, faces: np.ndarray, skin: np.
     rng = np.random.default_rng([size.seed, 2021])
     pool = [a + b for a in ALPHABET for b in ALPHABET]
     codes = tuple(pool[k] for k in rng.permutation(MAX_CODES)[:len(squares)])
-    return Suit(size, codes, square_corners, grid[used], grid[used] * s + off, face[used], bary[used],
-                _cells(grid[used]))
+    return Suit(size, lay.uv.astype(np.float32), lay.panel, codes, square_corners, grid[used], grid[used] * s,
+                face[used], bary[used], _cells(grid[used]))
+
+
+def panel_mask(uv: np.ndarray, face_panel: np.ndarray, resolution: int) -> np.ndarray:
+    """The print's texels, row 0 at v = 1: the panel that covers each (-1: bare cloth).  -> (res, res) int16"""
+    mask = np.full((resolution, resolution), -1, np.int16)
+    for f in np.flatnonzero(face_panel >= 0):
+        poly = np.round(np.column_stack([uv[f, :, 0], 1 - uv[f, :, 1]]) * resolution * 4).astype(np.int32)
+        cv2.fillPoly(mask, [poly], int(face_panel[f]), lineType=cv2.LINE_8, shift=2)
+    return mask
+
+
+def _on_one_panel(uv: np.ndarray, face_panel: np.ndarray, squares: np.ndarray, texels: int) -> np.ndarray:
+    """Whether each grid square (i, j) of ``texels`` texels lies on one panel's print, one texel of margin round it.
+    squares (n, 2) -> (n,) bool"""
+    mask = np.pad(panel_mask(uv, face_panel, TEXELS), texels + 1, constant_values=-1)
+    out = np.zeros(len(squares), bool)
+    for n, (i, j) in enumerate(squares):
+        col, row = i * texels + texels + 1, TEXELS - (j + 1) * texels + texels + 1  # the square's top-left texel
+        patch = mask[row - 1:row + texels + 1, col - 1:col + texels + 1]
+        out[n] = patch.min() >= 0 and patch.min() == patch.max()
+    return out
 
 
 def _rest_points(vertices, faces, face, bary) -> np.ndarray:
@@ -189,9 +197,9 @@ def _rest_points(vertices, faces, face, bary) -> np.ndarray:
 
 
 def _sound(quad: np.ndarray, size: SuitSize) -> bool:
-    """A printable square on the rest body: no edge too short, no edge far longer than another."""
+    """A square that keeps its size on the rest body: every edge within the size band of the nominal square."""
     edges = np.linalg.norm(quad - np.roll(quad, 1, axis=0), axis=1)
-    return bool(edges.min() >= size.min_edge_m and edges.max() <= size.max_aspect * edges.min())
+    return bool(edges.min() >= size.square_m / size.size_band and edges.max() <= size.square_m * size.size_band)
 
 
 def _cells(grid: np.ndarray) -> np.ndarray:
@@ -205,26 +213,23 @@ def _cells(grid: np.ndarray) -> np.ndarray:
     return np.array(out, np.int64).reshape(-1, 4)
 
 
-def texture(suit: Suit, uv: np.ndarray, faces_in_chart: np.ndarray, resolution: int = 4096) -> np.ndarray:
+def texture(suit: Suit, resolution: int = TEXELS) -> np.ndarray:
     """The printed suit as an albedo texture (resolution, resolution) float32 in [0, 1], row 0 at v = 1.
 
-    Inside the suit's chart the checkerboard (white where i + j is even) with each coded square's two characters
-    in black, upright with v up; elsewhere bare skin.
+    On the suit's panels the checkerboard (white where i + j is even) with each coded square's two characters in
+    black, upright with v up; elsewhere bare skin.
     """
-    s, off = suit.size.square_uv, np.asarray(suit.size.offset_uv, float)
-    chart = np.zeros((resolution, resolution), np.uint8)
-    for f in faces_in_chart:
-        poly = np.round(np.column_stack([uv[f, :, 0], 1 - uv[f, :, 1]]) * resolution * 4).astype(np.int32)
-        cv2.fillPoly(chart, [poly], 1, lineType=cv2.LINE_8, shift=2)
+    s = suit.size.square_uv
+    chart = panel_mask(suit.face_uv, suit.face_panel, resolution) + 1
     cu = (np.arange(resolution) + 0.5) / resolution
-    i = np.floor((cu - off[0]) / s).astype(int)
-    j = np.floor(((1 - cu) - off[1]) / s).astype(int)  # row r is v = 1 - (r + 0.5) / resolution
+    i = np.floor(cu / s).astype(int)
+    j = np.floor((1 - cu) / s).astype(int)  # row r is v = 1 - (r + 0.5) / resolution
     board = np.where((i[None, :] + j[:, None]) % 2 == 0, level(WHITE), level(BLACK)).astype(np.uint8)
     image = np.where(chart > 0, board, np.uint8(level(BARE)))
     px = s * resolution  # a square's width in texels
     for code, quad in zip(suit.codes, suit.square_corners):
         gi, gj = suit.corner_grid[quad[3]]  # bottom-left corner of the square
-        print_code(image, code, (gi * s + off[0]) * resolution, (1 - (gj * s + off[1])) * resolution, px)
+        print_code(image, code, gi * s * resolution, (1 - gj * s) * resolution, px)
     return image.astype(np.float32) / 255.0
 
 

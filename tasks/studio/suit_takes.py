@@ -24,9 +24,9 @@ from mocapflow.tasks.shared.mesh_body import MeshBody
 from mocapflow.tasks.studio.cameras import look_at, ring_positions
 from mocapflow.tasks.studio.mesh_render import (Lighting, MeshScene, cast_view, grey_image, radiance, surface_points,
                                                  visibility)
-from mocapflow.tasks.shared.suit_pattern import Suit, texture, uv_charts
+from mocapflow.tasks.shared.suit_pattern import Suit, texture
 
-SUIT_STUDIO_VERSION = "1+texel"
+SUIT_STUDIO_VERSION = "2+panels"
 # Softboxes all around (§3 "Camera system": 32 of them): a strong diffuse term, two soft key lights, a dark room.
 SOFTBOXES = Lighting(directions=((0.4, -0.6, 0.7), (-0.5, 0.8, 0.3)), intensities=(0.35, 0.25), ambient=0.55,
                      background=0.05)
@@ -99,10 +99,9 @@ def suit_cameras(spec: SuitCameras, rng: np.random.Generator) -> tuple[Camera, .
     return tuple(cams)
 
 
-def suit_texture(suit: Suit, body: MeshBody, resolution: int) -> np.ndarray:
+def suit_texture(suit: Suit, resolution: int) -> np.ndarray:
     """The printed pattern, pre-filtered (Gaussian, 0.7 texel) for one ray per pixel.  -> (t, t) float32"""
-    chart = np.flatnonzero((uv_charts(body.uv) == 0) & body.skin)
-    return cv2.GaussianBlur(texture(suit, body.uv, chart, resolution), (0, 0), 0.7)
+    return cv2.GaussianBlur(texture(suit, resolution), (0, 0), 0.7)
 
 
 def suit_rig(body: MeshBody, suit: Suit, cameras: SuitCameras, look: SuitLook, seed: int) -> SuitRig:
@@ -110,7 +109,7 @@ def suit_rig(body: MeshBody, suit: Suit, cameras: SuitCameras, look: SuitLook, s
     cams = suit_cameras(cameras, rng)
     return SuitRig(body, suit, cams, tuple(c.pixel_rays() for c in cams),
                    rng.uniform(*look.blur_px, len(cams)), rng.uniform(*look.light, len(cams)),
-                   suit_texture(suit, body, look.texture_px), look)
+                   suit_texture(suit, look.texture_px), look)
 
 
 @dataclass(frozen=True)
@@ -152,7 +151,7 @@ def _image(rig: SuitRig, v: int, scene: MeshScene, verts: np.ndarray, rng: np.ra
     k = rig.light[v]
     light = Lighting(SOFTBOXES.directions, tuple(x * k for x in SOFTBOXES.intensities), SOFTBOXES.ambient * k,
                      SOFTBOXES.background)
-    rad = radiance(hits, verts, rig.body.faces, rig.body.uv, rig.texture, light)
+    rad = radiance(hits, verts, rig.body.faces, rig.suit.face_uv, rig.texture, light)
     rad = cv2.GaussianBlur(rad, (0, 0), float(rig.blur[v]))
     return grey_image(rad, rng, rig.look.noise)
 
