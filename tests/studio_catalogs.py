@@ -55,7 +55,8 @@ stages:
   images: {task: ingest_suit, dataset: suits}
   labels: {task: oracle_labels, inputs: [images], params: {noise_px: 0.2, wrong: 0.02}}
   points: {task: triangulate_corners, inputs: {labels: labels, images: images}}
-  hidden: {task: hide_corners, inputs: [points], params: {share: 0.2, run_frames: [1, 2]}}
+  perturbed: {task: triangulate_corners, inputs: {labels: labels, images: images}, params: {calibration_error_px: 0.25}}
+  hidden: {task: hide_corners, inputs: [points], params: {share: 0.2, run_frames: [1, 2], shape: patch}}
   filled: {task: fill_suit, inputs: {points: hidden, images: images}}
 """
 

@@ -22,21 +22,30 @@ TRUTH = ("gt_corners2d", "gt_visible", "gt_readable", "gt_corners", "square_corn
 
 
 def suit_stages(catalog) -> dict[str, str]:
-    """What to score: per schema of the suit chain the catalog's last stage writing it (suit_points: the last one
-    that reads labels, not a hold-out), and ``suit_filled_hidden``: a filling whose points had observations hidden
-    (tasks/suit/holdout.py) — then ``suit_filled`` is the last filling of the points themselves."""
+    """What to score: per schema of the suit chain the catalog's last stage writing it; ``suit_points`` the last
+    triangulation with the exact cameras and ``suit_points_perturbed`` the last with a calibration error (not a
+    hold-out either); ``suit_filled_hidden`` a filling whose points had single observations hidden and
+    ``suit_filled_occluded`` one whose points had patches hidden (tasks/suit/holdout.py); ``suit_filled`` the last
+    filling of exactly triangulated points themselves."""
     schemas = ("suit_images", "suit_corners", "suit_quads", "suit_codes", "suit_labels")
     out = {s: stage_writing(catalog, s) for s in schemas if stage_writing(catalog, s) is not None}
-    points = [s.name for s in catalog.stages.values() if s.spec.output == "suit_points"
-              and "suit_points" not in s.spec.inputs.values()]
-    if points:
-        out["suit_points"] = points[-1]
     for s in catalog.stages.values():
-        if s.spec.output == "suit_filled":
-            source = catalog.stages[s.inputs["points"]]
-            out["suit_filled_hidden" if source.spec.output == "suit_points" and "suit_points" in
-                source.spec.inputs.values() else "suit_filled"] = s.name
+        if s.spec.output == "suit_points" and "suit_points" not in s.spec.inputs.values():
+            out["suit_points_perturbed" if _perturbed(s) else "suit_points"] = s.name
+    for s in catalog.stages.values():
+        if s.spec.output != "suit_filled":
+            continue
+        source = catalog.stages[s.inputs["points"]]
+        if "suit_points" in source.spec.inputs.values():  # a hold-out
+            out["suit_filled_occluded" if getattr(source.params, "shape", "") == "patch" else
+                "suit_filled_hidden"] = s.name
+        elif not _perturbed(source):
+            out["suit_filled"] = s.name
     return out
+
+
+def _perturbed(stage) -> bool:
+    return getattr(stage.params, "calibration_error_px", 0.0) > 0
 
 
 def plan_input(plan, stage: str, role: str = "points") -> str:
@@ -58,7 +67,8 @@ def evaluate(catalog, plan, store, per_sequence: dict, thorough: bool = True) ->
 def evaluate_suit(plan, store, stages: dict[str, str], per_sequence: dict) -> dict:
     if "suit_images" not in stages:
         raise PlanError("the catalog has suit stages but no stage writing suit_images to score them against")
-    sums: dict = {k: [] for k in ("detect", "quads", "labels", "points", "reproj", "filled", "observed", "hidden")}
+    sums: dict = {k: [] for k in ("detect", "quads", "labels", "points", "points_perturbed", "reproj", "filled",
+                                  "observed", "hidden", "occluded", "wrong_3d")}
     for seq in plan.sequences:
         images = plan.open(store, stages["suit_images"], seq.id)
         missing = [v for v in TRUTH if v not in images]
@@ -67,6 +77,7 @@ def evaluate_suit(plan, store, stages: dict[str, str], per_sequence: dict) -> di
                             "suit takes")
         truth = images[list(TRUTH)].load()
         seq_sums = {k: [] for k in sums}
+        seq_sums["wrong_masks"] = {}
         for v, view in enumerate(seq.views):
             _score_view(plan, store, stages, seq.id, view, truth.isel(view=v), seq_sums)
         _score_3d(plan, store, stages, seq.id, truth, seq_sums)
@@ -84,6 +95,7 @@ def _score_view(plan, store, stages, seq_id, view, truth, sums) -> None:
         lab = plan.open(store, stages["suit_labels"], seq_id, view).sel(view=view).load()
         xy = np.stack([lab["x"].values, lab["y"].values], axis=-1)
         sums["labels"].append(metrics.label_counts(xy, gt_xy, visible, truth["gt_readable"].values))
+        sums["wrong_masks"][view] = metrics.wrong_labels(xy, gt_xy, visible)  # (frame, corner)
     if "suit_corners" in stages:
         det = plan.open(store, stages["suit_corners"], seq_id, view).sel(view=view).load()
         dxy = np.stack([det["x"].values, det["y"].values], axis=-1)  # (frame, detection, 2)
@@ -122,15 +134,23 @@ def _score_3d(plan, store, stages, seq_id, truth, sums) -> None:
         sums["points"].append(metrics.errors_mm(pts["position"].values, gt))
         err, kept = pts["error"].values, pts["kept"].values
         sums["reproj"].append(err[kept & np.isfinite(err)])
+        if sums["wrong_masks"]:  # wrong labels a triangulated corner was solved from: they reached 3D
+            views = [str(v) for v in pts["view"].values]
+            wrong = np.stack([sums["wrong_masks"].get(v, np.zeros(kept[:, 0].shape, bool)) for v in views], axis=1)
+            sums["wrong_3d"].append(np.array([int((kept & wrong).sum())]))
     if "suit_filled" in stages:
         filled = plan.open(store, stages["suit_filled"], seq_id).load()
         observed = filled["observed"].values
         sums["filled"].append(metrics.errors_mm(filled["position"].values, gt, ~observed))
         sums["observed"].append(metrics.errors_mm(filled["position"].values, gt, observed))
-    if "suit_filled_hidden" in stages:
-        filled = plan.open(store, stages["suit_filled_hidden"], seq_id).load()
-        hidden = plan.open(store, plan_input(plan, stages["suit_filled_hidden"]), seq_id)["hidden"].values
-        sums["hidden"].append(metrics.errors_mm(filled["position"].values, gt, hidden & ~filled["observed"].values))
+    if "suit_points_perturbed" in stages:
+        pts = plan.open(store, stages["suit_points_perturbed"], seq_id).load()
+        sums["points_perturbed"].append(metrics.errors_mm(pts["position"].values, gt))
+    for key, stage in (("hidden", "suit_filled_hidden"), ("occluded", "suit_filled_occluded")):
+        if stage in stages:
+            filled = plan.open(store, stages[stage], seq_id).load()
+            hidden = plan.open(store, plan_input(plan, stages[stage]), seq_id)["hidden"].values
+            sums[key].append(metrics.errors_mm(filled["position"].values, gt, hidden & ~filled["observed"].values))
 
 
 def _figures(sums: dict) -> dict:
@@ -149,8 +169,11 @@ def _figures(sums: dict) -> dict:
                          "visible_found": sum(c.visible_found for c in lab) / max(sum(c.visible for c in lab), 1),
                          "labelled": sum(c.labelled for c in lab), "wrong": sum(c.wrong for c in lab),
                          "per_image": sum(c.labelled for c in lab) / max(len(lab), 1),
-                         "loc_error_px": metrics.summary(loc)}
-    for key in ("points", "reproj", "filled", "observed", "hidden"):
+                         "loc_error_px": metrics.summary(loc),
+                         "loc_error_all_px": metrics.summary(np.concatenate([c.loc_error_all_px for c in lab]))}
+    if sums["wrong_3d"]:
+        out["wrong_labels_in_3d"] = int(np.sum(sums["wrong_3d"]))
+    for key in ("points", "points_perturbed", "reproj", "filled", "observed", "hidden", "occluded"):
         if sums[key]:
             out[key] = metrics.summary(np.concatenate(sums[key]))
     return out
@@ -170,12 +193,21 @@ def suit_headline(result: dict) -> dict:
     result = result.get("suit", {})
     if "labels" in result:
         lab = result["labels"]
-        out.update({"suit_detect_rate": lab["readable_found"], "suit_wrong_labels": lab["wrong"],
-                    "suit_loc_err_px": lab["loc_error_px"]["mean"]})
+        out.update({"suit_detect_rate": lab["readable_found"], "suit_visible_rate": lab["visible_found"],
+                    "suit_wrong_labels": lab["wrong"], "suit_wrong_label_rate": lab["wrong"] / max(lab["labelled"], 1),
+                    "suit_loc_err_px": lab["loc_error_px"]["mean"],
+                    "suit_loc_err_all_median_px": lab["loc_error_all_px"]["median"],
+                    "suit_loc_err_all_p99_px": lab["loc_error_all_px"]["p99"]})
     if "points" in result:
         out["suit_err3d_median_mm"] = result["points"]["median"]
+    if "wrong_labels_in_3d" in result:
+        out["suit_wrong_labels_in_3d"] = result["wrong_labels_in_3d"]
+    if "points_perturbed" in result:
+        out["suit_err3d_perturbed_median_mm"] = result["points_perturbed"]["median"]
     if "hidden" in result:
         out["suit_fill_err_median_mm"] = result["hidden"]["median"]
+    if "occluded" in result:
+        out["suit_fill_occluded_median_mm"] = result["occluded"]["median"]
     if "filled" in result:
         out["suit_fill_all_err_median_mm"] = result["filled"]["median"]
     return out
@@ -201,12 +233,18 @@ def suit_table(result: dict) -> list[str]:
         rows += [("labels", "readable corners labelled right", f"{lab['readable_found']:.1%}"),
                  ("labels", "visible corners labelled right", f"{lab['visible_found']:.1%}"),
                  ("labels", "wrong labels / labels", f"{lab['wrong']} / {lab['labelled']}"),
-                 ("labels", "localisation error mean / p99 px",
-                  f"{lab['loc_error_px']['mean']:.3f} / {lab['loc_error_px']['p99']:.3f}")]
+                 ("labels", "localisation error mean / p99 px (right labels)",
+                  f"{lab['loc_error_px']['mean']:.3f} / {lab['loc_error_px']['p99']:.3f}"),
+                 ("labels", "localisation error median / p99 px (every label)",
+                  f"{lab['loc_error_all_px']['median']:.3f} / {lab['loc_error_all_px']['p99']:.3f}")]
+    if "wrong_labels_in_3d" in result:
+        rows.append(("points", "wrong labels a corner was triangulated from", str(result["wrong_labels_in_3d"])))
     for key, what, unit in (("points", "3D error of observed corners", "mm"),
+                            ("points_perturbed", "3D error of observed corners, calibration perturbed", "mm"),
                             ("reproj", "reprojection error", "px"), ("observed", "filled suit: observed corners", "mm"),
                             ("filled", "filled suit: filled corners", "mm"),
-                            ("hidden", "filled suit: hidden observations", "mm")):
+                            ("hidden", "filled suit: hidden observations", "mm"),
+                            ("occluded", "filled suit: occluded patches", "mm")):
         if key in result:
             s = result[key]
             rows.append((key, f"{what} median / p95 / p99 {unit}",

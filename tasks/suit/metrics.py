@@ -22,6 +22,7 @@ class LabelCounts:
     labelled: int  # labels given
     wrong: int  # labels that name a corner the truth does not show there
     loc_error_px: np.ndarray  # (right labels,) distance to the true pixel
+    loc_error_all_px: np.ndarray  # (labels of visible corners,) the same for every label naming a visible corner
 
 
 def label_counts(xy: np.ndarray, truth: np.ndarray, visible: np.ndarray, readable: np.ndarray,
@@ -32,7 +33,15 @@ def label_counts(xy: np.ndarray, truth: np.ndarray, visible: np.ndarray, readabl
     err = np.linalg.norm(np.where(labelled[..., None], xy, 0.0) - truth, axis=-1)
     right = labelled & visible & (err <= match_px)
     return LabelCounts(int(readable.sum()), int((right & readable).sum()), int(visible.sum()), int(right.sum()),
-                       int(labelled.sum()), int((labelled & ~right).sum()), err[right])
+                       int(labelled.sum()), int((labelled & ~right).sum()), err[right], err[labelled & visible])
+
+
+def wrong_labels(xy: np.ndarray, truth: np.ndarray, visible: np.ndarray, match_px: float = 2.0) -> np.ndarray:
+    """Labels that name a corner the truth does not show within ``match_px`` of them.  As ``label_counts``'s
+    inputs -> (..., corner) bool"""
+    labelled = np.isfinite(xy).all(axis=-1)
+    err = np.linalg.norm(np.where(labelled[..., None], xy, 0.0) - truth, axis=-1)
+    return labelled & ~(visible & (err <= match_px))
 
 
 @dataclass(frozen=True)

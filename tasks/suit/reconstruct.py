@@ -35,6 +35,7 @@ from typing import Sequence
 import numpy as np
 import xarray as xr
 
+from mocapflow.tasks.shared.calibration_error import perturbed
 from mocapflow.tasks.shared.cameras import Camera, camera_of
 from mocapflow.tasks.shared.triangulation import (
     TriangulationError,
@@ -62,10 +63,17 @@ class ReconstructConfig:
     max_view_error_px: float = 3.0  # not in the paper: drop a view this far from the consensus point
     min_views: int = 2  # views a corner must keep
     selection_cap_px: float = 10.0  # not in the paper: most that one view's error counts when choosing the pair
+    # Studio takes carry their exact cameras; this triangulates with cameras off by a real calibration's error
+    # instead (tasks/shared/calibration_error.py: this RMS in px over the volume, 0.2-0.3 px in practice).
+    calibration_error_px: float = 0.0
+    calibration_seed: int = 0
 
     def __post_init__(self):
         if self.min_views < 2:
             raise ReconstructError(f"min_views must be at least 2 (a point needs two views), got {self.min_views}")
+        if not 0 <= self.calibration_error_px <= 20:
+            raise ReconstructError(f"calibration_error_px must be 0-20 px RMS (a real calibration leaves 0.2-0.3), "
+                                   f"got {self.calibration_error_px}")
 
 
 @dataclass(frozen=True)
@@ -194,9 +202,12 @@ def _checked(xy: np.ndarray, cameras: Sequence[Camera], shape: str) -> np.ndarra
 
 def triangulate_corners(labels: xr.Dataset, images: xr.Dataset, config: ReconstructConfig) -> xr.Dataset:
     """Task: the labelled corners of every view (suit_labels) -> triangulated corners (suit_points), the cameras
-    from the images' calibration."""
+    from the images' calibration (perturbed by ``calibration_error_px`` when it is set)."""
     views = [str(v) for v in labels["view"].values]
     cameras = [camera_of(images, v) for v in views]
+    if config.calibration_error_px > 0:
+        rng = np.random.default_rng([config.calibration_seed, 29])
+        cameras = list(perturbed(cameras, config.calibration_error_px, rng))
     xy = np.stack([labels["x"].transpose("frame", "view", "corner").values,
                    labels["y"].transpose("frame", "view", "corner").values], axis=-1).astype(np.float64)
     out = reconstruct_frames(xy, cameras, config)  # (frame, corner, 3), (frame, view, corner) x 2
