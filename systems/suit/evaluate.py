@@ -176,6 +176,8 @@ def _figures(sums: dict) -> dict:
     for key in ("points", "points_perturbed", "reproj", "filled", "observed", "hidden", "occluded"):
         if sums[key]:
             out[key] = metrics.summary(np.concatenate(sums[key]))
+    if sums["points"]:  # a corner put somewhere else: what a wrong label that reached 3D would do
+        out["points"]["over_5mm"] = int((np.concatenate(sums["points"]) > 5.0).sum())
     return out
 
 
@@ -202,6 +204,8 @@ def suit_headline(result: dict) -> dict:
         out["suit_err3d_median_mm"] = result["points"]["median"]
     if "wrong_labels_in_3d" in result:
         out["suit_wrong_labels_in_3d"] = result["wrong_labels_in_3d"]
+    if "points" in result:
+        out["suit_err3d_over_5mm"] = result["points"]["over_5mm"]
     if "points_perturbed" in result:
         out["suit_err3d_perturbed_median_mm"] = result["points_perturbed"]["median"]
     if "hidden" in result:
@@ -238,7 +242,10 @@ def suit_table(result: dict) -> list[str]:
                  ("labels", "localisation error median / p99 px (every label)",
                   f"{lab['loc_error_all_px']['median']:.3f} / {lab['loc_error_all_px']['p99']:.3f}")]
     if "wrong_labels_in_3d" in result:
-        rows.append(("points", "wrong labels a corner was triangulated from", str(result["wrong_labels_in_3d"])))
+        rows.append(("points", "wrong labels (over 2 px off) a corner was triangulated from",
+                     str(result["wrong_labels_in_3d"])))
+    if "points" in result:
+        rows.append(("points", "corners triangulated over 5 mm from the truth", str(result["points"]["over_5mm"])))
     for key, what, unit in (("points", "3D error of observed corners", "mm"),
                             ("points_perturbed", "3D error of observed corners, calibration perturbed", "mm"),
                             ("reproj", "reprojection error", "px"), ("observed", "filled suit: observed corners", "mm"),
