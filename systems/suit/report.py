@@ -229,10 +229,18 @@ def _top(values: np.ndarray, least: float) -> float:
 
 # The evaluation's JSON keys, named for a reader: (label, scale, unit)
 NAMED_FIGURES = {
-    "suit_detect_rate": ("suit: readable corners labelled", 100, "%"), "suit_wrong_labels": ("suit: wrong labels", 1, ""),
+    "suit_detect_rate": ("suit: readable corners labelled", 100, "%"),
+    "suit_visible_rate": ("suit: visible corners labelled", 100, "%"), "suit_wrong_labels": ("suit: wrong labels", 1, ""),
+    "suit_wrong_label_rate": ("suit: wrong labels, share of labels", 100, "%"),
     "suit_loc_err_px": ("suit: label localisation error, mean", 1, "px"),
+    "suit_loc_err_all_median_px": ("suit: localisation error of every label, median", 1, "px"),
+    "suit_loc_err_all_p99_px": ("suit: localisation error of every label, p99", 1, "px"),
+    "suit_wrong_labels_in_3d": ("suit: wrong labels a triangulated corner was solved from", 1, ""),
+    "suit_err3d_over_5mm": ("suit: triangulated corners over 5 mm off", 1, ""),
     "suit_err3d_median_mm": ("suit: triangulated corners' 3D error, median", 1, "mm"),
+    "suit_err3d_perturbed_median_mm": ("suit: 3D error through perturbed calibration, median", 1, "mm"),
     "suit_fill_err_median_mm": ("suit: hidden corners filled, 3D error median", 1, "mm"),
+    "suit_fill_occluded_median_mm": ("suit: occluded patches filled, 3D error median", 1, "mm"),
     "suit_fill_all_err_median_mm": ("suit: filled corners' 3D error, median", 1, "mm"),
 }
 

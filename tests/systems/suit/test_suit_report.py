@@ -50,7 +50,8 @@ def test_the_report_of_a_suit_catalog_shows_its_corners_and_the_filled_suit(requ
     shown = np.array(seq["marker_xyz"], float) / 1000  # m, rounded to the mm
     np.testing.assert_allclose(shown, filled["position"][:, ::step], atol=6e-4)
     assert seq["markers"][0] and all(isinstance(m, str) and m for m in seq["markers"])  # named by code and vertex
-    assert "suit: hidden corners filled, 3D error median" in page  # the evaluation's headline, named
+    assert "suit: occluded patches filled, 3D error median" in page  # the evaluation's headline, named
+    assert "suit: 3D error through perturbed calibration, median" in page
     three_d = check_png(project / "rep" / "suit_corners_3d_sq.png")
     assert three_d.shape == (600, 1200, 3)  # front and side
     frame = filled["position"].shape[0] // 2  # the figure's frame: filled (orange) and observed (green) corners
