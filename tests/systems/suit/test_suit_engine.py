@@ -112,8 +112,10 @@ def test_the_2d_chain_labels_corners_with_the_shipped_networks(tmp_path):
     and a changed reading threshold recomputes the codes and what follows them only."""
     (tmp_path / "catalog.yaml").write_text(CHAIN)
     scores = last_json(mocapflow("evaluate", "--json", cwd=tmp_path))
-    assert scores["suit_detect_rate"] > 0.35  # measured 0.49 on this take
-    assert scores["suit_wrong_labels"] <= 3  # of about 1,500 labels
+    assert scores["suit_detect_rate"] > 0.5  # measured 0.63 on this take (the sewn suit; 0.49 on the UV-chart print)
+    assert scores["suit_visible_rate"] < scores["suit_detect_rate"]
+    assert scores["suit_wrong_label_rate"] < 0.005  # measured 5 of 2,083 labels
+    assert scores["suit_err3d_over_5mm"] == 0
     assert scores["suit_loc_err_px"] < 0.25
     assert scores["suit_err3d_median_mm"] < 1.0
     stored = {pid: arrays for (pid, _), arrays in read_artifacts(tmp_path / "storage").items()}
