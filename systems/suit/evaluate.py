@@ -202,10 +202,9 @@ def suit_headline(result: dict) -> dict:
                     "suit_loc_err_all_p99_px": lab["loc_error_all_px"]["p99"]})
     if "points" in result:
         out["suit_err3d_median_mm"] = result["points"]["median"]
+        out["suit_err3d_over_5mm"] = result["points"]["over_5mm"]
     if "wrong_labels_in_3d" in result:
         out["suit_wrong_labels_in_3d"] = result["wrong_labels_in_3d"]
-    if "points" in result:
-        out["suit_err3d_over_5mm"] = result["points"]["over_5mm"]
     if "points_perturbed" in result:
         out["suit_err3d_perturbed_median_mm"] = result["points_perturbed"]["median"]
     if "hidden" in result:

@@ -165,9 +165,7 @@ def _edge_neighbours(faces: np.ndarray) -> np.ndarray:
 
 def _pieces(faces: np.ndarray) -> np.ndarray:
     """Connected piece of every face, faces joined where they share an edge.  (n, 3) -> (n,) int"""
-    edges = np.sort(np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
-    _, edge_id = np.unique(edges, axis=0, return_inverse=True)
-    face_of = np.repeat(np.arange(len(faces)), 3)
-    incidence = sparse.coo_matrix((np.ones(len(face_of)), (face_of, edge_id.ravel())))
-    adjacency = (incidence @ incidence.T).tocsr()
+    neighbours = _edge_neighbours(faces)
+    face, across = np.nonzero(neighbours >= 0)
+    adjacency = sparse.coo_matrix((np.ones(len(face)), (face, neighbours[face, across])), (len(faces), len(faces)))
     return csgraph.connected_components(adjacency, directed=False)[1]

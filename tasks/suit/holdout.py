@@ -66,11 +66,12 @@ def hidden_patches(position: np.ndarray, config: HoldoutConfig, max_patches: int
     observed = np.isfinite(position).all(axis=-1)
     n_frames = len(position)
     hide = np.zeros_like(observed)
-    goal = config.share * observed.sum()
+    seen = np.argwhere(observed)  # (observation, 2) frame, corner: where a patch may be centred
+    goal = config.share * len(seen)
     for _ in range(max_patches):
-        if hide.sum() >= goal or not observed.any():
+        if hide.sum() >= goal or not len(seen):
             break
-        frame, centre = np.argwhere(observed)[rng.integers(observed.sum())]
+        frame, centre = seen[rng.integers(len(seen))]
         length = int(rng.integers(config.run_frames[0], config.run_frames[1] + 1))
         radius = rng.uniform(*config.radius_m)
         where = position[frame, centre]
