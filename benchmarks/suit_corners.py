@@ -310,7 +310,7 @@ def trained(args: argparse.Namespace) -> tuple[torch.nn.Module, dict]:
     samples = training_samples(args.cache, co.SampleConfig(), args.train_cameras, TRAIN_FRAMES, args.positives)
     t_samples = time.perf_counter() - t0
     t0, c0 = time.perf_counter(), time.process_time()
-    net = co.train_cornerdet(samples, train, seed=args.seed)
+    net, _ = co.train_cornerdet(samples, train, seed=args.seed)
     t_train, cpu_train = time.perf_counter() - t0, time.process_time() - c0
     torch.save(net.state_dict(), args.weights)
     return net, {"weights": str(args.weights), "train_seconds": round(t_train, 1),

@@ -64,9 +64,11 @@ TASKS = (
         description="CornerdetNet's 20 x 20 training crops of studio images, from the truth (§4.1)",
     ),
     TaskSpec(
-        name="train_cornerdet", fn=suit_training.train_cornerdet_stage, version="1",
+        name="train_cornerdet", fn=suit_training.train_cornerdet_stage, version="2",
         params=suit_training.TrainCornerdetConfig, output="suit_net_weights", partition="dataset",
-        inputs={"samples": "suit_corner_samples"}, description="train CornerdetNet (seeded)",
+        inputs={"samples": "suit_corner_samples"}, streams={"samples": ("crops",)}, checkpoints=True,
+        description="train CornerdetNet (seeded; crops streamed through a pool of images; resumable from its "
+                    "checkpoint)",
     ),
     TaskSpec(
         name="quad_training_samples", fn=suit_training.quad_training_samples, version="1",
@@ -76,10 +78,11 @@ TASKS = (
         description="the chain's candidate quads of studio images, labelled from the truth (§4.2)",
     ),
     TaskSpec(
-        name="train_codes", fn=suit_training.train_codes_stage, version="1",
+        name="train_codes", fn=suit_training.train_codes_stage, version="2",
         params=suit_training.TrainCodesConfig, output="suit_net_weights", partition="dataset",
-        inputs={"samples": "suit_quad_samples"},
-        description="train RejectorNet and RecogNet on studio quads and synthetic crops of every code (seeded)",
+        inputs={"samples": "suit_quad_samples"}, streams={"samples": ("crops",)}, checkpoints=True,
+        description="train RejectorNet and RecogNet on studio quads and synthetic crops of every code (seeded; "
+                    "crops streamed through a pool of images; resumable from its checkpoint)",
     ),
 
     TaskSpec(

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import logging
-import time
 from dataclasses import asdict, dataclass, field
 
 import cv2
@@ -24,6 +23,7 @@ import xarray as xr
 
 from mocapflow.tasks.deepmocap import targets
 from mocapflow.tasks.shared.reflectors import REFLECTOR_NAMES
+from mocapflow.tasks.shared.progress import TrainingProgress
 from mocapflow.tasks.shared.samples import InMemorySamples, Samples
 from mocapflow.tasks.shared.weights import pack, unpack
 
@@ -221,8 +221,9 @@ def train_fcn(samples: xr.Dataset | Samples, config: TrainConfig, checkpoint=Non
     optimizer = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     schedule = torch.optim.lr_scheduler.OneCycleLR(optimizer, max_lr=config.learning_rate,
                                                    total_steps=config.iterations, pct_start=0.1)
-    run = _Progress.start(checkpoint.load() if checkpoint is not None else None, model, optimizer, schedule, config)
-    stream = Batches(pool, arch, crop, config, start=run.iteration, rng_state=run.rng_state)
+    run = TrainingProgress.start(checkpoint.load() if checkpoint is not None else None, {"model": model}, optimizer,
+                                 schedule, config.iterations)
+    stream = Batches(pool, arch, crop, config, start=run.iteration, rng_state=str(run.saved.get("rng", "")))
     for batch in stream:  # the batches from run.iteration on
         depth, flow, s_target, l_target = (torch.as_tensor(column).to(device) for column in batch)  # uint8 images
         with torch.autocast(device, dtype=torch.bfloat16, enabled=mixed):
@@ -238,8 +239,8 @@ def train_fcn(samples: xr.Dataset | Samples, config: TrainConfig, checkpoint=Non
         optimizer.step()
         schedule.step()
         run.step(loss.item())
-        if checkpoint is not None and run.iteration % config.checkpoint_every == 0 and run.iteration < config.iterations:
-            checkpoint.save(run.state(model, optimizer, schedule, stream.rng_state()))
+        if checkpoint is not None and run.due(config.checkpoint_every):
+            checkpoint.save(run.state({"model": model}, optimizer, schedule, rng=stream.rng_state()))
     return weights_dataset(model.cpu(), crop, config, run.losses, n_samples=len(pool),
                            seconds=run.seconds(), device=device + (" bfloat16" if mixed else ""))
 
@@ -281,52 +282,6 @@ class _Teacher:
         if fields is not None:
             l_target = self.share * fields.float() + (1.0 - self.share) * l_target
         return s_target, l_target
-
-
-class _Progress:
-    """Where a training stands: the next iteration, the losses so far, the seconds of this run and the earlier
-    ones; logs its progress and makes the state a checkpoint keeps."""
-
-    def __init__(self, iteration: int, losses: list[float], earlier_s: float, rng_state: str, total: int):
-        self.iteration, self.losses, self.earlier_s, self.rng_state, self.total = (iteration, losses, earlier_s,
-                                                                                   rng_state, total)
-        self.started = time.perf_counter()
-        self.resumed_at = iteration
-
-    @classmethod
-    def start(cls, state: dict | None, model, optimizer, schedule, config: TrainConfig) -> "_Progress":
-        """A fresh run, or the one ``state`` saved (its model, optimizer and schedule restored)."""
-        if state is None:
-            return cls(0, [], 0.0, "", config.iterations)
-        if int(state["iterations"]) != config.iterations:  # a cache key covers it; a stale file would be a bug
-            raise ValueError(f"checkpoint of a {int(state['iterations'])}-iteration training, this one has "
-                             f"{config.iterations}; delete the checkpoint")
-        model.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
-        schedule.load_state_dict(state["schedule"])
-        run = cls(int(state["iteration"]), [float(x) for x in state["losses"]], float(state["seconds"]),
-                  str(state["rng"]), config.iterations)
-        log.info("resuming the training at iteration %d/%d (%.0f s trained before)", run.iteration, run.total,
-                 run.earlier_s)
-        return run
-
-    def step(self, loss: float) -> None:
-        self.losses.append(loss)
-        done, self.iteration = self.iteration, self.iteration + 1
-        if done % 100 == 0 or self.iteration == self.total:
-            rate = (self.iteration - self.resumed_at) / max(time.perf_counter() - self.started, 1e-9)
-            log.info("iteration %d/%d: loss %.3f (%.0f s, %.2f it/s, %.0f s to go)", done, self.total,
-                     np.mean(self.losses[-100:]), self.seconds(), rate, (self.total - self.iteration) / rate)
-
-    def seconds(self) -> float:
-        return self.earlier_s + time.perf_counter() - self.started
-
-    def state(self, model, optimizer, schedule, rng_state: str) -> dict:
-        import torch
-
-        return {"iteration": self.iteration, "iterations": self.total, "model": model.state_dict(),
-                "optimizer": optimizer.state_dict(), "schedule": schedule.state_dict(),
-                "losses": torch.tensor(self.losses, dtype=torch.float64), "seconds": self.seconds(), "rng": rng_state}
 
 
 class SamplePool:

@@ -35,3 +35,15 @@ class InMemorySamples:
 
     def read(self, index: int, names: Sequence[str]) -> dict[str, np.ndarray]:
         return {name: self._large[name][index] for name in names}
+
+
+class SampleSubset:
+    """:class:`Samples` of ``samples`` at ``index`` only (a split of a training set), in that order."""
+
+    def __init__(self, samples: Samples, index: Sequence[int]):
+        self.index = np.asarray(index, np.int64)
+        self.table = samples.table.isel(sample=self.index)
+        self._samples = samples
+
+    def read(self, index: int, names: Sequence[str]) -> dict[str, np.ndarray]:
+        return self._samples.read(int(self.index[index]), names)

@@ -1,13 +1,18 @@
 """Training helpers the suit's networks share (Chen et al. 2021, §4.2): seeded generators, Adam with a cosine
-schedule, and the augmentations of a batch of crops (exact quarter turns and flips, contrast, brightness, gamma,
-noise, blur). torch is imported when they run, never when planning."""
+schedule, the augmentations of a batch of crops (exact quarter turns and flips, contrast, brightness, gamma,
+noise, blur) and the training loop, checkpointed and resumable (:func:`fit`). torch is imported when they run,
+never when planning."""
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
+
+from mocapflow.tasks.shared.progress import TrainingProgress
+from mocapflow.tasks.suit.crop_pool import CropPool
 
 if TYPE_CHECKING:
     import torch
@@ -34,6 +39,19 @@ def seeded(seed: int, stream: int) -> tuple[torch.Generator, np.random.Generator
     torch.manual_seed(seed)
     return (torch.Generator().manual_seed(seed), np.random.default_rng([seed, stream]),
             "cuda" if torch.cuda.is_available() else "cpu")
+
+
+def streams_state(gen: torch.Generator, rng: np.random.Generator) -> dict:
+    """A training's two generators' states, as a checkpoint keeps them (a tensor and a JSON string)."""
+    return {"torch_rng": gen.get_state(), "numpy_rng": json.dumps(rng.bit_generator.state)}
+
+
+def restore_streams(saved: dict, gen: torch.Generator, rng: np.random.Generator) -> None:
+    """Set the generators to a checkpoint's states (nothing for a fresh run: ``saved`` empty)."""
+    if not saved:
+        return
+    gen.set_state(saved["torch_rng"])
+    rng.bit_generator.state = json.loads(saved["numpy_rng"])
 
 
 def adam_cosine(params: list, learning_rate: float, iterations: int):
@@ -92,3 +110,47 @@ def _gaussian_blur(x: torch.Tensor, sigma: torch.Tensor, radius: int = 3) -> tor
     y = F.conv2d(y, k[:, None, None, :], groups=n)
     y = F.conv2d(y, k[:, None, :, None], groups=n)
     return y.transpose(0, 1)
+
+
+@dataclass
+class Fitted:
+    """What a training's loop leaves besides its networks: the loss of every iteration and the seconds it took
+    (over every run of a resumed training), and where it ran."""
+
+    losses: list[float]
+    seconds: float
+    device: str
+
+
+def fit(modules: dict, batch_loss: Callable[[], torch.Tensor], *, optimizer, schedule, iterations: int,
+        pool: CropPool, streams: tuple[torch.Generator, np.random.Generator], device: str, checkpoint=None,
+        checkpoint_every: int = 500) -> Fitted:
+    """The loop of a suit training: before each batch the pool turns; ``batch_loss()`` draws a batch (from the
+    pool, with the generators ``streams``) and gives its loss; Adam steps. With a ``checkpoint`` (``load()``,
+    ``save(dict)``), the networks, optimizer, schedule, generators and the pool's resident samples are saved every
+    ``checkpoint_every`` iterations and a saved state is continued from: the networks end as an uninterrupted run
+    would. The networks end on the CPU, in eval mode."""
+    import torch
+
+    gen, rng = streams
+    run = TrainingProgress.start(checkpoint.load() if checkpoint is not None else None, modules, optimizer, schedule,
+                                 iterations)
+    restore_streams(run.saved, gen, rng)
+    if run.saved:
+        pool.restore(run.saved["resident"].tolist())
+    for module in modules.values():
+        module.train()
+    while run.iteration < iterations:
+        pool.turn(rng)
+        loss = batch_loss()
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        schedule.step()
+        run.step(loss.item())
+        if checkpoint is not None and run.due(checkpoint_every):
+            checkpoint.save(run.state(modules, optimizer, schedule, resident=torch.as_tensor(pool.resident),
+                                      **streams_state(gen, rng)))
+    for module in modules.values():
+        module.cpu().eval()
+    return Fitted(run.losses, round(run.seconds(), 1), device)

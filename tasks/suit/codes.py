@@ -27,7 +27,8 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from mocapflow.tasks.suit.augment import Augment, adam_cosine, augment_crops, seeded
+from mocapflow.tasks.suit.augment import Augment, Fitted, adam_cosine, augment_crops, fit, seeded
+from mocapflow.tasks.suit.crop_pool import CropPool
 from mocapflow.tasks.suit.metrics import quad_truth
 from mocapflow.tasks.shared.suit_pattern import ALPHABET, BLACK, WHITE, level, print_code
 from mocapflow.tasks.suit.net_configs import N_CHARS, CodeError, CodeNetConfig
@@ -264,44 +265,41 @@ def _jitter(x: torch.Tensor, amount: float, gen: torch.Generator) -> torch.Tenso
     return F.grid_sample(x, grid, mode="bilinear", padding_mode="border", align_corners=False)
 
 
-def train_code_nets(samples: QuadSamples, config: CodeTrainConfig = CodeTrainConfig(), seed: int = 0
-                    ) -> tuple[RejectorNet, RecogNet, list[float]]:
+def train_code_nets(samples: QuadSamples | CropPool, config: CodeTrainConfig = CodeTrainConfig(), seed: int = 0,
+                    checkpoint=None, checkpoint_every: int = 500) -> tuple[RejectorNet, RecogNet, Fitted]:
     """RejectorNet on every crop, RecogNet on the valid ones, jointly per iteration (Adam, cosine decay), each
-    batch augmented.  -> the two networks (eval mode) and the loss per iteration"""
+    batch augmented; ``samples`` in memory or a pool streaming them; checkpointed and resumable with a
+    ``checkpoint`` (augment.fit).  -> the two networks (eval mode, CPU), the losses and seconds"""
     import torch
     from torch.nn import functional as F
     from mocapflow.tasks.suit.networks import RecogNet, RejectorNet
 
-    if len(samples) < config.batch or samples.valid.all() or not samples.valid.any():
+    pool = samples if isinstance(samples, CropPool) else CropPool.in_memory(
+        {"crops": samples.crops, "valid": samples.valid, "rotation": samples.rotation, "code": samples.code})
+    valid = pool.count("valid")
+    if len(pool) < config.batch or valid == len(pool) or not valid:
         raise CodeError(f"training needs at least one batch ({config.batch}) of crops with valid and invalid ones; "
-                        f"got {len(samples)}, {int(samples.valid.sum())} valid")
+                        f"got {len(pool)}, {valid} valid")
     gen, rng, device = seeded(seed, 104)
     rejector, recog = RejectorNet(config.rejector).to(device), RecogNet(config.recog).to(device)
     opt, sched = adam_cosine(list(rejector.parameters()) + list(recog.parameters()), config.learning_rate,
                              config.iterations)
-    crops = torch.from_numpy(samples.crops)
-    valid = torch.from_numpy(samples.valid)
-    rotation = torch.from_numpy(samples.rotation.astype(np.int64))
-    code = torch.from_numpy(samples.code.astype(np.int64))
-    good = np.flatnonzero(samples.valid)
-    rejector.train()
-    recog.train()
-    losses = []
-    for _ in range(config.iterations):
-        idx = torch.from_numpy(rng.integers(len(samples), size=config.batch))
-        x = _prepare(crops[idx].to(device), config, gen)
-        loss = F.binary_cross_entropy_with_logits(rejector(x), valid[idx].float().to(device))
-        idx = torch.from_numpy(rng.choice(good, size=config.batch))
-        rot, first, second = recog(_prepare(crops[idx].to(device), config, gen))
-        c = code[idx].to(device)
-        loss = loss + F.cross_entropy(rot, rotation[idx].to(device)) + F.cross_entropy(first, c // N_CHARS) \
+
+    def batch_loss():
+        b = pool.draw(rng, config.batch)
+        x = _prepare(torch.from_numpy(b["crops"]).to(device), config, gen)
+        loss = F.binary_cross_entropy_with_logits(rejector(x), torch.from_numpy(b["valid"]).float().to(device))
+        b = pool.draw(rng, config.batch, where="valid")
+        rot, first, second = recog(_prepare(torch.from_numpy(b["crops"]).to(device), config, gen))
+        c = torch.from_numpy(b["code"].astype(np.int64)).to(device)
+        rotation = torch.from_numpy(b["rotation"].astype(np.int64)).to(device)
+        return loss + F.cross_entropy(rot, rotation) + F.cross_entropy(first, c // N_CHARS) \
             + F.cross_entropy(second, c % N_CHARS)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        sched.step()
-        losses.append(loss.item())
-    return rejector.cpu().eval(), recog.cpu().eval(), losses
+
+    fitted = fit({"rejector": rejector, "recog": recog}, batch_loss, optimizer=opt, schedule=sched,
+                 iterations=config.iterations, pool=pool, streams=(gen, rng), device=device, checkpoint=checkpoint,
+                 checkpoint_every=checkpoint_every)
+    return rejector, recog, fitted
 
 
 def _prepare(crops: torch.Tensor, config: CodeTrainConfig, gen: torch.Generator) -> torch.Tensor:

@@ -36,7 +36,8 @@ if TYPE_CHECKING:
 
     from mocapflow.tasks.suit.networks import CornerdetNet
 
-from mocapflow.tasks.suit.augment import Augment, adam_cosine, augment_crops, dihedral, seeded
+from mocapflow.tasks.suit.augment import Augment, Fitted, adam_cosine, augment_crops, dihedral, fit, seeded
+from mocapflow.tasks.suit.crop_pool import CropPool
 from mocapflow.tasks.suit.net_configs import CornerError, CornerNetConfig
 
 CELL = 8  # §3.1, Chen et al. 2021: cells of 8 x 8 pixels
@@ -459,33 +460,35 @@ def cornerdet_loss(out: torch.Tensor, present: torch.Tensor, position: torch.Ten
     return (ce + weight * present * sq).mean()
 
 
-def train_cornerdet(samples: CornerSamples, config: TrainConfig = TrainConfig(), seed: int = 0) -> CornerdetNet:
-    """CornerdetNet trained with Adam on ``samples``, batches drawn and augmented from ``seed`` (deterministic for a
-    seed and a torch thread count)."""
+def train_cornerdet(samples: CornerSamples | CropPool, config: TrainConfig = TrainConfig(), seed: int = 0,
+                    checkpoint=None, checkpoint_every: int = 500) -> tuple[CornerdetNet, Fitted]:
+    """CornerdetNet trained with Adam on ``samples`` (in memory, or a pool streaming them), batches drawn and
+    augmented from ``seed`` (deterministic for a seed and a torch thread count); checkpointed and resumable with a
+    ``checkpoint`` (augment.fit).  -> the network (eval mode, CPU), its losses and seconds"""
     import torch
     from mocapflow.tasks.suit.networks import CornerdetNet
 
-    if len(samples) < config.batch or not samples.present.any() or samples.present.all():
+    pool = samples if isinstance(samples, CropPool) else CropPool.in_memory(
+        {"crops": samples.crops, "present": samples.present, "position": samples.position})
+    positives = pool.count("present")
+    if len(pool) < config.batch or not positives or positives == len(pool):
         raise CornerError(f"training needs at least one batch ({config.batch}) of crops with both positives and "
-                          f"negatives; got {len(samples)} crops, {int(samples.present.sum())} positive")
+                          f"negatives; got {len(pool)} crops, {positives} positive")
     gen, rng, device = seeded(seed, 17)
     net = CornerdetNet(config.net).to(device)
     opt, sched = adam_cosine(list(net.parameters()), config.learning_rate, config.iterations)
-    crops = torch.from_numpy(samples.crops)
-    present = torch.from_numpy(samples.present.astype(np.float32))
-    position = torch.from_numpy(samples.position.astype(np.float32))
-    net.train()
-    for _ in range(config.iterations):
-        idx = torch.from_numpy(rng.integers(len(samples), size=config.batch))
-        x, p = dihedral(crops[idx].float().div_(255.0)[:, None], position[idx], gen)
+
+    def batch_loss():
+        b = pool.draw(rng, config.batch)
+        x, p = dihedral(torch.from_numpy(b["crops"]).float().div_(255.0)[:, None],
+                        torch.from_numpy(b["position"].astype(np.float32)), gen)
         x = augment_crops(x, config.augment, gen)
-        loss = cornerdet_loss(net(x.to(device))[:, :, 0, 0], present[idx].to(device), p.to(device),
-                              config.position_weight)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        sched.step()
-    return net.cpu().eval()
+        present = torch.from_numpy(b["present"].astype(np.float32))
+        return cornerdet_loss(net(x.to(device))[:, :, 0, 0], present.to(device), p.to(device), config.position_weight)
+
+    fitted = fit({"net": net}, batch_loss, optimizer=opt, schedule=sched, iterations=config.iterations, pool=pool,
+                 streams=(gen, rng), device=device, checkpoint=checkpoint, checkpoint_every=checkpoint_every)
+    return net, fitted
 
 
 # ---------------------------------------------------------------------------------------------------- the stage

@@ -12,15 +12,16 @@ code. Each training is seeded and writes a suit_net_weights artifact (tasks/shar
 
 from __future__ import annotations
 
-import time
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import xarray as xr
 
+from mocapflow.tasks.shared.samples import InMemorySamples, Samples, SampleSubset
 from mocapflow.tasks.shared.weights import pack
 from mocapflow.tasks.suit import codes as cd
 from mocapflow.tasks.suit import corners as co
+from mocapflow.tasks.suit.crop_pool import CROPS, USED, CropPool, PoolError
 from mocapflow.tasks.suit.quads import warp_quads
 
 
@@ -70,23 +71,78 @@ def corner_training_samples(images: xr.Dataset, config: CornerSampleStageConfig)
 
 
 @dataclass(frozen=True)
+class StreamConfig:
+    """How a suit training holds its samples and keeps its state (crop_pool.CropPool, augment.fit)."""
+
+    slots: int = 64  # images whose crops are held at a time (the rest stay in storage)
+    swap: int = 1  # held images swapped for others before each batch
+    validation: tuple[str, ...] = ()  # sequences held out of the training and scored at its end
+    # iterations between checkpoints (a killed training continues from the last; the weights are the same)
+    checkpoint_every: int = field(default=500, metadata={"runtime": True})
+
+    def __post_init__(self):
+        if self.slots < 1 or self.swap < 0 or self.checkpoint_every < 1:
+            raise PoolError(f"slots ({self.slots}) >= 1, swap ({self.swap}) >= 0 and checkpoint_every "
+                                 f"({self.checkpoint_every}) >= 1 needed")
+
+
+@dataclass(frozen=True)
 class TrainCornerdetConfig:
     train: co.TrainConfig = co.TrainConfig()
+    stream: StreamConfig = StreamConfig()
     seed: int = 0
 
 
-def train_cornerdet_stage(samples: xr.Dataset, config: TrainCornerdetConfig) -> xr.Dataset:
-    """Task: CornerdetNet trained on every crop of a dataset (samples stacked along ``sample``)."""
-    used = samples["used"].values
-    s = co.CornerSamples(samples["crops"].values[used], samples["present"].values[used],
-                         samples["position"].values[used], np.zeros(int(used.sum()), np.int8))
-    started = time.perf_counter()
-    net = co.train_cornerdet(s, config.train, seed=config.seed)
+def _split(samples: xr.Dataset | Samples, stream: StreamConfig) -> tuple[Samples, Samples | None]:
+    """The training samples and the held-out validation ones (None without ``validation``), streamed."""
+    if isinstance(samples, xr.Dataset):
+        samples = InMemorySamples(samples, (CROPS,))
+    if not stream.validation:
+        return samples, None
+    sequence = np.asarray(samples.table["sequence"].values).astype(str)
+    unknown = sorted(set(stream.validation) - set(sequence))
+    held = np.isin(sequence, list(stream.validation))
+    if unknown or held.all():
+        raise PoolError(f"validation sequences {unknown or list(stream.validation)} are "
+                             f"{'not in the training dataset' if unknown else 'all of it'}; name some of "
+                             f"{sorted(set(sequence))}, not every one")
+    return SampleSubset(samples, np.flatnonzero(~held)), SampleSubset(samples, np.flatnonzero(held))
+
+
+def _held_out(samples: Samples, columns: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """Every used crop of ``samples`` with its columns, in memory (the validation set)."""
+    used = samples.table[USED].values
+    rows = [samples.read(i, (CROPS,))[CROPS][used[i]] for i in range(len(used))]
+    return {CROPS: np.concatenate(rows), **{c: samples.table[c].values[used] for c in columns}}
+
+
+def train_cornerdet_stage(samples: xr.Dataset | Samples, config: TrainCornerdetConfig, checkpoint=None) -> xr.Dataset:
+    """Task: CornerdetNet trained on every crop of a dataset (its images streamed through a pool), less the
+    validation sequences, which are scored at the end."""
+    train, validation = _split(samples, config.stream)
+    pool = CropPool(train, ("present", "position"), slots=config.stream.slots, swap=config.stream.swap)
+    net, fitted = co.train_cornerdet(pool, config.train, seed=config.seed, checkpoint=checkpoint,
+                                     checkpoint_every=config.stream.checkpoint_every)
     arch = {"widths": list(config.train.net.widths), "hidden": config.train.net.hidden,
             "batch_norm": config.train.net.batch_norm}
-    record = {"crops": len(s), "positives": int(s.present.sum()), "seconds": round(time.perf_counter() - started, 1),
-              "iterations": config.train.iterations, "seed": config.seed}
-    return pack(net.state_dict(), arch, record, [])
+    record = {"crops": len(pool), "positives": pool.count("present"), "images": pool.n_samples,
+              "seconds": fitted.seconds, "device": fitted.device, "iterations": config.train.iterations,
+              "seed": config.seed, "slots": pool.slots}
+    if validation is not None:
+        record["validation"] = cornerdet_scores(net, _held_out(validation, ("present", "position")))
+    return pack(net.state_dict(), arch, record, fitted.losses)
+
+
+def cornerdet_scores(net, held: dict[str, np.ndarray]) -> dict:
+    """CornerdetNet on held-out crops: positives found (logit > 0), negatives taken for a corner, and the found
+    positives' position error in pixels (median, p95)."""
+    out = co.crop_outputs(net, held[CROPS])
+    present, found = held["present"].astype(bool), out[:, 0] > 0
+    err = np.linalg.norm(out[present & found, 1:] - held["position"][present & found], axis=1) * co.CELL
+    return {"crops": int(len(present)), "recall": float(found[present].mean()),
+            "false_rate": float(found[~present].mean()),
+            "position_median_px": float(np.median(err)) if len(err) else float("nan"),
+            "position_p95_px": float(np.percentile(err, 95)) if len(err) else float("nan")}
 
 
 @dataclass(frozen=True)
@@ -132,21 +188,38 @@ def quad_training_samples(images: xr.Dataset, corners: xr.Dataset, quads: xr.Dat
 @dataclass(frozen=True)
 class TrainCodesConfig:
     train: cd.CodeTrainConfig = field(default_factory=cd.CodeTrainConfig)
+    stream: StreamConfig = StreamConfig()
     seed: int = 0
 
 
-def train_codes_stage(samples: xr.Dataset, config: TrainCodesConfig) -> xr.Dataset:
-    """Task: RejectorNet and RecogNet trained on a dataset's candidate quads plus synthetic crops of every code."""
-    used = samples["used"].values
-    studio = cd.QuadSamples(samples["crops"].values[used], samples["valid"].values[used],
-                            samples["rotation"].values[used], samples["code"].values[used])
+def train_codes_stage(samples: xr.Dataset | Samples, config: TrainCodesConfig, checkpoint=None) -> xr.Dataset:
+    """Task: RejectorNet and RecogNet trained on a dataset's candidate quads (streamed through a pool) plus
+    synthetic crops of every code, less the validation sequences, which are scored at the end."""
+    train, validation = _split(samples, config.stream)
     rng = np.random.default_rng([config.seed, 625])
     synthetic = cd.synthetic_quads(config.train.synthetic, config.train.synth, rng)
-    both = cd.concat_quad_samples([studio, synthetic])
-    started = time.perf_counter()
-    rejector, recog, losses = cd.train_code_nets(both, config.train, seed=config.seed)
+    columns = ("valid", "rotation", "code")
+    pool = CropPool(train, columns, slots=config.stream.slots, swap=config.stream.swap,
+                    fixed={CROPS: synthetic.crops, **{c: getattr(synthetic, c) for c in columns}})
+    rejector, recog, fitted = cd.train_code_nets(pool, config.train, seed=config.seed, checkpoint=checkpoint,
+                                                 checkpoint_every=config.stream.checkpoint_every)
     state, arch = cd.pack_state(rejector, recog)
-    record = {"studio_crops": len(studio), "studio_valid": int(studio.valid.sum()), "synthetic_crops": len(synthetic),
-              "seconds": round(time.perf_counter() - started, 1), "iterations": config.train.iterations,
-              "seed": config.seed, "synth": asdict(config.train.synth)}
-    return pack(state, arch, record, losses)
+    record = {"studio_crops": len(pool) - pool.n_fixed, "studio_valid": pool.count("valid") - int(synthetic.valid.sum()),
+              "synthetic_crops": pool.n_fixed, "images": pool.n_samples, "seconds": fitted.seconds,
+              "device": fitted.device, "iterations": config.train.iterations, "seed": config.seed,
+              "slots": pool.slots, "synth": asdict(config.train.synth)}
+    if validation is not None:
+        record["validation"] = codes_scores(rejector, recog, _held_out(validation, columns))
+    return pack(state, arch, record, fitted.losses)
+
+
+def codes_scores(rejector, recog, held: dict[str, np.ndarray]) -> dict:
+    """RejectorNet and RecogNet on held-out candidate quads: the rejector's recall and precision on coded
+    squares, and the share of coded squares read right (accepted, right code and rotation)."""
+    reading = cd.read_crops(held[CROPS], rejector, recog)
+    valid = held["valid"].astype(bool)
+    right = reading.accepted & (reading.code == held["code"]) & (reading.rotation == held["rotation"])
+    return {"crops": int(len(valid)), "valid": int(valid.sum()),
+            "rejector_recall": float(reading.accepted[valid].mean()) if valid.any() else float("nan"),
+            "rejector_precision": float(valid[reading.accepted].mean()) if reading.accepted.any() else float("nan"),
+            "read_right": float(right[valid].mean()) if valid.any() else float("nan")}

@@ -168,7 +168,7 @@ def tiny_net():
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # a small network trains fastest on one thread
     try:
-        return co.train_cornerdet(samples, config, seed=0)
+        return co.train_cornerdet(samples, config, seed=0)[0]
     finally:
         torch.set_num_threads(threads)
 
@@ -191,8 +191,8 @@ def test_training_is_deterministic_for_a_seed():
     image, corners = board(rng)
     samples = co.corner_samples(image, corners, np.ones(len(corners), bool), co.SampleConfig(), rng)
     config = co.TrainConfig(net=co.CornerNetConfig((4, 4, 4, 4), 4), iterations=5, batch=16)
-    a, b = (co.train_cornerdet(samples, config, seed=7).state_dict() for _ in range(2))
-    c = co.train_cornerdet(samples, config, seed=8).state_dict()
+    a, b = (co.train_cornerdet(samples, config, seed=7)[0].state_dict() for _ in range(2))
+    c = co.train_cornerdet(samples, config, seed=8)[0].state_dict()
     assert all(torch.equal(a[k], b[k]) for k in a) and not all(torch.equal(a[k], c[k]) for k in a)
     rebuilt = networks.CornerdetNet(config.net)
     rebuilt.load_state_dict(a)  # rebuilt from the config alone
