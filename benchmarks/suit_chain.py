@@ -1,11 +1,11 @@
 """The suit's 2D chain per megapixel on one CPU core: CornerdetNet, candidate quads, RejectorNet and RecogNet, corner
-labels, on held-out studio images (benchmarks/suit.yaml, which must have run).
+labels and their growth over the grid, on held-out studio images (benchmarks/suit.yaml, which must have run).
 
     taskset -c 0 python benchmarks/suit_chain.py [--images 8] [--runs 3]
 
 Prints one JSON line: the images' size, and per stage and in all the median over images of the fastest of
 ``runs`` (process CPU time, so what one core spends whatever else the machine runs) in ms per megapixel, with the
-counts (detections, candidate quads, accepted quads, labels) per image.
+counts (detections, candidate quads, accepted quads, labels, grown labels) per image.
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ from mocapflow.pipeline.plan import build_plan  # noqa: E402
 from mocapflow.pipeline.storage import Store  # noqa: E402
 from mocapflow.tasks.suit import codes as cd  # noqa: E402
 from mocapflow.tasks.suit import corners as co  # noqa: E402
+from mocapflow.tasks.suit import grow as gr  # noqa: E402
 from mocapflow.tasks.suit import labels as lb  # noqa: E402
 from mocapflow.tasks.suit import quads as qd  # noqa: E402
 
@@ -44,7 +45,7 @@ def held_out_images(n: int) -> tuple[list[np.ndarray], dict]:
         ds = plan.open(store, "images", seq.id)
         if pattern is None:
             pattern = {"square_corners": ds["square_corners"].values, "codes": [str(c) for c in ds["code"].values],
-                       "n_corners": ds.sizes["corner"]}
+                       "n_corners": ds.sizes["corner"], "cells": ds["cells"].values}
         for v in range(0, ds.sizes["view"], 3):
             out.append(ds["image"].values[v, ds.sizes["frame"] // 2])
     step = max(1, len(out) // n)
@@ -76,6 +77,7 @@ def main() -> None:
     rejector, recog = cd.nets_from_weights(torch.load(ROOT / "models" / "suit_codes.pt", weights_only=True))
     images, pattern = held_out_images(args.images)
     square_of_code = {cd.code_index(c): s for s, c in enumerate(pattern["codes"])}
+    edges = gr.cell_edges(pattern["cells"])  # the pattern's, once per suit
     rows = []
     for image in images:
         mp = image.size / 1e6
@@ -85,10 +87,12 @@ def main() -> None:
         ok = codes.accepted
         t_l, (det, _) = timed(args.runs, lb.corner_labels, quads[ok], codes.rotation[ok], codes.code[ok],
                               codes.confidence[ok], square_of_code, pattern["square_corners"], pattern["n_corners"])
+        t_g, grown = timed(args.runs, gr.grow_labels, found.xy, det, pattern["cells"], gr.GrowConfig(), edges)
         rows.append({"corners": 1000 * t_c / mp, "quads": 1000 * t_q / mp, "codes": 1000 * t_r / mp,
-                     "labels": 1000 * t_l / mp, "all": 1000 * (t_c + t_q + t_r + t_l) / mp,
+                     "labels": 1000 * t_l / mp, "grow": 1000 * t_g / mp,
+                     "all": 1000 * (t_c + t_q + t_r + t_l + t_g) / mp,
                      "n_detections": len(found.xy), "n_quads": len(quads), "n_accepted": int(ok.sum()),
-                     "n_labels": int((det >= 0).sum())})
+                     "n_labels": int((det >= 0).sum()), "n_grown": int((grown >= 0).sum())})
     out = {"images": len(rows), "megapixels": round(images[0].size / 1e6, 2)}
     out.update({f"{k}_ms_per_mp" if not k.startswith("n_") else k: round(statistics.median(r[k] for r in rows), 1)
                 for k in rows[0]})

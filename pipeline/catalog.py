@@ -232,6 +232,10 @@ class _Validator:
             return {}
         if not isinstance(value, dict):
             raise CatalogError(f"{self.where(*keys)}: expected a mapping, got {type(value).__name__} {value!r}")
+        unnamed = [key for key in value if isinstance(key, bool) or key is None]
+        if unnamed:  # YAML 1.1 reads on/off/yes/no/true/false as booleans and ~ or null as nothing
+            raise CatalogError(f"{self.where(*keys)}: key {unnamed[0]!r} is not a name (YAML reads on, off, yes, "
+                               "no, true, false as booleans and null or ~ as nothing); quote it, e.g. 'on':")
         return value
 
     def known_keys(self, value: dict, allowed, *keys) -> None:

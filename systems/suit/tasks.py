@@ -8,6 +8,7 @@ from mocapflow.tasks.suit import training as suit_training
 from mocapflow.tasks.suit.codes import ReadCodesConfig
 from mocapflow.tasks.suit.corners import FindCornersConfig
 from mocapflow.tasks.suit.fill import FillSuitConfig
+from mocapflow.tasks.suit.grow import GrowConfig
 from mocapflow.tasks.suit.holdout import HoldoutConfig
 from mocapflow.tasks.suit.labels import LabelConfig
 from mocapflow.tasks.suit.oracle import OracleConfig
@@ -55,6 +56,14 @@ TASKS = (
         inputs={"images": "suit_images", "corners": "suit_corners", "quads": "suit_quads", "codes": "suit_codes"},
         reads={"images": ("code", "square_corners", "corner_face"), "corners": ("x", "y")},
         description="corner identities from the accepted quads, kept where every quad naming a corner agrees (§3.2)",
+    ),
+    TaskSpec(
+        name="grow_labels", fn=Lazy("mocapflow.tasks.suit.grow", "grow_corner_labels"), version="1",
+        params=GrowConfig, output="suit_labels", partition="view",
+        inputs={"images": "suit_images", "corners": "suit_corners", "labels": "suit_labels"},
+        reads={"images": ("cells",), "corners": ("x", "y")},
+        description="labels grown over the suit's grid: unread squares' corners completed and extended from "
+                    "labelled ones (beyond the paper)",
     ),
     # Training the chain from studio takes (§4): per-image samples, then one training per dataset.
     TaskSpec(

@@ -43,6 +43,8 @@ def test_valid_catalog_orders_stages_and_fills_inputs(toy_project):
         ("stages:", "stges:", "unknown key 'stges' (did you mean 'stages'?)"),
         ("kind: zarr", "kind: zar", "unknown dataset kind 'zar' (did you mean 'zarr'?)"),
         ("region_frames: 4", "region_frames: -4", "storage.region_frames: expected a positive integer, got -4"),
+        ("  scaled: {task", "  on: {task", "stages: key True is not a name (YAML reads on, off, yes, no, true, false "
+                                         "as booleans and null or ~ as nothing); quote it, e.g. 'on':"),
     ],
 )
 def test_bad_catalog_names_key_line_and_fix(toy_project, old, new, message):

@@ -9,6 +9,7 @@ import xarray as xr
 
 from mocapflow.tasks.deepmocap import fcn, training
 from mocapflow.tasks.shared.samples import InMemorySamples
+from memory_checkpoint import MemoryCheckpoint, Stopped
 
 
 def _samples(n: int = 5) -> xr.Dataset:
@@ -68,32 +69,15 @@ def test_workers_must_not_be_negative_and_need_per_batch_seeds():
         training.TrainConfig(checkpoint_every=0)
 
 
-class _Stopped(Exception):
-    """The stand-in for a killed process: raised right after a checkpoint is saved."""
-
-
-class _MemoryCheckpoint:
-    def __init__(self, stop_after: int | None = None):
-        self.state, self.saves, self.stop_after = None, 0, stop_after
-
-    def load(self):
-        return self.state
-
-    def save(self, state):
-        self.state, self.saves = state, self.saves + 1
-        if self.saves == self.stop_after:
-            raise _Stopped
-
-
 @pytest.mark.parametrize("per_batch_seeds", [False, True])
 def test_a_training_stopped_and_continued_ends_with_the_uninterrupted_weights(per_batch_seeds):
     config = training.TrainConfig(input_size=32, stream_width=4, fused_width=4, stage_width=4, stages=2, batch=2,
                                   iterations=7, frame_step=1, checkpoint_every=2, per_batch_seeds=per_batch_seeds,
                                   bfloat16=False)
     torch.set_num_threads(1)
-    whole = training.train_fcn(_samples(), config, checkpoint=_MemoryCheckpoint())
-    checkpoint = _MemoryCheckpoint(stop_after=2)
-    with pytest.raises(_Stopped):
+    whole = training.train_fcn(_samples(), config, checkpoint=MemoryCheckpoint())
+    checkpoint = MemoryCheckpoint(stop_after=2)
+    with pytest.raises(Stopped):
         training.train_fcn(_samples(), config, checkpoint=checkpoint)
     assert checkpoint.state["iteration"] == 4 and len(checkpoint.state["losses"]) == 4
     checkpoint.stop_after = None
@@ -106,8 +90,8 @@ def test_a_training_stopped_and_continued_ends_with_the_uninterrupted_weights(pe
 def test_a_checkpoint_of_another_schedule_is_refused():
     config = training.TrainConfig(input_size=32, stream_width=4, fused_width=4, stage_width=4, stages=2, batch=2,
                                   iterations=3, frame_step=1, checkpoint_every=1, bfloat16=False)
-    checkpoint = _MemoryCheckpoint(stop_after=1)
-    with pytest.raises(_Stopped):
+    checkpoint = MemoryCheckpoint(stop_after=1)
+    with pytest.raises(Stopped):
         training.train_fcn(_samples(), config, checkpoint=checkpoint)
     checkpoint.stop_after = None
     longer = training.TrainConfig(**{**config.__dict__, "iterations": 5})

@@ -14,23 +14,7 @@ from mocapflow.tasks.suit import corners as co
 from mocapflow.tasks.suit import training as tr
 from mocapflow.tasks.suit.crop_pool import PoolError
 from mocapflow.tasks.suit.net_configs import CodeNetConfig, CornerNetConfig
-
-
-class _Stopped(Exception):
-    """The stand-in for a killed process: raised right after a checkpoint is saved."""
-
-
-class _MemoryCheckpoint:
-    def __init__(self, stop_after: int | None = None):
-        self.state, self.saves, self.stop_after = None, 0, stop_after
-
-    def load(self):
-        return self.state
-
-    def save(self, state):
-        self.state, self.saves = state, self.saves + 1
-        if self.saves == self.stop_after:
-            raise _Stopped
+from memory_checkpoint import MemoryCheckpoint, Stopped
 
 
 def _corner_samples(images=8, capacity=40, seed=0) -> xr.Dataset:
@@ -59,9 +43,9 @@ CORNER = tr.TrainCornerdetConfig(
 
 def test_a_cornerdet_training_stopped_and_continued_ends_with_the_uninterrupted_network():
     torch.set_num_threads(1)
-    whole = tr.train_cornerdet_stage(_corner_samples(), CORNER, checkpoint=_MemoryCheckpoint())
-    checkpoint = _MemoryCheckpoint(stop_after=2)
-    with pytest.raises(_Stopped):
+    whole = tr.train_cornerdet_stage(_corner_samples(), CORNER, checkpoint=MemoryCheckpoint())
+    checkpoint = MemoryCheckpoint(stop_after=2)
+    with pytest.raises(Stopped):
         tr.train_cornerdet_stage(_corner_samples(), CORNER, checkpoint=checkpoint)
     assert checkpoint.state["iteration"] == 4 and len(checkpoint.state["resident"]) == 3
     checkpoint.stop_after = None
@@ -110,9 +94,9 @@ def test_a_codes_training_stopped_and_continued_ends_with_the_uninterrupted_netw
         train=cd.CodeTrainConfig(rejector=small, recog=small, iterations=5, batch=8, synthetic=16),
         stream=tr.StreamConfig(slots=2, checkpoint_every=2, validation=("s2",)), seed=3)
     torch.set_num_threads(1)
-    whole = tr.train_codes_stage(_quad_samples(), config, checkpoint=_MemoryCheckpoint())
-    checkpoint = _MemoryCheckpoint(stop_after=1)
-    with pytest.raises(_Stopped):
+    whole = tr.train_codes_stage(_quad_samples(), config, checkpoint=MemoryCheckpoint())
+    checkpoint = MemoryCheckpoint(stop_after=1)
+    with pytest.raises(Stopped):
         tr.train_codes_stage(_quad_samples(), config, checkpoint=checkpoint)
     assert {"rejector", "recog", "resident", "numpy_rng", "torch_rng"} <= set(checkpoint.state)
     checkpoint.stop_after = None
