@@ -61,7 +61,7 @@ TASKS = (
         name="grow_labels", fn=Lazy("mocapflow.tasks.suit.grow", "grow_corner_labels"), version="1",
         params=GrowConfig, output="suit_labels", partition="view",
         inputs={"images": "suit_images", "corners": "suit_corners", "labels": "suit_labels"},
-        reads={"images": ("cells",), "corners": ("x", "y")},
+        reads={"images": ("cells",), "corners": ("x", "y", "logit")},
         description="labels grown over the suit's grid: unread squares' corners completed and extended from "
                     "labelled ones (beyond the paper)",
     ),

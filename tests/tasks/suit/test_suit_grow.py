@@ -95,8 +95,9 @@ def test_the_stage_adds_grown_labels_at_detections_with_no_quad_naming_them():
     coords = {"view": ["cam00"], "frame": [0]}
     dims = ("view", "frame", "corner")
     images = xr.Dataset({"cells": (("cell", "k"), cells)})
-    corners = xr.Dataset({"x": (("view", "frame", "detection"), det), "y": (("view", "frame", "detection"), det_y)},
-                         coords=coords)
+    per_detection = ("view", "frame", "detection")
+    corners = xr.Dataset({"x": (per_detection, det), "y": (per_detection, det_y),
+                          "logit": (per_detection, np.full(det.shape, 5.0, np.float32))}, coords=coords)
     labels = xr.Dataset({"x": (dims, x), "y": (dims, y), "quads": (dims, quads)}, coords={**coords, "corner": np.arange(n)})
     out = grow_corner_labels(images, corners, labels, GrowConfig(rounds=5))
     np.testing.assert_allclose(out["x"].values[0, 0], xy[:, 0], atol=1e-4)  # all nine corners labelled
