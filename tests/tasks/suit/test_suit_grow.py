@@ -99,7 +99,23 @@ def test_the_stage_adds_grown_labels_at_detections_with_no_quad_naming_them():
     corners = xr.Dataset({"x": (per_detection, det), "y": (per_detection, det_y),
                           "logit": (per_detection, np.full(det.shape, 5.0, np.float32))}, coords=coords)
     labels = xr.Dataset({"x": (dims, x), "y": (dims, y), "quads": (dims, quads)}, coords={**coords, "corner": np.arange(n)})
-    out = grow_corner_labels(images, corners, labels, GrowConfig(rounds=5))
+    out = grow_corner_labels(images, corners, labels, GrowConfig(rounds=5, extend_radius=0.2))
     np.testing.assert_allclose(out["x"].values[0, 0], xy[:, 0], atol=1e-4)  # all nine corners labelled
     np.testing.assert_array_equal(out["quads"].values[0, 0] > 0, np.isin(np.arange(n), cells[0]))
     np.testing.assert_array_equal(labels["x"].values, x)  # the input left as it was
+
+
+def test_an_extension_past_a_foreshortened_square_is_refused_not_taken_for_the_corner_after():
+    """A row of squares turning away from the camera: each next square is half as wide. Extending from the first
+    square lands on the third corner; the second, nearer, tells that the square was foreshortened."""
+    x = np.array([0.0, 30.0, 45.0, 52.5, 60.0])  # corners along the row: sides 30, 15, 7.5, 7.5
+    top, bottom = np.column_stack([x, np.zeros(5)]), np.column_stack([x, np.full(5, 30.0)])
+    xy = np.vstack([top, bottom])  # corner i on top, 5 + i below
+    cells = np.array([[i, i + 1, 6 + i, 5 + i] for i in range(4)])
+    detections = xy.copy()
+    start = np.full(10, -1)
+    start[cells[0]] = cells[0]
+    grown = grow_labels(detections, start, cells, GrowConfig(rounds=1, extend_radius=0.3, complete_radius=0.3))
+    # 2 x (30) - 0 = 60: the fifth corner's place; the third (at 45) lies between, so nothing is named
+    assert (grown[[2, 7]] == -1).all()
+
