@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocapflow.pipeline.catalog import stage_writing
+from mocapflow.pipeline.catalog import final_stage, stage_writing
 from mocapflow.pipeline.errors import PlanError
 from mocapflow.pipeline.evaluate import format_rows
 from mocapflow.pipeline.registry import Evaluator
@@ -22,13 +22,18 @@ TRUTH = ("gt_corners2d", "gt_visible", "gt_readable", "gt_corners", "square_corn
 
 
 def suit_stages(catalog) -> dict[str, str]:
-    """What to score: per schema of the suit chain the catalog's last stage writing it; ``suit_points`` the last
+    """What to score: per schema of the suit chain the catalog's last stage writing it (for ``suit_labels`` the
+    last refining them, as grow_labels does, and ``suit_labels_read`` the labels it refined); ``suit_points`` the last
     triangulation with the exact cameras and ``suit_points_perturbed`` the last with a calibration error (not a
     hold-out either); ``suit_filled_hidden`` a filling whose points had single observations hidden and
     ``suit_filled_occluded`` one whose points had patches hidden (tasks/suit/holdout.py); ``suit_filled`` the last
     filling of exactly triangulated points themselves."""
-    schemas = ("suit_images", "suit_corners", "suit_quads", "suit_codes", "suit_labels")
+    schemas = ("suit_images", "suit_corners", "suit_quads", "suit_codes")
     out = {s: stage_writing(catalog, s) for s in schemas if stage_writing(catalog, s) is not None}
+    if final_stage(catalog, "suit_labels") is not None:  # the labels handed on (grown, where a stage grows them)
+        out["suit_labels"] = final_stage(catalog, "suit_labels")
+        if stage_writing(catalog, "suit_labels") not in (None, out["suit_labels"]):
+            out["suit_labels_read"] = stage_writing(catalog, "suit_labels")  # as the quads' codes named them
     for s in catalog.stages.values():
         if s.spec.output == "suit_points" and "suit_points" not in s.spec.inputs.values():
             out["suit_points_perturbed" if _perturbed(s) else "suit_points"] = s.name
@@ -67,7 +72,7 @@ def evaluate(catalog, plan, store, per_sequence: dict, thorough: bool = True) ->
 def evaluate_suit(plan, store, stages: dict[str, str], per_sequence: dict) -> dict:
     if "suit_images" not in stages:
         raise PlanError("the catalog has suit stages but no stage writing suit_images to score them against")
-    sums: dict = {k: [] for k in ("detect", "quads", "labels", "points", "points_perturbed", "reproj", "filled",
+    sums: dict = {k: [] for k in ("detect", "quads", "labels", "labels_read", "points", "points_perturbed", "reproj", "filled",
                                   "observed", "hidden", "occluded", "wrong_3d")}
     for seq in plan.sequences:
         images = plan.open(store, stages["suit_images"], seq.id)
@@ -91,11 +96,13 @@ def evaluate_suit(plan, store, stages: dict[str, str], per_sequence: dict) -> di
 
 def _score_view(plan, store, stages, seq_id, view, truth, sums) -> None:
     gt_xy, visible = truth["gt_corners2d"].values, truth["gt_visible"].values  # (frame, corner, 2), (frame, corner)
+    for key in ("labels_read", "labels"):
+        if f"suit_{key}" in stages:
+            lab = plan.open(store, stages[f"suit_{key}"], seq_id, view).sel(view=view).load()
+            xy = np.stack([lab["x"].values, lab["y"].values], axis=-1)
+            sums[key].append(metrics.label_counts(xy, gt_xy, visible, truth["gt_readable"].values))
     if "suit_labels" in stages:
-        lab = plan.open(store, stages["suit_labels"], seq_id, view).sel(view=view).load()
-        xy = np.stack([lab["x"].values, lab["y"].values], axis=-1)
-        sums["labels"].append(metrics.label_counts(xy, gt_xy, visible, truth["gt_readable"].values))
-        sums["wrong_masks"][view] = metrics.wrong_labels(xy, gt_xy, visible)  # (frame, corner)
+        sums["wrong_masks"][view] = metrics.wrong_labels(xy, gt_xy, visible)  # (frame, corner), the final labels
     if "suit_corners" in stages:
         det = plan.open(store, stages["suit_corners"], seq_id, view).sel(view=view).load()
         dxy = np.stack([det["x"].values, det["y"].values], axis=-1)  # (frame, detection, 2)
@@ -162,15 +169,9 @@ def _figures(sums: dict) -> dict:
                           "false_per_image": sum(c.false for c in d) / len(d)}
     if sums["quads"]:
         out["quads"] = _network_figures(sums["quads"])
-    if sums["labels"]:
-        lab = sums["labels"]
-        loc = np.concatenate([c.loc_error_px for c in lab])
-        out["labels"] = {"readable_found": sum(c.readable_found for c in lab) / max(sum(c.readable for c in lab), 1),
-                         "visible_found": sum(c.visible_found for c in lab) / max(sum(c.visible for c in lab), 1),
-                         "labelled": sum(c.labelled for c in lab), "wrong": sum(c.wrong for c in lab),
-                         "per_image": sum(c.labelled for c in lab) / max(len(lab), 1),
-                         "loc_error_px": metrics.summary(loc),
-                         "loc_error_all_px": metrics.summary(np.concatenate([c.loc_error_all_px for c in lab]))}
+    for key in ("labels", "labels_read"):
+        if sums[key]:
+            out[key] = _label_figures(sums[key])
     if sums["wrong_3d"]:
         out["wrong_labels_in_3d"] = int(np.sum(sums["wrong_3d"]))
     for key in ("points", "points_perturbed", "reproj", "filled", "observed", "hidden", "occluded"):
@@ -179,6 +180,16 @@ def _figures(sums: dict) -> dict:
     if sums["points"]:  # a corner put somewhere else: what a wrong label that reached 3D would do
         out["points"]["over_5mm"] = int((np.concatenate(sums["points"]) > 5.0).sum())
     return out
+
+
+def _label_figures(lab: list) -> dict:
+    loc = np.concatenate([c.loc_error_px for c in lab])
+    return {"readable_found": sum(c.readable_found for c in lab) / max(sum(c.readable for c in lab), 1),
+            "visible_found": sum(c.visible_found for c in lab) / max(sum(c.visible for c in lab), 1),
+            "labelled": sum(c.labelled for c in lab), "wrong": sum(c.wrong for c in lab),
+            "per_image": sum(c.labelled for c in lab) / max(len(lab), 1),
+            "loc_error_px": metrics.summary(loc),
+            "loc_error_all_px": metrics.summary(np.concatenate([c.loc_error_all_px for c in lab]))}
 
 
 def _network_figures(rows: list[dict]) -> dict:
@@ -200,6 +211,10 @@ def suit_headline(result: dict) -> dict:
                     "suit_loc_err_px": lab["loc_error_px"]["mean"],
                     "suit_loc_err_all_median_px": lab["loc_error_all_px"]["median"],
                     "suit_loc_err_all_p99_px": lab["loc_error_all_px"]["p99"]})
+    if "labels_read" in result:  # the labels as read, before a stage grew them
+        lab = result["labels_read"]
+        out.update({"suit_detect_rate_read": lab["readable_found"], "suit_visible_rate_read": lab["visible_found"],
+                    "suit_wrong_label_rate_read": lab["wrong"] / max(lab["labelled"], 1)})
     if "points" in result:
         out["suit_err3d_median_mm"] = result["points"]["median"]
         out["suit_err3d_over_5mm"] = result["points"]["over_5mm"]
@@ -240,6 +255,11 @@ def suit_table(result: dict) -> list[str]:
                   f"{lab['loc_error_px']['mean']:.3f} / {lab['loc_error_px']['p99']:.3f}"),
                  ("labels", "localisation error median / p99 px (every label)",
                   f"{lab['loc_error_all_px']['median']:.3f} / {lab['loc_error_all_px']['p99']:.3f}")]
+    if "labels_read" in result:
+        lab = result["labels_read"]
+        rows += [("labels read", "readable / visible corners labelled right, before growing",
+                  f"{lab['readable_found']:.1%} / {lab['visible_found']:.1%}"),
+                 ("labels read", "wrong labels / labels, before growing", f"{lab['wrong']} / {lab['labelled']}")]
     if "wrong_labels_in_3d" in result:
         rows.append(("points", "wrong labels (over 2 px off) a corner was triangulated from",
                      str(result["wrong_labels_in_3d"])))

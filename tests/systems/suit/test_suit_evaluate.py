@@ -31,3 +31,17 @@ def test_each_triangulation_and_filling_is_scored_under_its_own_key(tmp_path):
     assert stages == {"suit_images": "images", "suit_labels": "labels", "suit_points": "points",
                       "suit_points_perturbed": "shifted", "suit_filled": "filled", "suit_filled_hidden": "filled_hidden",
                       "suit_filled_occluded": "filled_occluded"}
+
+
+def test_grown_labels_are_scored_and_the_labels_as_read_beside_them(tmp_path):
+    chain = CATALOG.replace("  labels: {task: oracle_labels, inputs: [images]}\n", """\
+  corners: {task: find_corners, inputs: [images]}
+  quads: {task: find_quads, inputs: {images: images, corners: corners}}
+  codes: {task: read_codes, inputs: {images: images, corners: corners, quads: quads}}
+  read: {task: label_corners, inputs: {images: images, corners: corners, quads: quads, codes: codes}}
+  labels: {task: grow_labels, inputs: {images: images, corners: corners, labels: read}}
+""")
+    (tmp_path / "catalog.yaml").write_text(chain)
+    stages = suit_stages(load_catalog(tmp_path / "catalog.yaml"))
+    assert stages["suit_labels"] == "labels" and stages["suit_labels_read"] == "read"
+    assert stages["suit_corners"] == "corners" and stages["suit_codes"] == "codes"
