@@ -14,6 +14,7 @@ from mocapflow.tasks.studio.cameras import look_at, ring_positions
 from mocapflow.tasks.suit.reconstruct import (
     ReconstructConfig,
     ReconstructError,
+    drop_unread,
     reconstruct_frame,
     reconstruct_frames,
 )
@@ -169,3 +170,20 @@ def test_bad_inputs_are_refused_naming_the_thing_the_value_and_the_fix():
         with pytest.raises(ReconstructError) as err:
             call()
         assert message in str(err.value)
+
+
+def test_grown_labels_add_views_to_corners_but_make_none_without_two_read_ones():
+    cams, points, xy, _ = scene(count=6, seed=3)
+    result = reconstruct_frames(xy[None], cams)
+    before = result.kept.copy()
+    assert before[0].sum(axis=0).min() >= 3
+    read = np.zeros((1, len(cams), 6), bool)
+    read[0, :2, 0] = True  # corner 0: two views read, six grown
+    read[0, :1, 1] = True  # corner 1: one read; corners 2-5 grown in every view
+    read[0, :, 2] = True
+    drop_unread(result, read, 2)
+    assert np.isfinite(result.position[0, [0, 2]]).all() and np.isnan(result.position[0, [1, 3, 4, 5]]).all()
+    np.testing.assert_array_equal(result.kept[0, :, 0], before[0, :, 0])  # grown views stay with a corner read ones make
+    assert not result.kept[0, :, [1, 3, 4, 5]].any()
+    assert np.median(distance_mm(reconstruct_frame(xy, cams), points)) < 0.5
+
