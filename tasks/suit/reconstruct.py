@@ -72,10 +72,12 @@ class ReconstructConfig:
     # training takes, 0 triangulated 16 % more corners and put 13 of 15,138 over 5 mm off; 2 (as min_views) none
     # more than the labels read put there (1 of 13,046)
     read_views: int = 2
+    grown_px: float = 1.0  # a grown label joins its corner's views only this close to the read views' point
 
     def __post_init__(self):
-        if self.read_views < 0:
-            raise ReconstructError(f"read_views must be >= 0 (0: every label counts alike), got {self.read_views}")
+        if self.read_views < 0 or self.grown_px <= 0:
+            raise ReconstructError(f"read_views must be >= 0 (0: every label counts alike) and grown_px > 0, got "
+                                   f"{self.read_views} and {self.grown_px}")
         if self.min_views < 2:
             raise ReconstructError(f"min_views must be at least 2 (a point needs two views), got {self.min_views}")
         if not 0 <= self.calibration_error_px <= 20:
@@ -207,6 +209,27 @@ def _checked(xy: np.ndarray, cameras: Sequence[Camera], shape: str) -> np.ndarra
     return xy
 
 
+def reconstruct_read_first(xy: np.ndarray, read: np.ndarray, cameras: Sequence[Camera],
+                           config: ReconstructConfig = ReconstructConfig()) -> Reconstruction:
+    """Corners solved from the claims read from squares, then again with the grown claims that agree with them.
+
+    xy (frame, view, corner, 2), read (frame, view, corner) bool. The read claims make the corners (at least
+    ``read_views`` of them kept); a grown claim within ``grown_px`` of its corner's reprojection joins its views
+    and the corner is solved again from all of them (the outlier rule still applies)."""
+    first = reconstruct_frames(np.where(read[..., None], xy, np.nan), cameras, config)
+    grown = np.isfinite(xy).all(axis=-1) & ~read
+    if not grown.any():
+        drop_unread(first, read, config.read_views)
+        return first
+    join = np.zeros_like(grown)
+    for f in np.flatnonzero(grown.any(axis=(1, 2))):
+        with np.errstate(invalid="ignore"):
+            join[f] = grown[f] & (reprojection_errors(first.position[f], xy[f], cameras) <= config.grown_px)
+    out = reconstruct_frames(np.where((read | join)[..., None], xy, np.nan), cameras, config)
+    drop_unread(out, read, config.read_views)
+    return out
+
+
 def drop_unread(out, read: np.ndarray, need: int) -> None:
     """Un-triangulate (in place) the corners of ``out`` (reconstruct_frames' result) that keep fewer than ``need``
     views whose label was read from a square (``read`` (frame, view, corner) bool)."""
@@ -225,9 +248,11 @@ def triangulate_corners(labels: xr.Dataset, images: xr.Dataset, config: Reconstr
         cameras = list(perturbed(cameras, config.calibration_error_px, rng))
     xy = np.stack([labels["x"].transpose("frame", "view", "corner").values,
                    labels["y"].transpose("frame", "view", "corner").values], axis=-1).astype(np.float64)
-    out = reconstruct_frames(xy, cameras, config)  # (frame, corner, 3), (frame, view, corner) x 2
     if config.read_views:  # labels read from squares name each corner with its quads; grown ones with none
-        drop_unread(out, labels["quads"].transpose("frame", "view", "corner").values > 0, config.read_views)
+        read = labels["quads"].transpose("frame", "view", "corner").values > 0
+        out = reconstruct_read_first(xy, read, cameras, config)
+    else:
+        out = reconstruct_frames(xy, cameras, config)  # (frame, corner, 3), (frame, view, corner) x 2
     return xr.Dataset(
         {"position": (("frame", "corner", "xyz"), out.position.astype(np.float32)),
          "kept": (("frame", "view", "corner"), out.kept),

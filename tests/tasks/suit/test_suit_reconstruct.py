@@ -16,6 +16,7 @@ from mocapflow.tasks.suit.reconstruct import (
     ReconstructError,
     drop_unread,
     reconstruct_frame,
+    reconstruct_read_first,
     reconstruct_frames,
 )
 
@@ -186,4 +187,20 @@ def test_grown_labels_add_views_to_corners_but_make_none_without_two_read_ones()
     np.testing.assert_array_equal(result.kept[0, :, 0], before[0, :, 0])  # grown views stay with a corner read ones make
     assert not result.kept[0, :, [1, 3, 4, 5]].any()
     assert np.median(distance_mm(reconstruct_frame(xy, cams), points)) < 0.5
+
+
+def test_grown_claims_join_a_corner_only_near_where_the_read_ones_put_it():
+    cams, points, xy, rng = scene(count=30, seed=5)
+    read = np.zeros((len(cams), 30), bool)
+    read[:3, :20] = True  # corners 0-19 read in three views; 20-29 only grown
+    claims = xy.copy()
+    off = rng.uniform(0, 2 * np.pi, 10)
+    claims[5, :10] += 2.5 * np.column_stack([np.cos(off), np.sin(off)])  # grown 2.5 px off: inside the 3 px bound
+    result = reconstruct_read_first(claims[None], read[None], cams)
+    kept = result.kept[0]
+    assert not kept[5, :10].any() and kept[5, 10:20].all()  # the near ones join, the 2.5 px ones do not
+    assert kept[3:, 10:20].all() and np.isnan(result.position[0, 20:]).all()  # grown alone make no corner
+    assert np.median(distance_mm(type(result)(result.position[0], kept, result.error_px[0]), points)[:20]) < 0.5
+    alike = reconstruct_frames(claims[None], cams, ReconstructConfig(read_views=0))
+    assert np.isfinite(alike.position[0, 20:]).all()  # every claim alike: the grown ones make corners too
 
