@@ -101,7 +101,7 @@ TASKS = (
         description="suit labels from the studio's truth plus noise: the 3D stages on perfect 2D (not the 2D chain)",
     ),
     TaskSpec(
-        name="triangulate_corners", fn=Lazy("mocapflow.tasks.suit.reconstruct", "triangulate_corners"), version="2",
+        name="triangulate_corners", fn=Lazy("mocapflow.tasks.suit.reconstruct", "triangulate_corners"), version="3",
         params=ReconstructConfig, output="suit_points",
         partition="sequence", inputs={"labels": "suit_labels", "images": "suit_images"},
         reads={"labels": ("x", "y", "quads"), "images": CALIBRATION},

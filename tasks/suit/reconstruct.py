@@ -214,8 +214,9 @@ def reconstruct_read_first(xy: np.ndarray, read: np.ndarray, cameras: Sequence[C
     """Corners solved from the claims read from squares, then again with the grown claims that agree with them.
 
     xy (frame, view, corner, 2), read (frame, view, corner) bool. The read claims make the corners (at least
-    ``read_views`` of them kept); a grown claim within ``grown_px`` of its corner's reprojection joins its views
-    and the corner is solved again from all of them (the outlier rule still applies)."""
+    ``read_views`` of them kept); a grown claim within ``grown_px`` of its corner's reprojection joins the views
+    the first solve kept (those it dropped stay out) and the corner is solved again from them (the outlier rule
+    still applies)."""
     first = reconstruct_frames(np.where(read[..., None], xy, np.nan), cameras, config)
     grown = np.isfinite(xy).all(axis=-1) & ~read
     if not grown.any():
@@ -225,7 +226,7 @@ def reconstruct_read_first(xy: np.ndarray, read: np.ndarray, cameras: Sequence[C
     for f in np.flatnonzero(grown.any(axis=(1, 2))):
         with np.errstate(invalid="ignore"):
             join[f] = grown[f] & (reprojection_errors(first.position[f], xy[f], cameras) <= config.grown_px)
-    out = reconstruct_frames(np.where((read | join)[..., None], xy, np.nan), cameras, config)
+    out = reconstruct_frames(np.where((first.kept | join)[..., None], xy, np.nan), cameras, config)
     drop_unread(out, read, config.read_views)
     return out
 
