@@ -27,7 +27,7 @@ def main() -> None:
     images = plan.open(store, "images", "jacks")
     frame, view = 3, "cam00"
     image = images["image"].sel(view=view).isel(frame=frame).values
-    labels = plan.open(store, "labels", "jacks", view).sel(view=view).isel(frame=frame)
+    labels = plan.open(store, "grown", "jacks", view).sel(view=view).isel(frame=frame)
     xy = np.stack([labels["x"].values, labels["y"].values], axis=1).astype(np.float64)
     truth = images["gt_corners2d"].sel(view=view).isel(frame=frame).values.astype(np.float64)
     truth[~images["gt_visible"].sel(view=view).isel(frame=frame).values] = np.nan
