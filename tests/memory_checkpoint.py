@@ -19,3 +19,18 @@ class MemoryCheckpoint:
         self.state, self.saves = state, self.saves + 1
         if self.saves == self.stop_after:
             raise Stopped
+
+
+def stopped_and_continued(train, stop_after: int):
+    """``train(checkpoint)`` run whole, then stopped right after its ``stop_after``-th checkpoint and run again from
+    it. -> (the whole run's result, the continued run's, the checkpoint as the stop left it: state and saves)"""
+    import pytest
+
+    whole = train(MemoryCheckpoint())
+    checkpoint = MemoryCheckpoint(stop_after=stop_after)
+    with pytest.raises(Stopped):
+        train(checkpoint)
+    at_stop = dict(checkpoint.state)
+    checkpoint.stop_after = None
+    resumed = train(checkpoint)
+    return whole, resumed, at_stop, checkpoint.saves

@@ -9,7 +9,7 @@ import xarray as xr
 
 from mocapflow.tasks.deepmocap import fcn, training
 from mocapflow.tasks.shared.samples import InMemorySamples
-from memory_checkpoint import MemoryCheckpoint, Stopped
+from memory_checkpoint import MemoryCheckpoint, Stopped, stopped_and_continued
 
 
 def _samples(n: int = 5) -> xr.Dataset:
@@ -75,16 +75,12 @@ def test_a_training_stopped_and_continued_ends_with_the_uninterrupted_weights(pe
                                   iterations=7, frame_step=1, checkpoint_every=2, per_batch_seeds=per_batch_seeds,
                                   bfloat16=False)
     torch.set_num_threads(1)
-    whole = training.train_fcn(_samples(), config, checkpoint=MemoryCheckpoint())
-    checkpoint = MemoryCheckpoint(stop_after=2)
-    with pytest.raises(Stopped):
-        training.train_fcn(_samples(), config, checkpoint=checkpoint)
-    assert checkpoint.state["iteration"] == 4 and len(checkpoint.state["losses"]) == 4
-    checkpoint.stop_after = None
-    resumed = training.train_fcn(_samples(), config, checkpoint=checkpoint)
+    whole, resumed, at_stop, saves = stopped_and_continued(
+        lambda checkpoint: training.train_fcn(_samples(), config, checkpoint=checkpoint), stop_after=2)
+    assert at_stop["iteration"] == 4 and len(at_stop["losses"]) == 4
     np.testing.assert_array_equal(resumed["weights"].values, whole["weights"].values)
     np.testing.assert_array_equal(resumed["loss"].values, whole["loss"].values)
-    assert checkpoint.saves == 3  # iterations 2 and 4 before the stop, 6 after it; never at the end
+    assert saves == 3  # iterations 2 and 4 before the stop, 6 after it; never at the end
 
 
 def test_a_checkpoint_of_another_schedule_is_refused():

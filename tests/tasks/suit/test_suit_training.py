@@ -14,7 +14,7 @@ from mocapflow.tasks.suit import corners as co
 from mocapflow.tasks.suit import training as tr
 from mocapflow.tasks.suit.crop_pool import PoolError
 from mocapflow.tasks.suit.net_configs import CodeNetConfig, CornerNetConfig
-from memory_checkpoint import MemoryCheckpoint, Stopped
+from memory_checkpoint import stopped_and_continued
 
 
 def _corner_samples(images=8, capacity=40, seed=0) -> xr.Dataset:
@@ -43,16 +43,12 @@ CORNER = tr.TrainCornerdetConfig(
 
 def test_a_cornerdet_training_stopped_and_continued_ends_with_the_uninterrupted_network():
     torch.set_num_threads(1)
-    whole = tr.train_cornerdet_stage(_corner_samples(), CORNER, checkpoint=MemoryCheckpoint())
-    checkpoint = MemoryCheckpoint(stop_after=2)
-    with pytest.raises(Stopped):
-        tr.train_cornerdet_stage(_corner_samples(), CORNER, checkpoint=checkpoint)
-    assert checkpoint.state["iteration"] == 4 and len(checkpoint.state["resident"]) == 3
-    checkpoint.stop_after = None
-    resumed = tr.train_cornerdet_stage(_corner_samples(), CORNER, checkpoint=checkpoint)
+    whole, resumed, at_stop, saves = stopped_and_continued(
+        lambda checkpoint: tr.train_cornerdet_stage(_corner_samples(), CORNER, checkpoint=checkpoint), stop_after=2)
+    assert at_stop["iteration"] == 4 and len(at_stop["resident"]) == 3
     np.testing.assert_array_equal(resumed["weights"].values, whole["weights"].values)
     np.testing.assert_array_equal(resumed["loss"].values, whole["loss"].values)
-    assert checkpoint.saves == 3  # iterations 2 and 4 before the stop, 6 after it; never at the end
+    assert saves == 3  # iterations 2 and 4 before the stop, 6 after it; never at the end
     record = unpack(whole)["training"]
     assert record["images"] == 6 and record["slots"] == 3  # two of the eight images are the validation's (s3)
     assert record["crops"] == 6 * 40 - 2 * 20  # images 0 and 6 of the six padded (3 of s3 is held out)
@@ -94,13 +90,9 @@ def test_a_codes_training_stopped_and_continued_ends_with_the_uninterrupted_netw
         train=cd.CodeTrainConfig(rejector=small, recog=small, iterations=5, batch=8, synthetic=16),
         stream=tr.StreamConfig(slots=2, checkpoint_every=2, validation=("s2",)), seed=3)
     torch.set_num_threads(1)
-    whole = tr.train_codes_stage(_quad_samples(), config, checkpoint=MemoryCheckpoint())
-    checkpoint = MemoryCheckpoint(stop_after=1)
-    with pytest.raises(Stopped):
-        tr.train_codes_stage(_quad_samples(), config, checkpoint=checkpoint)
-    assert {"rejector", "recog", "resident", "numpy_rng", "torch_rng"} <= set(checkpoint.state)
-    checkpoint.stop_after = None
-    resumed = tr.train_codes_stage(_quad_samples(), config, checkpoint=checkpoint)
+    whole, resumed, at_stop, _ = stopped_and_continued(
+        lambda checkpoint: tr.train_codes_stage(_quad_samples(), config, checkpoint=checkpoint), stop_after=1)
+    assert {"rejector", "recog", "resident", "numpy_rng", "torch_rng"} <= set(at_stop)
     np.testing.assert_array_equal(resumed["weights"].values, whole["weights"].values)
     record = unpack(whole)["training"]
     assert record["images"] == 4 and record["studio_crops"] == 4 * 12 and record["synthetic_crops"] == 16
