@@ -108,24 +108,25 @@ class CropPool:
         studio = self.used[self.resident]
         if where is not None:
             studio = studio & self.table[where][self.resident].astype(bool)
-        flat = np.flatnonzero(studio)
-        fixed = None
-        if self.n_fixed:
-            fixed = np.arange(self.n_fixed) if where is None else np.flatnonzero(self.fixed[where])
-        if not len(flat) and (fixed is None or not len(fixed)):
+        flat = np.flatnonzero(studio)  # (slot, crop) flattened
+        fixed = np.arange(self.n_fixed) if where is None or not self.n_fixed else np.flatnonzero(self.fixed[where])
+        if not len(flat) and not len(fixed):
             raise PoolError(f"no held crop {'is ' + where if where else 'at all'}; check the training samples")
-        if fixed is None:
+        if not self.n_fixed:
             return self._studio(flat[rng.integers(len(flat), size=n)])
-        share = self.count(where) and (self.count(where) - len(fixed)) / self.count(where)
-        from_studio = (rng.random(n) < share) if len(flat) else np.zeros(n, bool)
-        parts = self._studio(flat[rng.integers(len(flat), size=int(from_studio.sum()))]) if len(flat) else None
+        return self._mixed(rng, n, flat, fixed, self.count(where))
+
+    def _mixed(self, rng: np.random.Generator, n: int, flat: np.ndarray, fixed: np.ndarray, total: int) -> dict:
+        """``n`` crops, each held (from ``flat``) with the studio's share of the ``total`` crops, else fixed."""
+        from_studio = rng.random(n) < (total - len(fixed)) / total if len(flat) else np.zeros(n, bool)
+        studio = self._studio(flat[rng.integers(len(flat), size=int(from_studio.sum()))]) if len(flat) else None
         pick = fixed[rng.integers(len(fixed), size=int((~from_studio).sum()))]
         out = {}
         for name in (CROPS, *self.columns):
             column = np.empty((n, *self.fixed[name].shape[1:]), self.fixed[name].dtype)
             column[~from_studio] = self.fixed[name][pick]
-            if parts is not None:
-                column[from_studio] = parts[name]
+            if studio is not None:
+                column[from_studio] = studio[name]
             out[name] = column
         return out
 
