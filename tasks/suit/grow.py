@@ -13,9 +13,9 @@ square's size there is named that corner:
 
 A corner predicted at two different detections, or a detection claimed for two corners, is left out. The rules run
 in rounds, each on the labels of the last, so labels spread square by square from what was read (``rounds``
-bounds how far). The corners are a square apart in the image, so a detection within a third of a square of a
-prediction is that corner unless another surface hides it; the extension's prediction errs by the surface's
-curvature and the perspective over one square, hence its wider radius.
+bounds how far). The corners are a square apart in the image, so a detection near a prediction is that corner
+unless another surface hides it or the square is foreshortened; a grown detection must also be a confident one
+(CornerdetNet's logit), and an extension is refused when another detection lies between it and its square.
 """
 
 from __future__ import annotations
@@ -34,12 +34,11 @@ class GrowConfig:
     complete_radius: float = 0.12  # a detection this share of the square's side from a completion's prediction
     extend_radius: float = 0.12  # ... from an extension's prediction
     extend: bool = True  # also extend across the edges of fully labelled squares
-    votes: int = 1  # predictions (from different squares or edges) that must find the same detection
     min_logit: float = 3.0  # CornerdetNet's presence logit a grown detection must reach (it detects above 0)
 
     def __post_init__(self):
-        if self.rounds < 0 or self.votes < 1 or not (0 < self.complete_radius < 0.5 and 0 < self.extend_radius < 0.5):
-            raise ValueError(f"rounds ({self.rounds}) must be >= 0, votes ({self.votes}) >= 1 and the radii "
+        if self.rounds < 0 or not (0 < self.complete_radius < 0.5 and 0 < self.extend_radius < 0.5):
+            raise ValueError(f"rounds ({self.rounds}) must be >= 0 and the radii "
                              f"({self.complete_radius}, {self.extend_radius}) shares of a square's side in (0, 0.5): "
                              "a corner's neighbours are a side away")
 
@@ -144,9 +143,9 @@ def grow_labels(detections: np.ndarray, detection_of: np.ndarray, cells: np.ndar
         ok = dist <= reach
         taken = np.zeros(len(detections), bool) if logits is None else logits < config.min_logit
         taken[detection_of[known]] = True
-        ok &= ~taken[np.minimum(nearest, len(detections) - 1)]
+        ok &= ~taken[nearest]
         ok[ok] &= ~_nearer_one(tree, detections, origin[ok], nearest[ok])
-        new = _agreed(corner[ok], nearest[ok], config.votes)
+        new = _agreed(corner[ok], nearest[ok])
         if not new:
             break
         for c, d in new.items():
@@ -154,16 +153,15 @@ def grow_labels(detections: np.ndarray, detection_of: np.ndarray, cells: np.ndar
     return detection_of
 
 
-def _agreed(corner: np.ndarray, detection: np.ndarray, votes: int = 1) -> dict[int, int]:
-    """corner -> detection where every prediction of the corner found the same detection, at least ``votes`` did,
-    and no other corner's found it."""
-    pairs, found = np.unique(np.column_stack([corner, detection]), axis=0, return_counts=True)
+def _agreed(corner: np.ndarray, detection: np.ndarray) -> dict[int, int]:
+    """corner -> detection where every prediction of the corner found the same detection and no other corner's
+    found it."""
+    pairs = np.unique(np.column_stack([corner, detection]), axis=0)
     corners, per_corner = np.unique(pairs[:, 0], return_counts=True)
     detections, per_detection = np.unique(pairs[:, 1], return_counts=True)
     single_corner = set(corners[per_corner == 1].tolist())
     single_detection = set(detections[per_detection == 1].tolist())
-    return {int(c): int(d) for (c, d), n in zip(pairs, found) if c in single_corner and d in single_detection
-            and n >= votes}
+    return {int(c): int(d) for c, d in pairs if c in single_corner and d in single_detection}
 
 
 # ---------------------------------------------------------------------------------------------------- the stage

@@ -83,7 +83,7 @@ class StreamConfig:
     def __post_init__(self):
         if self.slots < 1 or self.swap < 0 or self.checkpoint_every < 1:
             raise PoolError(f"slots ({self.slots}) >= 1, swap ({self.swap}) >= 0 and checkpoint_every "
-                                 f"({self.checkpoint_every}) >= 1 needed")
+                            f"({self.checkpoint_every}) >= 1 needed")
 
 
 @dataclass(frozen=True)
@@ -104,8 +104,8 @@ def _split(samples: xr.Dataset | Samples, stream: StreamConfig) -> tuple[Samples
     held = np.isin(sequence, list(stream.validation))
     if unknown or held.all():
         raise PoolError(f"validation sequences {unknown or list(stream.validation)} are "
-                             f"{'not in the training dataset' if unknown else 'all of it'}; name some of "
-                             f"{sorted(set(sequence))}, not every one")
+                        f"{'not in the training dataset' if unknown else 'all of it'}; name some of "
+                        f"{sorted(set(sequence))}, not every one")
     return SampleSubset(samples, np.flatnonzero(~held)), SampleSubset(samples, np.flatnonzero(held))
 
 
