@@ -127,6 +127,9 @@ RAW_MARKERS = register_schema(
             # Optional monocular prior brought with a recording (systems/uuo/prior_files.py): the template's joints.
             "prior_joints": VarSpec(("frame", "joint", "xyz"), "float32", "m", required=False,
                                     description="a monocular estimate's joints (JOINT_NAMES), NaN on lost frames"),
+            # Optional colour video of the take (the studio films it on request), a monocular estimator's input.
+            "video": VarSpec(("frame", "y", "x", "rgb"), "uint8", required=False,
+                             description="one still camera's colour frames of the take"),
         },
         required_attrs={"fps": float},
         frame_chunk=64,

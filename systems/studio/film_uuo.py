@@ -5,12 +5,15 @@
         kind: studio_markers
         defaults: {frames: 100, fps: 30.0, start_s: 0.5}
         markers: {count: 40, part: body, dropout: 0.002, ghosts: 3}   # occlusion: true loses what the cameras miss
+        video: {width: 640, height: 480}   # optional: a colour video of the take too (a monocular prior's input)
         sequences:
           walk_body40: {motion: ../shared/data/motions/cmu_12_01_walk.bvh, seed: 9101}
           knee_left_leg: {motion: jumping_jack, seed: 9104, markers: {count: 20, part: left_leg}}
 
 A sequence's (and the dataset's) ``markers`` say how many markers, on which part, and what goes wrong while
-recording (tasks/studio/uuo_takes.py); the take is the studio's (tasks/studio/take.py), nothing else is filmed.
+recording (tasks/studio/uuo_takes.py); the take is the studio's (tasks/studio/take.py). With ``video`` (a mapping
+of tasks/studio/video.py's VideoSpec fields, ``{}`` for its defaults) the take is also filmed in colour by one
+still camera, as the variable ``video`` (frame, y, x, rgb), for the monocular prior (tasks/uuo/monocular.py).
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from mocapflow.systems.studio.specs import fingerprint, frame_count, sequence_sp
 from mocapflow.tasks.shared.cache import BoundedCache
 from mocapflow.tasks.shared.mesh_body import PARTS
 from mocapflow.tasks.studio import uuo_takes as uuo
+from mocapflow.tasks.studio.video import VideoError, VideoSpec, film
 
 MARKER_DEFAULTS = {"count": 40, "part": "body"}
 _CAPTURES: BoundedCache[str, tuple] = BoundedCache(4)  # fingerprint -> (layout, captured), this process
@@ -55,10 +59,28 @@ def marker_options(raw: Mapping[str, Any] | None, where: str) -> tuple[int, str,
         raise CatalogError(f"{where}: {exc}") from exc
 
 
+def video_options(raw: Mapping[str, Any] | None, where: str) -> VideoSpec | None:
+    """The video camera of a ``video`` mapping, checked; None without one."""
+    if raw is None:
+        return None
+    if not isinstance(raw, Mapping):
+        raise CatalogError(f"{where}: expected a mapping of video settings ({{}} for the defaults), got {raw!r}")
+    hints = typing.get_type_hints(VideoSpec)
+    unknown = sorted(set(raw) - set(hints))
+    if unknown:
+        raise CatalogError(f"{where}: unknown video field {unknown[0]!r}{did_you_mean(unknown[0], sorted(hints))}; "
+                           f"fields: {sorted(hints)}")
+    try:
+        return VideoSpec(**{k: coerce(tuple(v) if isinstance(v, list) else v, hints[k], f"{where}.{k}")
+                            for k, v in raw.items()})
+    except VideoError as exc:
+        raise CatalogError(f"{where}: {exc}") from exc
+
+
 class StudioMarkersReader:
     """Unlabelled marker takes filmed on the studio's mesh body (UUO), as raw_markers with ground truth."""
 
-    options = ("sequences", "defaults", "markers")
+    options = ("sequences", "defaults", "markers", "video")
     has_views = False
 
     @staticmethod
@@ -68,10 +90,12 @@ class StudioMarkersReader:
                                                                          mesh_only=True):
             markers = marker_options({**(dataset.options.get("markers") or {}), **(extra.get("markers") or {})},
                                      where)
+            video = video_options(dataset.options.get("video"), f"{dataset.where}.video")
             fp = digest({"take": fingerprint(spec, text),
-                         "markers": [markers[0], markers[1], dataclasses.asdict(markers[2])]})
+                         "markers": [markers[0], markers[1], dataclasses.asdict(markers[2])],
+                         **({"video": dataclasses.asdict(video)} if video else {})})
             out.append(SequenceInfo(seq_id, (), frame_count(spec, text), fp,
-                                    {"spec": spec, "source": source, "markers": markers}))
+                                    {"spec": spec, "source": source, "markers": markers, "video": video}))
         return out
 
     @staticmethod
@@ -88,4 +112,11 @@ class StudioMarkersReader:
             return layout, uuo.capture(paths, faults, np.random.default_rng([shot.spec.seed, 4]), seen_by)
 
         layout, captured = _CAPTURES.get_or_make(seq.fingerprint, record)
-        return uuo.marker_dataset(shot.body, layout, captured, shot.mesh, shot.spec.fps, start, stop)
+        out = uuo.marker_dataset(shot.body, layout, captured, shot.mesh, shot.spec.fps, start, stop)
+        video = seq.spec.get("video")
+        if video is None:
+            return out
+        frames = film(shot.mesh.posed.vertices[start:stop], shot.body.faces, shot.body.uv, video,
+                      np.random.default_rng([shot.spec.seed, 5, start]))
+        return out.assign(video=(("frame", "y", "x", "rgb"), frames)).assign_coords(
+            rgb=np.array(["r", "g", "b"], dtype=object))

@@ -17,6 +17,7 @@ trajectory counting against), and the share that got the reference's part for th
 from __future__ import annotations
 
 import numpy as np
+import xarray as xr
 from scipy.spatial.transform import Rotation
 
 from mocapflow.pipeline.catalog import stage_writing
@@ -26,6 +27,7 @@ from mocapflow.pipeline.registry import Evaluator
 from mocapflow.tasks.shared.mesh_body import Phenotype, mesh_body, part_of_bone, pose_mesh
 from mocapflow.tasks.uuo import metrics
 from mocapflow.tasks.uuo.labelled import base_label
+from mocapflow.tasks.uuo.prior import aligned_mpjpe, procrustes_mpjpe, registered_mpjpe
 
 
 def _mesh(phenotype: dict, quats: np.ndarray, root: np.ndarray):
@@ -121,8 +123,8 @@ def evaluate_uuo(catalog, plan, store, stages: list[str], per_sequence: dict) ->
         if "gt_joints" not in markers:
             raise PlanError(f"sequence {seq.id!r} has no ground truth (gt_joints); evaluate UUO on studio takes")
         truths[seq.id] = take_truth(markers)
-        attrs = plan.open(store, prior_stage, seq.id).attrs if prior_stage else {}
-        priors[seq.id] = {f"prior_{k}": float(attrs[k]) for k in PRIOR_FIGURES if k in attrs}
+        priors[seq.id] = prior_figures(plan.open(store, prior_stage, seq.id).load(), markers["gt_joints"].values) \
+            if prior_stage else {}
     out = {}
     for stage in stages:
         takes = {}
@@ -135,9 +137,23 @@ def evaluate_uuo(catalog, plan, store, stages: list[str], per_sequence: dict) ->
     return out
 
 
-# The prior's error as its stage stores it (tasks/uuo/prior.py): after part matching's alignment, after one rigid
-# registration with scale (HMR2.0+RR), per frame (PA).
+# The prior's error (tasks/uuo/prior.py): after part matching's alignment, after one rigid registration with scale
+# (HMR2.0+RR), per frame (PA).
 PRIOR_FIGURES = ("aligned_mpjpe_mm", "registered_mpjpe_mm", "pa_mpjpe_mm")
+_PRIOR_MEASURES = {"aligned_mpjpe_mm": aligned_mpjpe, "registered_mpjpe_mm": registered_mpjpe,
+                   "pa_mpjpe_mm": procrustes_mpjpe}
+
+
+def prior_figures(prior: xr.Dataset, truth_joints: np.ndarray) -> dict:
+    """The prior's error on its estimated frames: as its stage stored it (a simulated prior measures itself), else
+    measured here against the truth (a monocular or file prior never sees the truth)."""
+    if all(k in prior.attrs for k in PRIOR_FIGURES):
+        return {f"prior_{k}": float(prior.attrs[k]) for k in PRIOR_FIGURES}
+    valid = prior["valid"].values.astype(bool)
+    if not valid.any():
+        return {}
+    joints, truth = prior["joints"].values[valid].astype(np.float64), truth_joints[valid].astype(np.float64)
+    return {f"prior_{k}": 1000.0 * measure(joints, truth) for k, measure in _PRIOR_MEASURES.items()}
 
 
 def _summary(rows: list[dict]) -> dict:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from mocapflow.pipeline.registry import NoParams, TaskSpec
-from mocapflow.tasks.uuo import labelled, prior, segmentation, solve
+from mocapflow.tasks.uuo import labelled, monocular, prior, segmentation, solve
 
 TASKS = (
     # The marker-file counterpart: a `markers` dataset's C3D or TRC recordings as raw_markers (frame, marker, xyz).
@@ -74,6 +74,13 @@ TASKS = (
         reads={"markers": ("position", "prior_joints")}, whole_sequence=True,
         description="a monocular estimate brought as template joints per frame (the take's prior file), Anny fitted "
                     "to them",
+    ),
+    TaskSpec(
+        name="monocular_prior", fn=monocular.monocular_prior, version="1", params=monocular.MonocularPriorConfig,
+        output="body_prior", partition="sequence", inputs={"markers": "raw_markers"},
+        reads={"markers": ("position", "video")}, whole_sequence=True, weights_params=("detector", "landmarker"),
+        description="a real monocular estimate: BlazePose GHUM 3D on the take's video (its .tflite networks under "
+                    "LiteRT), Anny fitted to its joints",
     ),
     TaskSpec(
         name="reference_prior", fn=prior.reference_prior, version="3", params=prior.SimulatedPriorConfig,

@@ -390,17 +390,23 @@ def fit_joints(joints: np.ndarray, config: FilePriorConfig):
 def file_prior(markers: xr.Dataset, config: FilePriorConfig) -> xr.Dataset:
     """Stage ``prior`` (file): a monocular estimate brought as template joints per frame (``prior_joints`` of the
     markers, read from the take's prior file), Anny fitted to them; lost frames (NaN) hold the nearest kept."""
-    from mocapflow.tasks.shared.solver_body import posed_heads
-
     if "prior_joints" not in markers:
         raise PriorError("a file prior needs the take's prior file (the markers have no prior_joints); give the "
                          "markers dataset a 'prior' folder with one file per take, or use prior: simulated or none")
     joints = markers["prior_joints"].transpose("frame", "joint", "xyz").values.astype(np.float64)
     if [str(j) for j in markers["joint"].values] != list(JOINT_NAMES):
         raise PriorError(f"prior joints {list(markers['joint'].values)} are not the template's {list(JOINT_NAMES)}")
-    valid = np.isfinite(joints).all(axis=(1, 2))
-    if not valid.any():
+    if not np.isfinite(joints).all(axis=(1, 2)).any():
         raise PriorError("every frame of the prior is lost (NaN); a prior needs at least one estimated frame")
+    return joints_prior(markers["frame"].values, joints, float(markers.attrs.get("fps", 0.0)), config, "file")
+
+
+def joints_prior(frames: np.ndarray, joints: np.ndarray, fps: float, config: FilePriorConfig, source: str) -> xr.Dataset:
+    """A body_prior of Anny fitted to template joints per frame (frame, joint, 3) (a prior file's, a monocular
+    estimator's); lost frames (NaN) hold the nearest kept one and are marked invalid."""
+    from mocapflow.tasks.shared.solver_body import posed_heads
+
+    valid = np.isfinite(joints).all(axis=(1, 2))
     kept = np.flatnonzero(valid)
     nearest = np.abs(np.arange(len(valid))[:, None] - kept[None]).argmin(axis=1)  # lost frames hold the nearest kept
     body, solver, fitted = fit_joints(joints[kept], config)
@@ -408,5 +414,5 @@ def file_prior(markers: xr.Dataset, config: FilePriorConfig) -> xr.Dataset:
     local, root = fitted.local[nearest], fitted.root[nearest]
     phenotype = Phenotype(**dict(zip(PHENOTYPE_NAMES, map(float, fitted.phenotype))))
     error = np.linalg.norm(out[valid] - joints[valid], axis=-1).mean()
-    return prior_dataset(markers["frame"].values, body, world_rotations(local, body.bone_parents), root, out, valid,
-                         float(markers.attrs.get("fps", 0.0)), phenotype, "file", fit_error_mm=1000.0 * float(error))
+    return prior_dataset(frames, body, world_rotations(local, body.bone_parents), root, out, valid, fps, phenotype,
+                         source, fit_error_mm=1000.0 * float(error))
