@@ -5,7 +5,7 @@ PYTHON ?= python3.11
 VENV ?= .venv
 BIN := $(VENV)/bin
 TORCH_CPU_INDEX := https://download.pytorch.org/whl/cpu
-INSTALL := -r requirements-cpu.txt -e ".[test]"
+INSTALL := -r requirements-cpu.txt -e ".[test,monocular]"
 
 .PHONY: demo test install
 

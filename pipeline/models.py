@@ -55,8 +55,8 @@ def _raw(path: str) -> bytes:
     global loads
     size = os.path.getsize(path)
     if size > MAX_RAW_BYTES:
-        raise StorageError(f"model file {path} is {size / 2**20:.0f} MiB, over the {MAX_RAW_BYTES // 2**20} MiB "
-                           "limit for a network handed to a task; check that it is the network meant")
+        raise StorageError(f"model file {path} is {size:,} bytes, over the {MAX_RAW_BYTES:,}-byte limit for a "
+                           "network handed to a task; check that it is the network meant")
     with open(path, "rb") as fh:
         data = fh.read()
     with _LOADS_LOCK:

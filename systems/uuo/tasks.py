@@ -38,7 +38,7 @@ TASKS = (
         description="markers only: a neutral body standing in its rest pose as the prior (the paper's marker-only rows)",
     ),
     TaskSpec(
-        name="solve_hypothesis", fn=solve.solve_hypothesis, version="2", params=solve.HypothesisConfig,
+        name="solve_hypothesis", fn=solve.solve_hypothesis, version="3", params=solve.HypothesisConfig,
         output="uuo_body", partition="sequence", whole_sequence=True,
         inputs={"markers": "raw_markers", "segments": "marker_segments", "prior": "body_prior"},
         reads={"markers": ("position",)},
@@ -46,7 +46,7 @@ TASKS = (
                     "inverse kinematics (§3.4-3.5, stages 2-4)",
     ),
     TaskSpec(
-        name="best_hypothesis", fn=solve.best_hypothesis, version="3", params=solve.RefineConfig,
+        name="best_hypothesis", fn=solve.best_hypothesis, version="4", params=solve.RefineConfig,
         output="uuo_body", partition="sequence", whole_sequence=True,
         inputs={"markers": "raw_markers", "yaw0": "uuo_body", "yaw90": "uuo_body", "yaw180": "uuo_body",
                 "yaw270": "uuo_body"},
@@ -55,7 +55,7 @@ TASKS = (
                     "prior and rigid groups kept to one side), refined (stage 5)",
     ),
     TaskSpec(
-        name="single_hypothesis", fn=solve.single_hypothesis, version="3", params=solve.RefineConfig,
+        name="single_hypothesis", fn=solve.single_hypothesis, version="4", params=solve.RefineConfig,
         output="uuo_body", partition="sequence", whole_sequence=True, inputs={"markers": "raw_markers", "yaw0": "uuo_body"},
         reads={"markers": ("position",)},
         description="one root-yaw hypothesis, refined (the paper's '- MHT' ablation, Table 3)",

@@ -7,15 +7,42 @@ bone a marker can tell about (applied after the start's local rotation), the tak
 regularizers are the paper's, against an anchor body (the prior, or the previous stage's result in the
 refinement): E_Theta (Eq. 5), the mean squared rotation of each bone from the anchor's (2 (1 - cos angle) per
 bone, the squared angle for small ones, over its three parameters), zero on frames the prior lost, and E_beta
-(Eq. 2), the mean squared departure from the anchor's phenotype. ``minimize`` runs L-BFGS with strong Wolfe line
-search (§3.6) on any energy of it.
+(Eq. 2), the mean squared departure from the anchor's phenotype. Beyond the paper, a ``Floor`` keeps the skin
+above the floor plane (``floor_energy``: the squared depth below it of a fixed set of skin vertices, the soles
+among them, summed per frame). ``minimize`` runs L-BFGS with strong Wolfe line search (§3.6) on any energy of it.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from mocapflow.tasks.shared.solver_body import BodyFit, SolverBody, torch_rodrigues
+
+SOLE_HEIGHT_M = 0.04  # rest vertices this low are the soles and toes
+
+
+@dataclass(frozen=True)
+class Floor:
+    """The floor plane z = ``height`` (m) and the skin vertices kept above it (the soles, then evenly spread)."""
+
+    height: float
+    vertices: np.ndarray  # (n,) vertex indices
+
+
+def floor_vertices(body, count: int = 48) -> np.ndarray:
+    """``count`` skin vertices of the soles and toes and ``count`` spread over the whole skin (rest mesh, evenly
+    by index).  body: MeshBody -> (n,)"""
+    skin = np.zeros(len(body.vertices), bool)
+    skin[body.faces[body.skin].ravel()] = True
+    soles = np.flatnonzero(skin & (body.vertices[:, 2] < body.vertices[:, 2].min() + SOLE_HEIGHT_M))
+    spread = np.flatnonzero(skin)
+
+    def evenly(items):
+        return items[np.linspace(0, len(items) - 1, min(count, len(items))).astype(int)]
+
+    return np.unique(np.concatenate([evenly(soles), evenly(spread)]))
 
 
 class Fit:
@@ -59,6 +86,15 @@ class Fit:
         angle2 = 2.0 * (1.0 - (relative.diagonal(dim1=-2, dim2=-1).sum(-1) - 1.0) / 2.0)  # 2 (1 - cos a) ~ a^2
         per_frame = angle2.mean(1) / 3.0
         return (per_frame * self.valid).sum() / self.valid.sum().clamp_min(1.0)
+
+    def floor_energy(self, floor: Floor | None, rots, heads, rest_vertices, rest_heads):
+        """The squared depth (m^2) of ``floor.vertices`` below the floor, summed over them, mean over frames."""
+        import torch
+
+        if floor is None:
+            return torch.zeros((), dtype=torch.float64)
+        v = self.body.skin(rots, heads, rest_vertices, rest_heads, torch.from_numpy(floor.vertices))
+        return (torch.relu(floor.height - v[..., 2]) ** 2).sum(-1).mean()
 
     def shape_prior(self):
         return ((self.phenotype - self.anchor_phenotype) ** 2).mean()  # E_beta, Eq. (2)

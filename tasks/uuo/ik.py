@@ -4,7 +4,8 @@
 With each labelled trajectory tied to one skin vertex, the body is fitted to the markers (Eq. 7): every marker's
 distance to its vertex should be the marker offset delta = 9.5 mm (Eq. 8), while E_Theta and E_beta hold it to an
 anchor: the prior in stage 4, stage 4's result in the refinement (stage 5, after stage 3 is run again). A small
-optional term on the second differences of the bone heads (``smooth_weight``, off in the paper) damps jitter.
+optional term on the second differences of the bone heads (``smooth_weight``, off in the paper) damps jitter;
+another keeps the skin above the floor (``floor_weight``, fitting.Floor; not in the paper).
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mocapflow.tasks.shared.solver_body import BodyFit, SolverBody
-from mocapflow.tasks.uuo.fitting import Fit, minimize
+from mocapflow.tasks.uuo.fitting import Fit, Floor, minimize
 
 
 class IKError(ValueError):
@@ -29,16 +30,19 @@ class IKConfig:
     smooth_weight: float = 0.0  # on the bone heads' second differences, m^2 (not in the paper)
     offset_m: float = 0.0095  # delta of Eq. (8)
     iterations: int = 100
+    floor_weight: float = 10.0  # on the skin's squared depth below the floor (not in the paper)
 
     def __post_init__(self):
-        if min(self.marker_weight, self.pose_weight, self.shape_weight, self.smooth_weight, self.offset_m) < 0 \
+        if min(self.marker_weight, self.pose_weight, self.shape_weight, self.smooth_weight, self.offset_m,
+               self.floor_weight) < 0 \
                 or self.iterations < 1:
             raise IKError(f"inverse kinematics settings out of range: weights, offset >= 0, iterations >= 1 ({self})")
 
 
 def inverse_kinematics(body: SolverBody, markers: np.ndarray, vertex: np.ndarray, start: BodyFit, anchor: BodyFit,
-                       valid: np.ndarray, config: IKConfig) -> BodyFit:
-    """markers (frame, marker, 3); vertex (marker,) each trajectory's vertex, -1 for none."""
+                       valid: np.ndarray, config: IKConfig, floor: Floor | None = None) -> BodyFit:
+    """markers (frame, marker, 3); vertex (marker,) each trajectory's vertex, -1 for none; ``floor``: the plane
+    the skin stays above (none: no floor term)."""
     import torch
 
     labelled = np.flatnonzero(vertex >= 0)
@@ -57,7 +61,8 @@ def inverse_kinematics(body: SolverBody, markers: np.ndarray, vertex: np.ndarray
         d = torch.sqrt(((v - target) ** 2).sum(-1) + 1e-12)
         e_m = ((d - config.offset_m) ** 2 * seen).sum() / seen.sum().clamp_min(1.0)  # Eq. (8)
         value = config.marker_weight * e_m + config.pose_weight * fit.pose_prior(local) \
-            + config.shape_weight * fit.shape_prior()  # Eq. (7)
+            + config.shape_weight * fit.shape_prior() \
+            + config.floor_weight * fit.floor_energy(floor, rots, heads, rest_vertices, rest_heads)  # Eq. (7), floor
         if config.smooth_weight and heads.shape[0] > 2:
             h = heads[:, bones]
             value = value + config.smooth_weight * ((h[2:] - 2 * h[1:-1] + h[:-2]) ** 2).sum(-1).mean()

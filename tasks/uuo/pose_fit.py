@@ -6,7 +6,8 @@ Eq. 1), while E_Theta (Eq. 5) and E_beta (Eq. 2) hold the body near the prior (E
 are found again between rounds of L-BFGS (iterated closest points), on an evenly spaced subset of the
 chain's skin; samples farther than ``outlier_m`` from every vertex (ghosts, a marker off the chain) are left
 out of the round, the bound shrinking over the rounds. The marker's centre sits ``offset_m`` above the
-skin, so the distance term is (|v - m| - offset)^2 rather than |v - m|^2.
+skin, so the distance term is (|v - m| - offset)^2 rather than |v - m|^2. Beyond the paper, the skin is kept
+above the floor (``floor_weight``, fitting.Floor).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mocapflow.tasks.shared.solver_body import BodyFit, SolverBody, posed_vertices
-from mocapflow.tasks.uuo.fitting import Fit, minimize
+from mocapflow.tasks.uuo.fitting import Fit, Floor, minimize
 from mocapflow.tasks.uuo.matching import closest, evenly, part_vertices
 
 
@@ -36,17 +37,20 @@ class PoseFitConfig:
     outlier_m: tuple[float, float] = (0.3, 0.06)  # farthest sample kept, first round to last
     core_rounds: int = 2  # first rounds on the trunk alone (torso, hips, head), from the trunk outward
     core_outlier_m: float = 0.1  # farthest sample kept in those rounds
+    floor_weight: float = 10.0  # on the skin's squared depth below the floor (not in the paper)
 
     def __post_init__(self):
-        if min(self.chamfer_weight, self.pose_weight, self.shape_weight, self.offset_m) < 0 or self.rounds < 1 \
+        if min(self.chamfer_weight, self.pose_weight, self.shape_weight, self.offset_m, self.floor_weight) < 0 \
+                or self.rounds < 1 \
                 or self.iterations < 1 or self.vertices < 10 or not 0 < self.outlier_m[1] <= self.outlier_m[0]:
             raise PoseFitError(f"pose fitting settings out of range: weights and offset >= 0, rounds, iterations "
                                f">= 1, vertices >= 10, 0 < outlier_m[1] <= outlier_m[0] (got {self})")
 
 
 def fit_pose(body: SolverBody, markers: np.ndarray, start: BodyFit, anchor: BodyFit, valid: np.ndarray,
-             chain: np.ndarray, config: PoseFitConfig) -> BodyFit:
-    """Stage 2 for one hypothesis.  markers (frame, marker, 3) NaN where unseen; chain (n,) candidate vertices."""
+             chain: np.ndarray, config: PoseFitConfig, floor: Floor | None = None) -> BodyFit:
+    """Stage 2 for one hypothesis.  markers (frame, marker, 3) NaN where unseen; chain (n,) candidate vertices;
+    ``floor``: the plane the skin stays above (none: no floor term)."""
     import torch
 
     index = evenly(chain, config.vertices)
@@ -71,7 +75,8 @@ def fit_pose(body: SolverBody, markers: np.ndarray, start: BodyFit, anchor: Body
             d = torch.sqrt(((v - target) ** 2).sum(-1) + 1e-12)
             chamfer = ((d - config.offset_m) ** 2 * keep).sum() / keep.sum().clamp_min(1.0)  # Eq. (1), offset
             return (config.chamfer_weight * chamfer + config.pose_weight * fit.pose_prior(local)
-                    + config.shape_weight * fit.shape_prior())  # Eq. (4)
+                    + config.shape_weight * fit.shape_prior()  # Eq. (4)
+                    + config.floor_weight * fit.floor_energy(floor, rots, heads, rest_vertices, rest_heads))
 
         minimize(fit.parameters(), energy, config.iterations)
     return fit.result()

@@ -11,7 +11,7 @@ across sides); it refines it (stage 5: stages 3
 and 4 again, anchored to stage 4's result); ``single_hypothesis`` is the same on one hypothesis (the paper's
 "- MHT" ablation); ``rigid_prior`` is the baseline without a solve, the prior placed by part matching. Every
 result is a body over the take (bone rotations, root, phenotype, joints) and a vertex and body part per marker
-trajectory.
+trajectory. Every solve keeps the skin above the floor (``floor_plane``; not in the paper).
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ from mocapflow.tasks.shared.mesh_body import PHENOTYPE_NAMES, MeshBody, Phenotyp
 from mocapflow.tasks.shared.kinematics import local_rotations
 from mocapflow.tasks.shared.solver_body import SolverBody
 from mocapflow.tasks.uuo.correspondence import CorrespondenceConfig, correspond
+from mocapflow.tasks.uuo.fitting import Floor, floor_vertices
 from mocapflow.tasks.shared.solver_body import BodyFit, posed_heads, posed_vertices
 from mocapflow.tasks.uuo.ik import IKConfig, inverse_kinematics
 from mocapflow.tasks.uuo.matching import MatchConfig, closest, evenly, match_parts, part_vertices
@@ -53,6 +54,7 @@ class HypothesisConfig:
     correspondence: CorrespondenceConfig = field(default_factory=CorrespondenceConfig)
     ik: IKConfig = field(default_factory=IKConfig)
     outlier_m: float = 0.1  # a sample's distance is capped here in the chamfer of Eq. (3), so ghosts do not choose
+    floor: bool = True  # keep the skin above the floor plane (floor_plane)
 
 
 @dataclass(frozen=True)
@@ -61,6 +63,7 @@ class RefineConfig:
     ik: IKConfig = field(default_factory=IKConfig)
     close: float = 1.5  # hypotheses whose chamfer is within this factor of the least are close: among them ...
     split_deg: float = 100.0  # ... the least prior_pose_deg + split_deg * side_split wins (not turned or mirrored)
+    floor: bool = True  # keep the skin above the floor plane (floor_plane)
 
     def __post_init__(self):
         if self.close < 1.0 or self.split_deg < 0:
@@ -98,6 +101,18 @@ def body_fit(ds: xr.Dataset) -> BodyFit:
     parents = _bodies(ds.attrs["phenotype"])[0].bone_parents
     return BodyFit(local_rotations(world, parents), ds["root"].values.astype(np.float64),
                    np.array([ds.attrs["phenotype"][k] for k in PHENOTYPE_NAMES]))
+
+
+def floor_plane(markers: np.ndarray, offset_m: float) -> float:
+    """The floor's height (m): the capture volume's calibrated ground z = 0, lowered to the markers where they go
+    below it (the 1st percentile of the samples' heights, less the marker's offset from the skin), so that a take
+    whose origin is not on the floor keeps its markers above it.  markers (frame, marker, 3)"""
+    z = markers[..., 2][np.isfinite(markers[..., 2])]
+    return float(min(0.0, np.percentile(z, 1.0) - offset_m)) if len(z) else 0.0
+
+
+def _floor(body: MeshBody, m: np.ndarray, offset_m: float, use: bool) -> Floor | None:
+    return Floor(floor_plane(m, offset_m), floor_vertices(body)) if use else None
 
 
 def _subset(fit: BodyFit, frames: np.ndarray) -> BodyFit:
@@ -138,9 +153,10 @@ def solve_hypothesis(markers: xr.Dataset, segments: xr.Dataset, prior: xr.Datase
     m = _marker_positions(markers)
     body, solver, match, start, valid = _placed_prior(m, segments, prior, config.yaw_deg, config.matching)
     chain = part_vertices(body, match.parts)
-    fitted = fit_pose(solver, m, start, start, valid, chain, config.pose_fit)  # stage 2
+    floor = _floor(body, m, config.pose_fit.offset_m, config.floor)
+    fitted = fit_pose(solver, m, start, start, valid, chain, config.pose_fit, floor)  # stage 2
     vertex, distance = correspond(solver, m, fitted, chain, config.correspondence)  # stage 3
-    solved = inverse_kinematics(solver, m, vertex, fitted, start, valid, config.ik) if (vertex >= 0).any() \
+    solved = inverse_kinematics(solver, m, vertex, fitted, start, valid, config.ik, floor) if (vertex >= 0).any() \
         else fitted  # stage 4 (a hypothesis that labels nothing keeps stage 2's body and loses on Eq. 3)
     score = chamfer(solver, m, solved, chain, config.outlier_m)
     stage_joints = {name: posed_heads(solver, f)[:, body.joint_bones()]
@@ -218,7 +234,8 @@ def _refine(markers: xr.Dataset, hypotheses: list[xr.Dataset], config: RefineCon
     valid = np.ones(m.shape[0], bool)
     vertex, distance = correspond(solver, m, solved, chain, config.correspondence)  # stage 5: stage 3 again ...
     if (vertex >= 0).any():
-        refined = inverse_kinematics(solver, m, vertex, solved, solved, valid, config.ik)  # ... and 4, anchored to 4
+        floor = _floor(body, m, config.ik.offset_m, config.floor)
+        refined = inverse_kinematics(solver, m, vertex, solved, solved, valid, config.ik, floor)  # ... and 4, anchored
     else:  # no trajectory near the chosen body: it stays as stage 4 left it, every marker unlabelled
         logger.warning("no marker trajectory lies within %.2f m of the chosen hypothesis' body (yaw %.0f): the body "
                        "is kept unrefined and every trajectory unlabelled; check that the markers and the prior "

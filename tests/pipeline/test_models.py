@@ -61,3 +61,19 @@ def test_missing_or_unsafe_weights_are_clear_errors(toy_project, tmp_path):
         from mocapflow.pipeline.hashing import file_digest
 
         models.load_weights(str(tmp_path / "pickled.pt"), file_digest(str(tmp_path / "pickled.pt")))
+
+
+def test_a_network_in_another_runtimes_format_arrives_as_its_bytes(tmp_path, monkeypatch):
+    from mocapflow.pipeline.hashing import file_digest
+
+    path = tmp_path / "net.tflite"
+    data = np.random.default_rng(0).integers(0, 256, 4096, dtype=np.uint8).tobytes()
+    path.write_bytes(data)
+    assert models.load_weights(str(path), file_digest(str(path))) == data
+    with pytest.raises(StorageError, match="changed since the run was planned"):
+        models.load_weights(str(path), "0" * 64)
+    big = tmp_path / "big.onnx"
+    big.write_bytes(data + b"more")
+    monkeypatch.setattr(models, "MAX_RAW_BYTES", 4096)
+    with pytest.raises(StorageError, match="4,100 bytes, over the 4,096-byte limit"):
+        models.load_weights(str(big), file_digest(str(big)))
