@@ -6,6 +6,7 @@ from __future__ import annotations
 import shutil
 
 import numpy as np
+import xarray as xr
 
 from blazepose_models import blazepose_files
 from conftest import last_json, mocapflow, read_artifacts
@@ -45,8 +46,6 @@ def test_a_filmed_take_gets_a_monocular_prior_and_its_error_measured(tmp_path):
     assert video.shape == (10, 360, 480, 3) and video.dtype == np.uint8
     assert (np.abs(video.astype(int) - video[:, :1, :1].astype(int)).sum(-1) > 60).mean() > 0.02  # a body in view
     assert prior["valid"].all()
-    import xarray as xr
-
     figures = prior_figures(xr.Dataset({"joints": (("frame", "joint", "xyz"), prior["joints"]),
                                         "valid": (("frame",), prior["valid"])}), markers["gt_joints"])
     assert set(figures) == {"prior_aligned_mpjpe_mm", "prior_registered_mpjpe_mm", "prior_pa_mpjpe_mm"}
