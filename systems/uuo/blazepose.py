@@ -19,6 +19,8 @@ import tempfile
 import zipfile
 from pathlib import Path
 
+from mocapflow.pipeline.hashing import file_digest
+
 log = logging.getLogger(__name__)
 
 WHEEL = "mediapipe==0.10.14"
@@ -34,13 +36,9 @@ class FetchError(RuntimeError):
     """The models could not be fetched or are not the expected ones."""
 
 
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
 def present(folder: Path) -> bool:
     """Whether both networks are in ``folder`` with their expected sha256."""
-    return all((folder / name).is_file() and _sha256(folder / name) == sha for name, (_, sha) in MODELS.items())
+    return all((folder / name).is_file() and file_digest(str(folder / name)) == sha for name, (_, sha) in MODELS.items())
 
 
 def extract(wheel: Path, folder: Path) -> None:

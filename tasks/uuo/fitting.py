@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mocapflow.tasks.shared.solver_body import BodyFit, SolverBody, torch_rodrigues
+from mocapflow.tasks.uuo.matching import evenly, skin_mask
 
 SOLE_HEIGHT_M = 0.04  # rest vertices this low are the soles and toes
 
@@ -34,15 +35,9 @@ class Floor:
 def floor_vertices(body, count: int = 48) -> np.ndarray:
     """``count`` skin vertices of the soles and toes and ``count`` spread over the whole skin (rest mesh, evenly
     by index).  body: MeshBody -> (n,)"""
-    skin = np.zeros(len(body.vertices), bool)
-    skin[body.faces[body.skin].ravel()] = True
+    skin = skin_mask(body)
     soles = np.flatnonzero(skin & (body.vertices[:, 2] < body.vertices[:, 2].min() + SOLE_HEIGHT_M))
-    spread = np.flatnonzero(skin)
-
-    def evenly(items):
-        return items[np.linspace(0, len(items) - 1, min(count, len(items))).astype(int)]
-
-    return np.unique(np.concatenate([evenly(soles), evenly(spread)]))
+    return np.unique(np.concatenate([evenly(soles, count), evenly(np.flatnonzero(skin), count)]))
 
 
 class Fit:

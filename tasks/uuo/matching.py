@@ -85,9 +85,14 @@ def connected_chains(k: int) -> list[tuple[str, ...]]:
 def part_vertices(body: MeshBody, parts: tuple[str, ...]) -> np.ndarray:
     """Skin vertices whose strongest bone belongs to one of ``parts``.  -> (n,) vertex indices"""
     inside = np.array([part_of_bone(n) in parts for n in body.bone_names])[body.vertex_bone]
+    return np.flatnonzero(inside & skin_mask(body))
+
+
+def skin_mask(body: MeshBody) -> np.ndarray:
+    """Whether each vertex is a corner of an outer skin face.  -> (vertex,) bool"""
     skin = np.zeros(len(body.vertices), bool)
     skin[body.faces[body.skin].ravel()] = True
-    return np.flatnonzero(inside & skin)
+    return skin
 
 
 def yaw_matrix(theta: float) -> np.ndarray:
