@@ -74,17 +74,46 @@ def dask_client(workers: int, address: str | None, *, processes: bool = True) ->
         # runs 4 threads on 2 cores with 2 workers: 41 s instead of 27 s for the benchmark take). Dask's
         # MALLOC_TRIM_THRESHOLD_ is left out: it hands each freed frame array back to the system, and the tasks
         # took half as long again. Non-daemonic, so that a task may start processes (training's data loaders).
-        config.update({"distributed.worker.daemon": False,
-                       "distributed.nanny.pre-spawn-environ": thread_limits(workers)})
+        limits = thread_limits(workers)
+        config.update({"distributed.worker.daemon": False, "distributed.nanny.pre-spawn-environ": limits,
+                       "distributed.worker.multiprocessing-method": _start_method(limits)})
     n_workers, threads = (max(1, workers), 1) if processes else (1, max(1, workers))
     # No dashboard; the scheduler still serves its HTTP routes, by default on port 8787 with a warning where that
     # port is taken: a free local port instead.
     no_dashboard = {"dashboard": False, "dashboard_address": "127.0.0.1:0"}
-    with dask.config.set(config), \
+    with dask.config.set(config), _preloaded(config.get("distributed.worker.multiprocessing-method")), \
             LocalCluster(n_workers=n_workers, threads_per_worker=threads, processes=processes, memory_limit=0,
                          dashboard_address=None, scheduler_kwargs=no_dashboard, silence_logs=logging.ERROR) as cluster, \
             Client(cluster) as client:
         yield client
+
+
+# What a worker process imports before its first task: distributed, the engine's worker side, the built-in systems
+# (their task declarations; no torch, no thread pools started). A forkserver imports them once per run and forks
+# each worker from it, where spawned workers would each import them anew (about 1.5 s of CPU each).
+WORKER_PRELOAD = ("distributed", "mocapflow.pipeline.scheduler", "mocapflow.systems.deepmocap", "mocapflow.systems.uuo",
+                  "mocapflow.systems.suit", "mocapflow.systems.studio")
+_forkserver_limits: dict[str, str] | None = None  # the thread limits the forkserver of this process started with
+
+
+def _start_method(limits: dict[str, str]) -> str:
+    """How local worker processes start: forked from this process's forkserver, whose preloaded libraries read
+    their thread pool sizes when it started (the first cluster of this process), so only while ``limits`` are
+    those; spawned otherwise (a later cluster of another size in the same process)."""
+    global _forkserver_limits
+    if _forkserver_limits is None:
+        _forkserver_limits = dict(limits)
+    return "forkserver" if limits == _forkserver_limits else "spawn"
+
+
+@contextmanager
+def _preloaded(method: str | None) -> Iterator[None]:
+    """The forkserver's preload set to WORKER_PRELOAD (a forkserver already running keeps what it has)."""
+    if method == "forkserver":
+        from distributed.utils import get_mp_context
+
+        get_mp_context().set_forkserver_preload(list(WORKER_PRELOAD))  # after distributed's own, which it replaces
+    yield
 
 
 def thread_limits(workers: int) -> dict[str, str]:
