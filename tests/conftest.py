@@ -86,16 +86,38 @@ stages:
 """
 
 
+def make_toy_project(folder: Path, *, root="storage/", region=4, sleep=0.0, frames=20,
+                     sequences=("seqA", "seqB")) -> Path:
+    """Two tiny raw sequences (2 views, 20 frames) and a catalog of toy stages in ``folder``."""
+    (folder / "data").mkdir(exist_ok=True)
+    for i, name in enumerate(sequences):
+        write_raw_zarr(folder / "data" / f"{name}.zarr", frames=frames, seed=i)
+    (folder / "catalog.yaml").write_text(TOY_CATALOG.format(root=root, region=region, sleep=sleep))
+    return folder
+
+
 @pytest.fixture
 def toy_project(tmp_path):
-    """A folder with two tiny raw sequences (2 views, 20 frames) and a catalog of toy stages."""
+    """A folder with two tiny raw sequences (2 views, 20 frames) and a catalog of toy stages (make_toy_project)."""
 
-    def make(*, root="storage/", region=4, sleep=0.0, frames=20, sequences=("seqA", "seqB")) -> Path:
-        (tmp_path / "data").mkdir(exist_ok=True)
-        for i, name in enumerate(sequences):
-            write_raw_zarr(tmp_path / "data" / f"{name}.zarr", frames=frames, seed=i)
-        (tmp_path / "catalog.yaml").write_text(TOY_CATALOG.format(root=root, region=region, sleep=sleep))
-        return tmp_path
+    def make(**options) -> Path:
+        return make_toy_project(tmp_path, **options)
+
+    return make
+
+
+@pytest.fixture
+def toy_run(request, tmp_path):
+    """A toy project (``toy_project(**options)``, storage under the project) after one `mocapflow run --json`: that
+    run is made once per pytest run for each set of options and shared by its workers (shared_runs.shared_run);
+    each test gets its own copy. Returns (folder, the first run's JSON summary)."""
+    from shared_runs import copy_run, shared_run
+
+    def make(**options) -> tuple[Path, dict]:
+        name = "toy" + "".join(f"-{k}={v}" for k, v in sorted(options.items())).replace("'", "").replace(" ", "")
+        catalog = TOY_CATALOG.format(root="storage/", region=options.get("region", 4), sleep=options.get("sleep", 0.0))
+        first = shared_run(request, name, catalog, prepare=lambda folder: make_toy_project(folder, **options))
+        return copy_run(request, name, tmp_path / "toy"), first
 
     return make
 

@@ -13,6 +13,7 @@ import fcntl
 import json
 import shutil
 from pathlib import Path
+from typing import Callable
 
 from conftest import last_json, mocapflow
 
@@ -26,9 +27,11 @@ def _run_root(request) -> Path:
     return factory.getbasetemp().parent / f"shared-runs-{worker['testrunuid']}"
 
 
-def shared_run(request, name: str, catalog: str, timeout: float = 1200) -> dict:
+def shared_run(request, name: str, catalog: str, timeout: float = 1200,
+               prepare: Callable[[Path], object] | None = None) -> dict:
     """Run ``catalog`` (its text) once for the pytest run under the name ``name``; the JSON summary of that first
-    `mocapflow run --json`. Copy the project with ``copy_run``."""
+    `mocapflow run --json`. ``prepare(folder)`` writes what else the project holds (its data) before the catalog
+    is written. Copy the project with ``copy_run``."""
     folder = _run_root(request) / name
     folder.parent.mkdir(parents=True, exist_ok=True)
     with open(folder.parent / f"{name}.lock", "w") as lock:
@@ -38,6 +41,8 @@ def shared_run(request, name: str, catalog: str, timeout: float = 1200) -> dict:
             if folder.exists():
                 shutil.rmtree(folder)  # a run that failed half-way in an earlier test: start again
             folder.mkdir()
+            if prepare is not None:
+                prepare(folder)
             (folder / "catalog.yaml").write_text(catalog)
             first = last_json(mocapflow("run", "--json", cwd=folder, timeout=timeout))
             summary.write_text(json.dumps(first))

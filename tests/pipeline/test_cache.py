@@ -19,17 +19,15 @@ def run(project, *extra):
     return last_json(mocapflow("run", "--json", *extra, cwd=project))
 
 
-def test_rerun_with_nothing_changed_executes_nothing(toy_project):
-    project = toy_project()
-    first = run(project)
+def test_rerun_with_nothing_changed_executes_nothing(toy_run):
+    project, first = toy_run()  # the first run of the toy project, made once for the tests that start from it
     assert set(first["executed"]) == ALL_TOY and first["failed"] == []
     second = run(project)
     assert second["executed"] == [] and set(second["cached"]) == ALL_TOY
 
 
-def test_param_change_recomputes_stage_and_downstream_only_and_swap_back_is_free(toy_project):
-    project = toy_project()
-    run(project)
+def test_param_change_recomputes_stage_and_downstream_only_and_swap_back_is_free(toy_run):
+    project, _ = toy_run()
     changed = run(project, "--set", "stages.scaled.params.factor=5")
     assert set(changed["executed"]) == {p for p in ALL_TOY if not p.startswith("frames/")}
     assert set(changed["cached"]) == {"frames/seqA", "frames/seqB"}
@@ -37,27 +35,24 @@ def test_param_change_recomputes_stage_and_downstream_only_and_swap_back_is_free
     assert run(project, "--set", "stages.scaled.params.factor=5")["executed"] == []
 
 
-def test_swapping_implementation_recomputes_downstream_and_swapping_back_recomputes_nothing(toy_project):
-    project = toy_project()
-    run(project)
+def test_swapping_implementation_recomputes_downstream_and_swapping_back_recomputes_nothing(toy_run):
+    project, _ = toy_run()
     swapped = run(project, "--set", "stages.scaled.task=scale_plus")
     assert set(swapped["executed"]) == {p for p in ALL_TOY if not p.startswith("frames/")}
     assert run(project)["executed"] == []
     assert run(project, "--set", "stages.scaled.task=scale_plus")["executed"] == []
 
 
-def test_region_size_is_layout_not_content(toy_project):
-    project = toy_project()
-    run(project)
+def test_region_size_is_layout_not_content(toy_run):
+    project, _ = toy_run()
     (project / "catalog.yaml").write_text((project / "catalog.yaml").read_text().replace(
         "diffed: {task: diff, inputs: [scaled]}", "diffed: {task: diff, inputs: [scaled], region_frames: 8}"))
     # region size is layout, not content: same keys, nothing to run
     assert run(project)["executed"] == []
 
 
-def test_outputs_have_the_right_values_and_lineage(toy_project):
-    project = toy_project()
-    run(project)
+def test_outputs_have_the_right_values_and_lineage(toy_run):
+    project, _ = toy_run()
     raw = xr.open_zarr(project / "data" / "seqA.zarr", consolidated=False)
     versions = {json.loads(p.read_text())["partition"]: p.parent for p in (project / "storage").glob("*/*/lineage.json")}
     diffed = xr.open_zarr(versions["diffed/seqA/cam1"] / "data.zarr", consolidated=False)
@@ -73,9 +68,8 @@ def test_outputs_have_the_right_values_and_lineage(toy_project):
     assert diffed.value.encoding["chunks"] == (1, 4, 12, 16)  # chunked per frame region
 
 
-def test_explain_names_the_changed_component(toy_project):
-    project = toy_project()
-    run(project)
+def test_explain_names_the_changed_component(toy_run):
+    project, _ = toy_run()
     out = mocapflow("explain", "scaled", "seqA", "cam0", "--set", "stages.scaled.params.factor=7", cwd=project).stdout
     assert "params.factor: 3.0 -> 7.0" in out
     out = mocapflow("explain", "diffed", "seqA", "cam0", "--set", "stages.scaled.params.factor=7", cwd=project).stdout
@@ -92,9 +86,8 @@ def test_status_reports_fresh_stale_and_missing(toy_project):
     assert "2 fresh" in out and "4 stale" in out and "6 missing" in out  # frames x2 fresh, scaled x4 stale
 
 
-def test_gc_deletes_only_unreferenced_versions(toy_project):
-    project = toy_project()
-    run(project)
+def test_gc_deletes_only_unreferenced_versions(toy_run):
+    project, _ = toy_run()
     run(project, "--set", "stages.scaled.params.factor=5")
     out = mocapflow("gc", cwd=project).stdout
     assert "10 unreferenced version(s) deleted" in out

@@ -10,15 +10,6 @@ from conftest import assert_same_artifacts, last_json, mocapflow, read_artifacts
 DAMAGE = ["deleted", "truncated", "bit-flipped", "copied over"]
 
 
-def clean_run(project, tmp_path_factory) -> dict:
-    """The artifacts of a clean run of ``project``'s catalog, in a copy."""
-    ref = tmp_path_factory.mktemp("clean")
-    shutil.copytree(project / "data", ref / "data")
-    shutil.copy(project / "catalog.yaml", ref / "catalog.yaml")
-    mocapflow("run", "--json", cwd=ref)
-    return read_artifacts(ref / "storage")
-
-
 def damage(version, how: str) -> str:
     """Damage the chunk of frames 4-7 of ``value`` in a ``scaled`` version; its key."""
     chunk = version / "data.zarr" / "value" / "c" / "0" / "1" / "0" / "0"
@@ -54,11 +45,9 @@ def damage_every_kind(project) -> dict:
     return out
 
 
-def test_verify_finds_every_kind_of_damage_status_shows_it_and_a_run_rewrites_only_those_regions(toy_project,
-                                                                                                  tmp_path_factory):
-    project = toy_project()
-    clean = clean_run(project, tmp_path_factory)
-    mocapflow("run", "--json", cwd=project)
+def test_verify_finds_every_kind_of_damage_status_shows_it_and_a_run_rewrites_only_those_regions(toy_run):
+    project, _ = toy_run()
+    clean = read_artifacts(project / "storage")  # a clean run's artifacts, before the damage
     damaged = damage_every_kind(project)
 
     found = mocapflow("verify", cwd=project, check=False)
@@ -82,9 +71,10 @@ def test_verify_finds_every_kind_of_damage_status_shows_it_and_a_run_rewrites_on
     assert "12 fresh" in mocapflow("status", cwd=project).stdout
 
 
-def test_a_stage_reading_a_damaged_chunk_fails_naming_it_and_the_fix(toy_project, tmp_path_factory):
-    project = toy_project()
-    clean = clean_run(project, tmp_path_factory)
+def test_a_stage_reading_a_damaged_chunk_fails_naming_it_and_the_fix(toy_run):
+    project, _ = toy_run()
+    clean = read_artifacts(project / "storage")  # a clean run's artifacts; then the project starts afresh
+    shutil.rmtree(project / "storage")
     mocapflow("run", "--json", "--until", "scaled", cwd=project)
     damaged = damage_every_kind(project)
 
@@ -107,10 +97,9 @@ def test_a_stage_reading_a_damaged_chunk_fails_naming_it_and_the_fix(toy_project
     assert_same_artifacts(read_artifacts(project / "storage"), clean)
 
 
-def test_deleting_complete_does_not_recommit_a_damaged_region(toy_project, tmp_path_factory):
-    project = toy_project(sequences=("seqA",))
-    clean = clean_run(project, tmp_path_factory)
-    mocapflow("run", "--json", cwd=project)
+def test_deleting_complete_does_not_recommit_a_damaged_region(toy_run):
+    project, _ = toy_run(sequences=("seqA",))
+    clean = read_artifacts(project / "storage")  # a clean run's artifacts, before the damage
     version = scaled_version(project)
     damage(version, "bit-flipped")
     (version / "_COMPLETE").unlink()  # as a user might, to force a rerun
@@ -120,10 +109,9 @@ def test_deleting_complete_does_not_recommit_a_damaged_region(toy_project, tmp_p
     assert "6 intact, 0 damaged" in mocapflow("verify", cwd=project).stdout
 
 
-def test_a_damaged_template_chunk_rewrites_the_whole_version(toy_project, tmp_path_factory):
-    project = toy_project(sequences=("seqA",))
-    clean = clean_run(project, tmp_path_factory)
-    mocapflow("run", "--json", cwd=project)
+def test_a_damaged_template_chunk_rewrites_the_whole_version(toy_run):
+    project, _ = toy_run(sequences=("seqA",))
+    clean = read_artifacts(project / "storage")  # a clean run's artifacts, before the damage
     (scaled_version(project) / "data.zarr" / "frame" / "c" / "0").unlink()  # the frame coordinate: every region's
     found = mocapflow("verify", "scaled", cwd=project, check=False)
     assert found.returncode == 1 and "frame/c/0 is missing" in found.stdout and "in 00000000-00000004" in found.stdout
@@ -132,9 +120,8 @@ def test_a_damaged_template_chunk_rewrites_the_whole_version(toy_project, tmp_pa
     assert_same_artifacts(read_artifacts(project / "storage"), clean)
 
 
-def test_an_undamaged_store_verifies_clean(toy_project):
-    project = toy_project()
-    mocapflow("run", "--json", cwd=project)
+def test_an_undamaged_store_verifies_clean(toy_run):
+    project, _ = toy_run()
     before = {p: p.read_bytes() for p in (project / "storage").rglob("*") if p.is_file()}
     every = mocapflow("verify", cwd=project)
     assert every.stdout.strip().splitlines() == ["12 intact, 0 damaged, 0 unverified (written before digests were "
