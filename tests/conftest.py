@@ -108,15 +108,17 @@ def toy_project(tmp_path):
 
 @pytest.fixture
 def toy_run(request, tmp_path):
-    """A toy project (``toy_project(**options)``, storage under the project) after one `mocapflow run --json`: that
-    run is made once per pytest run for each set of options and shared by its workers (shared_runs.shared_run);
-    each test gets its own copy. Returns (folder, the first run's JSON summary)."""
+    """A toy project (``toy_project(**options)``, storage under the project) after one `mocapflow run --json`, up to
+    the stage ``until`` where given: that run is made once per pytest run for each set of options and shared by its
+    workers (shared_runs.shared_run); each test gets its own copy. Returns (folder, the first run's JSON summary)."""
     from shared_runs import copy_run, shared_run
 
-    def make(**options) -> tuple[Path, dict]:
+    def make(until: str | None = None, **options) -> tuple[Path, dict]:
         name = "toy" + "".join(f"-{k}={v}" for k, v in sorted(options.items())).replace("'", "").replace(" ", "")
+        name += f"-until-{until}" if until else ""
         catalog = TOY_CATALOG.format(root="storage/", region=options.get("region", 4), sleep=options.get("sleep", 0.0))
-        first = shared_run(request, name, catalog, prepare=lambda folder: make_toy_project(folder, **options))
+        first = shared_run(request, name, catalog, prepare=lambda folder: make_toy_project(folder, **options),
+                           args=("--until", until) if until else ())
         return copy_run(request, name, tmp_path / "toy"), first
 
     return make

@@ -58,9 +58,8 @@ def unreferencing_catalog(project: Path) -> Path:
     return other
 
 
-def test_gc_keeps_every_version_a_running_run_holds_and_says_why(toy_project):
-    project = toy_project(sequences=("seqA",))
-    mocapflow("run", "--json", "--until", "frames", cwd=project)  # complete versions the run will read
+def test_gc_keeps_every_version_a_running_run_holds_and_says_why(toy_run):
+    project, _ = toy_run(until="frames", sequences=("seqA",))  # complete versions the run will read
     other = unreferencing_catalog(project)
     hold = project / "hold"
     hold.write_text("")
@@ -92,9 +91,8 @@ def test_gc_keeps_every_version_a_running_run_holds_and_says_why(toy_project):
     assert list((project / "storage").glob("*/*/lineage.json")) == []
 
 
-def test_a_dead_runs_lease_holds_nothing(toy_project):
-    project = toy_project(sequences=("seqA",))
-    mocapflow("run", "--json", "--until", "frames", cwd=project)
+def test_a_dead_runs_lease_holds_nothing(toy_run):
+    project, _ = toy_run(until="frames", sequences=("seqA",))
     [frames] = [p.parent for p in (project / "storage").glob("frames/*/lineage.json")]
     dead = {"host": "otherhost", "pid": 1, "started": 1.0, "run_pid": 1, "run": "run", "token": uuid.uuid4().hex,
             "lease_s": 5.0, "renewed": time.time() - 60, "kind": "run", "run_id": "deadbeef",
@@ -200,9 +198,8 @@ def test_damaged_array_metadata_is_found_refused_and_rewritten(toy_project):
     assert "3 intact, 0 damaged" in mocapflow("verify", cwd=project).stdout
 
 
-def test_changed_group_attributes_are_found(toy_project):
-    project = toy_project(sequences=("seqA",))
-    mocapflow("run", "--json", "--until", "frames", cwd=project)
+def test_changed_group_attributes_are_found(toy_run):
+    project, _ = toy_run(until="frames", sequences=("seqA",))
     [group] = (project / "storage").glob("frames/*/data.zarr/zarr.json")
     attrs = json.loads(group.read_text())
     attrs["attributes"]["fps"] = 1000.0

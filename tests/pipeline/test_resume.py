@@ -67,15 +67,14 @@ def _copy_inputs(src, dst):
     return dst
 
 
-def test_incomplete_artifact_is_never_read_as_complete(toy_project):
+def test_incomplete_artifact_is_never_read_as_complete(toy_run):
     import pytest
 
     from mocapflow.pipeline.errors import StorageError
     from mocapflow.pipeline.storage import Store
     from mocapflow.schemas import get_schema
 
-    project = toy_project()
-    mocapflow("run", "--json", "--until", "frames", cwd=project)
+    project, _ = toy_run(until="frames")
     store = Store(str(project / "storage"))
     version = next((project / "storage" / "frames").iterdir())
     (version / "_COMPLETE").unlink()  # as if killed between the last region and the commit

@@ -141,8 +141,7 @@ def test_versions_without_digests_are_reported_unverified_and_still_read(toy_pro
     assert last_json(mocapflow("run", "--json", cwd=project))["failed"] == []
 
 
-def test_verify_of_an_unknown_stage_names_the_stages(toy_project):
-    project = toy_project(sequences=("seqA",))
-    mocapflow("run", "--json", "--until", "frames", cwd=project)
+def test_verify_of_an_unknown_stage_names_the_stages(toy_run):
+    project, _ = toy_run(until="frames", sequences=("seqA",))
     proc = mocapflow("verify", "scaledd", cwd=project, check=False)
     assert proc.returncode == 2 and "no stored versions of stage 'scaledd'" in proc.stderr and "scaled" in proc.stderr
