@@ -47,25 +47,25 @@ def cluster(tmp_path):
             proc.wait()
 
 
-def _reference(project: Path, tmp_path_factory) -> dict:
-    ref = tmp_path_factory.mktemp("local")
-    shutil.copytree(project / "data", ref / "data")
-    shutil.copy(project / "catalog.yaml", ref / "catalog.yaml")
-    mocapflow("run", "--json", cwd=ref)
-    return read_artifacts(ref / "storage")
+def _local_run(toy_run, **options) -> tuple[Path, dict]:
+    """A toy project with nothing computed, and the artifacts of a local run of it (toy_run's, made once)."""
+    project, _ = toy_run(**options)
+    reference = read_artifacts(project / "storage")
+    shutil.rmtree(project / "storage")
+    return project, reference
 
 
-def test_run_on_cluster_equals_local_run(toy_project, cluster, tmp_path_factory):
+def test_run_on_cluster_equals_local_run(toy_run, cluster):
     address, _ = cluster
-    project = toy_project()
+    project, reference = _local_run(toy_run)
     summary = last_json(mocapflow("run", "--json", "--scheduler", address, cwd=project))
     assert summary["failed"] == [] and len(summary["executed"]) == 12
-    assert_same_artifacts(read_artifacts(project / "storage"), _reference(project, tmp_path_factory))
+    assert_same_artifacts(read_artifacts(project / "storage"), reference)
 
 
-def test_killing_a_worker_mid_run_still_completes(toy_project, cluster, tmp_path_factory):
+def test_killing_a_worker_mid_run_still_completes(toy_run, cluster):
     address, workers = cluster
-    project = toy_project(sleep=0.2, frames=32)
+    project, reference = _local_run(toy_run, sleep=0.2, frames=32)
     run = subprocess.Popen([sys.executable, "-m", "mocapflow.cli.commands", "run", "--json", "--scheduler", address],
                            cwd=project, env=env_with_plugins(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     wait_for(lambda: len(list((project / "storage").glob("scaled/*/_regions/*"))) >= 3)
@@ -74,7 +74,7 @@ def test_killing_a_worker_mid_run_still_completes(toy_project, cluster, tmp_path
     assert run.returncode == 0, err
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["failed"] == [] and len(summary["executed"]) == 12
-    assert_same_artifacts(read_artifacts(project / "storage"), _reference(project, tmp_path_factory))
+    assert_same_artifacts(read_artifacts(project / "storage"), reference)
 
 
 def test_unreachable_scheduler_is_a_clear_error(toy_project):
