@@ -3,12 +3,16 @@ forward kinematics give the solved bone heads, a report page; and the same throu
 
 from __future__ import annotations
 
+import shutil
+
 import ezc3d
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from conftest import mocapflow, read_artifacts
+from shared_runs import copy_run, shared_run
+from studio_catalogs import UUO_CATALOG
 from mocapflow.systems.uuo import export as export_uuo
 from mocapflow.formats.bvh import read_bvh_joints
 from mocapflow.systems.uuo.marker_files import read_markers
@@ -83,44 +87,22 @@ def test_the_report_page_shows_the_mesh_and_the_errors(take, tmp_path):
     assert float(value) < 1e-6  # the truth scored against itself
 
 
-CATALOG = """\
-data_roots: [.]
-storage: {root: storage/, region_frames: 10}
-datasets:
-  uuo:
-    kind: studio_markers
-    defaults: {frames: 10, views: 1}
-    markers: {count: 20, ghosts: 1}
-    sequences:
-      reach: {motion: side_reaches, seed: 8}
-stages:
-  markers: {task: ingest_markers, dataset: uuo}
-  segments: {task: rigid_segments, inputs: [markers]}
-  prior:
-    task: simulated_prior
-    inputs: [markers]
-    params: {form: mild, rotation_deg: 0.0, yaw_deg: 0.0, lost: 0.0, phenotype_noise: 0.0, drift_m: 0.0}
-  yaw0:
-    task: solve_hypothesis
-    inputs: [markers, segments, prior]
-    params: {matching: {frames: 6, iterations: 8}, pose_fit: {rounds: 2, iterations: 8}, ik: {iterations: 20}}
-  single: {task: single_hypothesis, inputs: {markers: markers, yaw0: yaw0}, params: {ik: {iterations: 20}}}
-"""
-
-
-def test_the_cli_exports_a_uuo_solve_as_c3d_bvh_and_a_report(tmp_path):
-    (tmp_path / "catalog.yaml").write_text(CATALOG)
+def test_the_cli_exports_a_uuo_solve_as_c3d_bvh_and_a_report(request, tmp_path):
+    # the pytest run's one run of the UUO studio catalog (test_uuo_engine and test_uuo_report read it too)
+    shared_run(request, "uuo", UUO_CATALOG)
+    project = copy_run(request, "uuo", tmp_path / "project")
+    shutil.rmtree(project / "storage" / "solve")  # the solve is missing: the first export computes it again
     out = tmp_path / "out"
     for fmt in ("c3d", "bvh", "report"):
-        proc = mocapflow("export", "--format", fmt, "--out", str(out), "--workers", "1", "--threads", cwd=tmp_path)
+        proc = mocapflow("export", "--format", fmt, "--out", str(out), "--workers", "1", "--threads", cwd=project)
         assert "wrote" in proc.stdout
     c3d = ezc3d.c3d(str(out / "reach.c3d"))
     labels = [str(n) for n in c3d["parameters"]["POINT"]["LABELS"]["value"]]
-    stored = {pid: arrays for (pid, _), arrays in read_artifacts(tmp_path / "storage").items()}["single/reach"]
+    stored = {pid: arrays for (pid, _), arrays in read_artifacts(project / "storage").items()}["solve/reach"]
     assert labels == [f"{p}_v{v:05d}" if v >= 0 else f"m{i:03d}"
                       for i, (p, v) in enumerate(zip(stored["part"], stored["vertex"]))]
-    assert sum("_v" in label for label in labels) >= 5  # the solve labelled markers (10 frames, light settings)
+    assert sum("_v" in label for label in labels) >= 5  # the solve labelled markers
     assert len(parse_bvh((out / "reach.bvh").read_text()).names) > 100
     assert "MPJPE against the studio" in (out / "reach" / "report.html").read_text()  # scored against its truth
-    proc = mocapflow("export", "--format", "trc", "--out", str(out), "--stage", "single", cwd=tmp_path, check=False)
+    proc = mocapflow("export", "--format", "trc", "--out", str(out), "--stage", "solve", cwd=project, check=False)
     assert proc.returncode != 0 and "trc exports smoothed_markers or markers3d" in proc.stderr
