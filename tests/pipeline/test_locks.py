@@ -35,21 +35,20 @@ def lock_leftovers(root) -> list:
     return sorted(str(p) for p in root.rglob(".lock*"))
 
 
-def scaled_version(project):
-    """A clean run's artifacts, and one ``scaled`` version emptied as if a worker of another host had died
-    right after taking its lock."""
-    mocapflow("run", "--json", cwd=project)
+def scaled_version(toy_run):
+    """A project after a clean run (the shared toy run of one sequence), that run's artifacts, and one ``scaled``
+    version emptied as if a worker of another host had died right after taking its lock."""
+    project, _ = toy_run(sequences=("seqA",))
     clean = read_artifacts(project / "storage")
     version = sorted((project / "storage" / "scaled").iterdir())[0]
     shutil.rmtree(version)
     version.mkdir()
-    return clean, version
+    return project, clean, version
 
 
 @pytest.mark.parametrize("written", ["with a lease", "before leases"])
-def test_a_lock_of_another_host_whose_lease_expired_is_taken_over(toy_project, monkeypatch, written):
-    project = toy_project(sequences=("seqA",))
-    clean, version = scaled_version(project)
+def test_a_lock_of_another_host_whose_lease_expired_is_taken_over(toy_run, monkeypatch, written):
+    project, clean, version = scaled_version(toy_run)
     if written == "with a lease":
         foreign_lock(version / ".lock", renewed_ago=5.0, lease_s=2.0)
     else:  # no renewal time: the file's age against $MOCAPFLOW_LOCK_LEASE_S
@@ -63,9 +62,8 @@ def test_a_lock_of_another_host_whose_lease_expired_is_taken_over(toy_project, m
     assert lock_leftovers(project / "storage") == []
 
 
-def test_a_lock_of_another_host_with_a_live_lease_is_not_taken_over(toy_project):
-    project = toy_project(sequences=("seqA",))
-    _, version = scaled_version(project)
+def test_a_lock_of_another_host_with_a_live_lease_is_not_taken_over(toy_run):
+    project, _, version = scaled_version(toy_run)
     held = foreign_lock(version / ".lock", renewed_ago=1.0, lease_s=600.0)
     before = (version / ".lock").read_bytes()
     proc = mocapflow("run", "--json", "--keep-going", cwd=project, check=False)
