@@ -106,14 +106,14 @@ def test_a_checkerboard_texture_shows_its_corners_where_the_uv_pattern_puts_them
 def _corners_on_the_front(body, squares, scene, cam):
     """3D points of checker corners (UV multiples of 1/squares) on faces that face the camera squarely, away from
     UV seams (the four squares around the corner lie on one patch of the surface)."""
-    uv = body.uv.astype(float)
+    locate = _UvLocator(body.uv.astype(float))
     centre = cam.cam_to_world[:3, 3]
     out = []
     for i in range(1, squares):
         for j in range(1, squares):
             target = np.array([i, j]) / squares
-            ring = [_locate(uv, target + d) for d in ((0.01, 0.01), (-0.01, 0.01), (0.01, -0.01), (-0.01, -0.01))]
-            here = _locate(uv, target)
+            ring = [locate(target + d) for d in ((0.01, 0.01), (-0.01, 0.01), (0.01, -0.01), (-0.01, -0.01))]
+            here = locate(target)
             if here is None or any(r is None for r in ring):
                 continue
             points, normals = mr.surface_points(body.vertices, body.faces, np.array([here[0]] + [r[0] for r in ring]),
@@ -126,18 +126,25 @@ def _corners_on_the_front(body, squares, scene, cam):
     return out
 
 
-def _locate(uv, target):
-    """(face, barycentric) of the UV point ``target``, or None when it lies in no face or in several (a seam)."""
-    a, b, c = uv[:, 0], uv[:, 1], uv[:, 2]
-    m = np.stack([b - a, c - a], axis=-1)  # (face, 2, 2)
-    det = np.linalg.det(m)
-    ok = np.abs(det) > 1e-12
-    inv = np.zeros_like(m)
-    inv[ok] = np.linalg.inv(m[ok])
-    w = np.einsum("fij,fj->fi", inv, target - a)
-    inside = ok & (w >= 0).all(axis=1) & (w.sum(axis=1) <= 1)
-    faces = np.flatnonzero(inside)
-    return (faces[0], w[faces[0]]) if len(faces) == 1 else None
+class _UvLocator:
+    """(face, barycentric) of a UV point, or None when it lies in no face or in several (a seam). The faces' UV
+    inverses are computed once; a point is solved only in the faces whose UV box holds it (a face outside the box
+    cannot hold it, so the answer is that of solving every face)."""
+
+    def __init__(self, uv):
+        self.a, b, c = uv[:, 0], uv[:, 1], uv[:, 2]
+        m = np.stack([b - self.a, c - self.a], axis=-1)  # (face, 2, 2)
+        self.ok = np.abs(np.linalg.det(m)) > 1e-12
+        self.inv = np.zeros_like(m)
+        self.inv[self.ok] = np.linalg.inv(m[self.ok])
+        pad = 1e-9  # the box a little wider than the face, against rounding at its edges
+        self.low, self.high = uv.min(axis=1) - pad, uv.max(axis=1) + pad
+
+    def __call__(self, target):
+        near = np.flatnonzero(self.ok & (self.low <= target).all(axis=1) & (target <= self.high).all(axis=1))
+        w = np.einsum("fij,fj->fi", self.inv[near], target - self.a[near])
+        hits = np.flatnonzero((w >= 0).all(axis=1) & (w.sum(axis=1) <= 1))
+        return (near[hits[0]], w[hits[0]]) if len(hits) == 1 else None
 
 
 def test_the_same_seed_renders_the_same_bytes(body):
