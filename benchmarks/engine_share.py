@@ -1,7 +1,8 @@
-"""The engine's share of the whole DeepMoCap pipeline's time, on a noisy host: `mocapflow run` (benchmarks/pipeline.py,
-storage, caching and Dask included) and the in-memory compute floor (benchmarks/compute_floor.py, the same tasks
-without the engine) on one take, their runs alternated so that both see the same spells of load. Prints each one's
-median wall time and frames/s and the median ratio floor / pipeline (1.0: the engine costs nothing):
+"""The engine's share of the whole DeepMoCap pipeline's time, on a noisy host: `mocapflow run --until poses` on
+benchmarks/pipeline.py's take (storage, caching and Dask included) and the in-memory compute floor
+(benchmarks/compute_floor.py: the same tasks without the engine), their runs alternated so that both see the same
+spells of load. Prints each one's median wall time and frames/s and the median ratio floor / pipeline (1.0: the
+engine costs nothing):
 
     python benchmarks/engine_share.py [--frames 300] [--repeats 5] [--workers 2] [--motion jumping_jack] [--weights FILE]
 """
@@ -24,12 +25,13 @@ FLOOR = Path(__file__).resolve().parent / "compute_floor.py"
 
 
 def engine_run(folder: Path, workers: int) -> float:
-    """Seconds of one fresh `mocapflow run` of every stage after the recorded frames."""
+    """Seconds of one fresh `mocapflow run` from the recorded frames to the poses: the stages the floor computes
+    (the held-out catalog's later stages, the refined labels and their check, are left out of both)."""
     for stage_dir in (folder / "storage").iterdir():
         if stage_dir.name not in ("frames", "logs"):
             shutil.rmtree(stage_dir)
     started = time.perf_counter()
-    pipeline.mocapflow(folder, "run", "--workers", str(workers))
+    pipeline.mocapflow(folder, "run", "--until", "poses", "--workers", str(workers))
     return time.perf_counter() - started
 
 
