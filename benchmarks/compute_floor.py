@@ -91,6 +91,13 @@ def run(folder: Path, workers: int) -> float:
     return time.perf_counter() - STARTED
 
 
+def timed_run(folder: Path, workers: int) -> float:
+    """Seconds of one run of the take in ``folder`` in a fresh process, its imports included (``run``)."""
+    out = subprocess.run([sys.executable, __file__, "--folder", str(folder), "--workers", str(workers)], check=True,
+                         capture_output=True, text=True)
+    return float(out.stdout.split()[-1])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=90)
@@ -110,9 +117,7 @@ def main() -> None:
         motion = args.motion or str(pipeline.CLIP)
         (folder / "catalog.yaml").write_text(pipeline.catalog_text(args.frames, "fast", motion, args.weights))
         pipeline.mocapflow(folder, "run", "--until", "frames")
-        walls = [float(subprocess.run([sys.executable, __file__, "--folder", tmp, "--workers", str(args.workers)],
-                                      check=True, capture_output=True, text=True).stdout.split()[-1])
-                 for _ in range(args.repeats)]
+        walls = [timed_run(folder, args.workers) for _ in range(args.repeats)]
     wall = statistics.median(walls)
     print(json.dumps({"motion": Path(args.motion or pipeline.CLIP).stem, "frames": args.frames, "views": 3,
                       "preset": "fast", "workers": args.workers, "wall_s_median": round(wall, 2),

@@ -11,35 +11,21 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import statistics
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
+import compute_floor  # benchmarks/compute_floor.py: one in-memory run of the take in a fresh process
 import pipeline  # benchmarks/pipeline.py: the take's catalog and a fresh `mocapflow run`
-
-FLOOR = Path(__file__).resolve().parent / "compute_floor.py"
-
 
 def engine_run(folder: Path, workers: int) -> float:
     """Seconds of one fresh `mocapflow run` from the recorded frames to the poses: the stages the floor computes
     (the held-out catalog's later stages, the refined labels and their check, are left out of both)."""
-    for stage_dir in (folder / "storage").iterdir():
-        if stage_dir.name not in ("frames", "logs"):
-            shutil.rmtree(stage_dir)
+    pipeline.clear_stages(folder / "storage")
     started = time.perf_counter()
     pipeline.mocapflow(folder, "run", "--until", "poses", "--workers", str(workers))
     return time.perf_counter() - started
-
-
-def floor_run(folder: Path, workers: int) -> float:
-    """Seconds of one in-memory run of the same tasks in a fresh process (compute_floor.py --folder)."""
-    out = subprocess.run([sys.executable, str(FLOOR), "--folder", str(folder), "--workers", str(workers)], check=True,
-                         capture_output=True, text=True)
-    return float(out.stdout.split()[-1])
 
 
 def main() -> None:
@@ -56,7 +42,7 @@ def main() -> None:
         pipeline.mocapflow(folder, "run", "--until", "frames")
         engine, floor = [], []
         for i in range(args.repeats):  # alternated, and which goes first alternates too
-            pair = (engine_run, floor_run) if i % 2 == 0 else (floor_run, engine_run)
+            pair = (engine_run, compute_floor.timed_run) if i % 2 == 0 else (compute_floor.timed_run, engine_run)
             for fn in pair:
                 (engine if fn is engine_run else floor).append(fn(folder, args.workers))
     ratios = [f / e for e, f in zip(engine, floor)]

@@ -56,6 +56,14 @@ def mocapflow(folder: Path, *args: str) -> None:
                    stdout=subprocess.DEVNULL)
 
 
+def clear_stages(storage: Path) -> None:
+    """Delete every stage's artifacts but the recorded frames (and the run logs), so that the next run computes
+    them all again."""
+    for stage_dir in storage.iterdir():
+        if stage_dir.name not in ("frames", "logs"):
+            shutil.rmtree(stage_dir)
+
+
 def stage_seconds(storage: Path) -> dict[str, float]:
     """Compute seconds per stage, summed over partitions, from the artifacts' lineage records."""
     store = Store(str(storage))
@@ -78,9 +86,7 @@ def main() -> None:
         mocapflow(folder, "run", "--until", "frames")
         walls, per_stage = [], defaultdict(list)
         for _ in range(args.repeats):
-            for stage_dir in (folder / "storage").iterdir():
-                if stage_dir.name != "frames":
-                    shutil.rmtree(stage_dir)
+            clear_stages(folder / "storage")
             started = time.perf_counter()
             mocapflow(folder, "run", "--workers", str(args.workers))
             walls.append(time.perf_counter() - started)

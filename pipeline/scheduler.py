@@ -77,11 +77,13 @@ def dask_client(workers: int, address: str | None, *, processes: bool = True) ->
         limits = thread_limits(workers)
         config.update({"distributed.worker.daemon": False, "distributed.nanny.pre-spawn-environ": limits,
                        "distributed.worker.multiprocessing-method": _start_method(limits)})
+        if config["distributed.worker.multiprocessing-method"] == "forkserver":
+            _preload_forkserver()
     n_workers, threads = (max(1, workers), 1) if processes else (1, max(1, workers))
     # No dashboard; the scheduler still serves its HTTP routes, by default on port 8787 with a warning where that
     # port is taken: a free local port instead.
     no_dashboard = {"dashboard": False, "dashboard_address": "127.0.0.1:0"}
-    with dask.config.set(config), _preloaded(config.get("distributed.worker.multiprocessing-method")), \
+    with dask.config.set(config), \
             LocalCluster(n_workers=n_workers, threads_per_worker=threads, processes=processes, memory_limit=0,
                          dashboard_address=None, scheduler_kwargs=no_dashboard, silence_logs=logging.ERROR) as cluster, \
             Client(cluster) as client:
@@ -106,14 +108,15 @@ def _start_method(limits: dict[str, str]) -> str:
     return "forkserver" if limits == _forkserver_limits else "spawn"
 
 
-@contextmanager
-def _preloaded(method: str | None) -> Iterator[None]:
-    """The forkserver's preload set to WORKER_PRELOAD (a forkserver already running keeps what it has)."""
-    if method == "forkserver":
-        from distributed.utils import get_mp_context
+def _preload_forkserver() -> None:
+    """Set the forkserver's preload to WORKER_PRELOAD (a forkserver already running keeps what it has)."""
+    import multiprocessing
 
-        get_mp_context().set_forkserver_preload(list(WORKER_PRELOAD))  # after distributed's own, which it replaces
-    yield
+    from distributed.utils import get_mp_context
+
+    with dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"}):
+        get_mp_context()  # distributed sets its own preload on its first call: ours comes after and replaces it
+    multiprocessing.get_context("forkserver").set_forkserver_preload(list(WORKER_PRELOAD))
 
 
 def thread_limits(workers: int) -> dict[str, str]:

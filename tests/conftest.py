@@ -116,8 +116,7 @@ def toy_run(request, tmp_path):
     def make(until: str | None = None, **options) -> tuple[Path, dict]:
         name = "toy" + "".join(f"-{k}={v}" for k, v in sorted(options.items())).replace("'", "").replace(" ", "")
         name += f"-until-{until}" if until else ""
-        catalog = TOY_CATALOG.format(root="storage/", region=options.get("region", 4), sleep=options.get("sleep", 0.0))
-        first = shared_run(request, name, catalog, prepare=lambda folder: make_toy_project(folder, **options),
+        first = shared_run(request, name, None, prepare=lambda folder: make_toy_project(folder, **options),
                            args=("--until", until) if until else ())
         return copy_run(request, name, tmp_path / "toy"), first
 

@@ -27,11 +27,12 @@ def _run_root(request) -> Path:
     return factory.getbasetemp().parent / f"shared-runs-{worker['testrunuid']}"
 
 
-def shared_run(request, name: str, catalog: str, timeout: float = 1200,
+def shared_run(request, name: str, catalog: str | None, timeout: float = 1200,
                prepare: Callable[[Path], object] | None = None, args: tuple[str, ...] = ()) -> dict:
     """Run ``catalog`` (its text) once for the pytest run under the name ``name``; the JSON summary of that first
-    `mocapflow run --json`. ``prepare(folder)`` writes what else the project holds (its data) before the catalog
-    is written; ``args``: more options of that run (``--until STAGE``). Copy the project with ``copy_run``."""
+    `mocapflow run --json`. ``prepare(folder)`` writes what else the project holds (its data; its catalog.yaml
+    too where ``catalog`` is None); ``args``: more options of that run (``--until STAGE``). Copy the project with
+    ``copy_run``."""
     folder = _run_root(request) / name
     folder.parent.mkdir(parents=True, exist_ok=True)
     with open(folder.parent / f"{name}.lock", "w") as lock:
@@ -43,7 +44,8 @@ def shared_run(request, name: str, catalog: str, timeout: float = 1200,
             folder.mkdir()
             if prepare is not None:
                 prepare(folder)
-            (folder / "catalog.yaml").write_text(catalog)
+            if catalog is not None:
+                (folder / "catalog.yaml").write_text(catalog)
             first = last_json(mocapflow("run", "--json", *args, cwd=folder, timeout=timeout))
             summary.write_text(json.dumps(first))
     return json.loads(summary.read_text())

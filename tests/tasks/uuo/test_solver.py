@@ -132,7 +132,8 @@ def test_a_take_with_a_turned_prior_is_solved_back_and_four_hypotheses_beat_one(
 
 
 
-@pytest.mark.xfail(strict=True, reason="measured shortfall: from the realistic prior this 24-frame take solves to "
+@pytest.mark.xfail(strict=True, raises=AssertionError,  # the MPJPE assertion: any other error is a failure
+                   reason="measured shortfall: from the realistic prior this 24-frame take solves to "
                    "230 mm MPJPE with one hypothesis and the fast settings (goal: under 60 mm); the solver does not "
                    "yet undo held depth flips and the lean (docs/uuo.md, What is left)")
 def test_a_take_with_the_realistic_prior_is_solved_far_closer_than_the_prior_placed(take):
