@@ -73,7 +73,7 @@ def region_depths(xy: np.ndarray, region_of: np.ndarray, blob_id: np.ndarray, de
     xy (n, 2) px; region_of (n,) blob label of each estimate (0: none); blob_id, depth (y, x).  -> (n,)
     """
     out = np.full(len(xy), np.nan)
-    boxes = ndimage.find_objects(blob_id)  # box of region k at index k - 1
+    boxes = _boxes(blob_id)  # box of region k at index k - 1
     for label in np.unique(region_of[region_of > 0]):
         members = np.nonzero(region_of == label)[0]
         ys, xs = _contour(blob_id, depth, label, boxes[label - 1], contour_px)
@@ -87,6 +87,18 @@ def region_depths(xy: np.ndarray, region_of: np.ndarray, blob_id: np.ndarray, de
         for k, m in enumerate(members):
             out[m] = _surface_depth(z[groups == k] if (groups == k).any() else z, max_depth_spread_mm)
     return out
+
+
+def _boxes(blob_id: np.ndarray) -> list:
+    """``ndimage.find_objects(blob_id)``, searched within the box of every region together (reflectors cover a
+    small part of the image).  (y, x) -> box (slice, slice) of region k at index k - 1, None where absent"""
+    rows, cols = np.flatnonzero(blob_id.any(axis=1)), np.flatnonzero(blob_id.any(axis=0))
+    if len(rows) == 0:
+        return []
+    top, left = int(rows[0]), int(cols[0])
+    return [None if box is None else (slice(box[0].start + top, box[0].stop + top),
+                                      slice(box[1].start + left, box[1].stop + left))
+            for box in ndimage.find_objects(blob_id[top:rows[-1] + 1, left:cols[-1] + 1])]
 
 
 def _contour(blob_id: np.ndarray, depth: np.ndarray, label: int, box: tuple[slice, slice],
@@ -188,16 +200,31 @@ def fuse_strap(points: np.ndarray, rays: np.ndarray, weights: np.ndarray, radius
 
 
 def _region_labels(xy: np.ndarray, blob_id: np.ndarray, reach: int = 3) -> np.ndarray:
-    """The region label under (or within ``reach`` px of) each estimate; 0 where none.  (n, 2) -> (n,)"""
+    """The region label under (or within ``reach`` px of) each estimate; 0 where none: the nearest labelled pixel
+    of its (2 reach + 1)² window, the first in raster order of those equally near.  (n, 2) -> (n,)"""
     h, w = blob_id.shape
-    out = np.zeros(len(xy), np.int64)
-    for i, (x, y) in enumerate(np.rint(xy).astype(int)):
-        window = blob_id[max(y - reach, 0):y + reach + 1, max(x - reach, 0):x + reach + 1]
-        ys, xs = np.nonzero(window)
-        if len(xs):
-            k = np.argmin((xs + max(x - reach, 0) - x) ** 2 + (ys + max(y - reach, 0) - y) ** 2)
-            out[i] = window[ys[k], xs[k]]
+    at = np.rint(xy).astype(int)  # (n, 2) as (x, y)
+    step = np.arange(-reach, reach + 1)
+    ys, xs = at[:, 1, None, None] + step[:, None], at[:, 0, None, None] + step  # (n, k, 1), (n, 1, k)
+    inside = (ys >= 0) & (ys < h) & (xs >= 0) & (xs < w)  # (n, k, k)
+    labels = np.where(inside, blob_id[np.clip(ys, 0, h - 1), np.clip(xs, 0, w - 1)], 0).reshape(len(xy), -1)
+    d2 = (step[:, None] ** 2 + step**2).ravel()  # (k²,) squared distance of each window pixel, raster order
+    nearest = np.argmin(np.where(labels > 0, d2, np.iinfo(np.int64).max), axis=1)
+    out = labels[np.arange(len(xy)), nearest].astype(np.int64)
+    for i in np.flatnonzero((at < -reach).any(axis=1)):  # a slice from below -reach wraps round: as the loop did
+        out[i] = _region_label_at(at[i], blob_id, reach)
     return out
+
+
+def _region_label_at(at: np.ndarray, blob_id: np.ndarray, reach: int) -> int:
+    """``_region_labels`` of one estimate at whole pixel ``at`` (x, y), by slicing its window."""
+    x, y = int(at[0]), int(at[1])
+    window = blob_id[max(y - reach, 0):y + reach + 1, max(x - reach, 0):x + reach + 1]
+    ys, xs = np.nonzero(window)
+    if len(xs) == 0:
+        return 0
+    k = np.argmin((xs + max(x - reach, 0) - x) ** 2 + (ys + max(y - reach, 0) - y) ** 2)
+    return int(window[ys[k], xs[k]])
 
 
 def lift_view(x, y, confidence, blob_id, depth, camera: Camera, *, contour_px, max_depth_spread_mm, min_confidence):

@@ -54,18 +54,39 @@ def peak_sets(confidence: np.ndarray, threshold: float, max_n: int) -> list[tupl
     """``peaks`` of every map of a stack, in one filtering pass.  (R, hy, hx) -> R x (cells (n, 2), values (n,))"""
     c = np.asarray(confidence, np.float32)
     is_peak = (c == ndimage.maximum_filter(c, size=(1, 3, 3), mode="constant")) & (c >= threshold)
+    rs, ys, xs = np.nonzero(is_peak)  # every map's peaks, map by map
+    keep = _strongest(c[rs, ys, xs], rs, len(c), max_n)
+    rs, ys, xs = rs[keep], ys[keep], xs[keep]
     weights = np.clip(np.pad(c, ((0, 0), (1, 1), (1, 1))), 0, None)
     dy, dx = np.mgrid[-1:2, -1:2]
-    out = []
-    for r in range(len(c)):
-        ys, xs = np.nonzero(is_peak[r])
-        order = np.argsort(-c[r, ys, xs])[:max_n]
-        ys, xs = ys[order], xs[order]
-        w = weights[r, ys[:, None, None] + 1 + dy, xs[:, None, None] + 1 + dx]  # (n, 3, 3) neighbourhoods
-        total = w.sum(axis=(1, 2))
-        cells = np.stack([xs + (w * dx).sum(axis=(1, 2)) / total, ys + (w * dy).sum(axis=(1, 2)) / total], axis=1)
-        out.append((cells.astype(np.float64).reshape(-1, 2), c[r, ys, xs].astype(np.float64)))
-    return out
+    w = weights[rs[:, None, None], ys[:, None, None] + 1 + dy, xs[:, None, None] + 1 + dx]  # (n, 3, 3) neighbourhoods
+    total = w.sum(axis=(1, 2))
+    cells = np.stack([xs + (w * dx).sum(axis=(1, 2)) / total, ys + (w * dy).sum(axis=(1, 2)) / total], axis=1)
+    cells, values = cells.astype(np.float64).reshape(-1, 2), c[rs, ys, xs].astype(np.float64)
+    return [(cells[a:b], values[a:b]) for a, b in _spans(np.bincount(rs, minlength=len(c)))]
+
+
+def _spans(counts: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) of consecutive groups of these sizes (np.split's pieces, without its per-piece cost)."""
+    stops = np.cumsum(counts).tolist()
+    return list(zip([0] + stops[:-1], stops))
+
+
+def _strongest(values: np.ndarray, group: np.ndarray, n_groups: int, max_n: int) -> np.ndarray:
+    """Indices of the ``max_n`` largest values of each group, groups in order, each in the order that
+    ``np.argsort(-values_of_the_group)[:max_n]`` gives (a group holding equal values is sorted on its own, since
+    that sort may order ties its own way).  values, group (n,) sorted by group -> (k,)"""
+    order = np.lexsort((-values, group))  # by group, then strongest first
+    counts = np.bincount(group, minlength=n_groups)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    rank = np.arange(len(order)) - np.repeat(starts, counts)  # place of each sorted entry within its group
+    same = (group[order][1:] == group[order][:-1]) & (values[order][1:] == values[order][:-1])
+    if not same.any():
+        return order[rank < max_n]
+    tied = set(group[order][1:][same].tolist())
+    return np.concatenate([np.zeros(0, np.int64)] + [
+        starts[g] + np.argsort(-values[starts[g]:starts[g] + counts[g]])[:max_n] if g in tied
+        else order[starts[g]:starts[g] + counts[g]][:max_n] for g in range(n_groups)])
 
 
 def bilinear(field: np.ndarray, points: np.ndarray, which: np.ndarray | None = None) -> np.ndarray:
@@ -106,11 +127,7 @@ def line_integral_sets(fields: np.ndarray, starts: list, ends: list, samples: in
     shapes = [(len(a), len(b)) for a, b in zip(starts, ends)]
     if not shapes:
         return []
-    pairs = [(np.repeat(np.asarray(a, float).reshape(-1, 2), n, axis=0), np.tile(np.asarray(b, float).reshape(-1, 2), (m, 1)))
-             for a, b, (m, n) in zip(starts, ends, shapes)]  # every (start, end) of each field, row-major
-    first = np.concatenate([a for a, _ in pairs])  # (P, 2)
-    last = np.concatenate([b for _, b in pairs])
-    which = np.repeat(np.arange(len(shapes)), [m * n for m, n in shapes])  # (P,) the field of each pair
+    first, last, which = _pairs(starts, ends, np.array(shapes).reshape(-1, 2))  # (P, 2) x2, (P,)
     delta = last - first
     length = np.linalg.norm(delta, axis=-1, keepdims=True)
     u = np.linspace(0.0, 1.0, samples)[:, None]  # (samples, 1)
@@ -118,8 +135,20 @@ def line_integral_sets(fields: np.ndarray, starts: list, ends: list, samples: in
     values = bilinear(fields, points.reshape(-1, 2), np.repeat(which, samples)).reshape(points.shape)
     direction = np.divide(delta, length, out=np.zeros_like(delta), where=length >= 1e-9)
     integral = (values @ direction[..., None])[..., 0].mean(axis=-1)  # Eq. (7)-(8), DeepMoCap
-    parts = np.split(integral, np.cumsum([m * n for m, n in shapes])[:-1])
-    return [part.reshape(shape) for part, shape in zip(parts, shapes)]
+    return [integral[a:b].reshape(shape) for (a, b), shape in zip(_spans([m * n for m, n in shapes]), shapes)]
+
+
+def _pairs(starts: list, ends: list, shapes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every (start, end) pair of each field, row-major, and the field of each.
+    starts R x (m_r, 2), ends R x (n_r, 2), shapes (R, 2) as (m_r, n_r) -> first (P, 2), last (P, 2), which (P,)"""
+    m, n = shapes[:, 0], shapes[:, 1]
+    which = np.repeat(np.arange(len(shapes)), m * n)  # (P,)
+    k = np.arange(len(which)) - np.repeat(np.cumsum(m * n) - m * n, m * n)  # pair index within its field
+    first_at = (np.cumsum(m) - m)[which] + k // n[which]  # rows of the stacked starts and ends
+    last_at = (np.cumsum(n) - n)[which] + k % n[which]
+    stacked = [np.concatenate([np.zeros((0, 2))] + [np.asarray(a, float).reshape(-1, 2) for a in arrays])
+               for arrays in (starts, ends)]
+    return stacked[0][first_at], stacked[1][last_at], which
 
 
 def fuse(e_s, e_l):
@@ -144,13 +173,15 @@ def reflector_region(xy: np.ndarray, blob_id: np.ndarray, blob_area: np.ndarray,
     nearest = int(np.argmin(d))
     if d[nearest] > snap_px:
         return None
-    label = window[ys[nearest], xs[nearest]]
-    region = px[window[ys, xs] == label]
+    labels = window[ys, xs]
+    label = labels[nearest]
+    on = labels == label
+    region = px[on]
     centre = region.mean(axis=0)
     area = int(blob_area[label - 1])
     if len(region) == area and np.linalg.norm(region - centre, axis=1).max() <= radius_px:
         return centre, area, int(label)  # a reflector-sized region: its centre
-    return px[(window[ys, xs] == label) & (d <= radius_px)].mean(axis=0), area, int(label)  # shared or long: the near part
+    return px[on & (d <= radius_px)].mean(axis=0), area, int(label)  # shared or long: the near part
 
 
 def split_region(seeds: np.ndarray, blob_id: np.ndarray, label: int, iterations: int = 5) -> np.ndarray:
@@ -177,14 +208,17 @@ def claim_part(seed: np.ndarray, holders: np.ndarray, blob_id: np.ndarray, label
 
 
 def suppress_close(xy: np.ndarray, confidence: np.ndarray, min_distance: float) -> np.ndarray:
-    """Keep mask: of estimates closer than ``min_distance``, the more confident.  (R, 2), (R,) -> (R,)"""
+    """Keep mask: of estimates closer than ``min_distance``, the more confident.  (R, 2), (R,) -> (R,)
+
+    Strongest first, each estimate still kept drops the others within reach that are no more confident."""
     keep = np.isfinite(xy[:, 0])
-    for i in np.argsort(-confidence):
-        if not keep[i]:
-            continue
-        close = np.linalg.norm(xy - xy[i], axis=1) < min_distance
-        close[i] = False
-        keep &= ~(close & (confidence <= confidence[i]))
+    order = np.argsort(-confidence)
+    close = np.linalg.norm(xy[:, None] - xy[None], axis=-1) < min_distance  # (R, R), False where NaN
+    np.fill_diagonal(close, False)
+    dominated = close & (confidence[None] <= confidence[:, None])  # row i: whom estimate i drops
+    for i in order[keep[order]]:
+        if keep[i]:
+            keep &= ~dominated[i]
     return keep
 
 
@@ -243,7 +277,8 @@ def filter_frame(xy, confidence, blob_id, blob_area, config: GreedyConfig, may_s
         region = reflector_region(xy[r], blob_id, blob_area, snap_px=config.snap_px, radius_px=config.region_radius_px)
         if region is not None and region[1] >= b_min:
             out[r], size[r], label[r] = region
-    for shared in np.unique(label[label > 0]) if split_px > 0 else ():  # one region, distinct estimates: a part each
+    regions, count = np.unique(label[label > 0], return_counts=True)
+    for shared in regions[count > 1] if split_px > 0 else ():  # one region, distinct estimates: a part each
         on = np.flatnonzero(label == shared)
         seeds = np.flatnonzero(suppress_close(xy[on], confidence[on], split_px))  # the distinct ones
         if len(seeds) > 1 and (may_split is None or may_split[np.ix_(on[seeds], on[seeds])].all()):

@@ -244,3 +244,24 @@ def test_a_view_point_beyond_the_bodys_reach_is_dropped_and_an_outstretched_hand
     assert not m3d.beyond_reach(points, 3.0).any()  # the stray point is 2.05 m out
     with pytest.raises(ValueError, match="body_reach_m must be >= 0"):
         m3d.Markers3DConfig(body_reach_m=-1.0)
+
+
+def test_region_labels_and_boxes_equal_the_plain_searches():
+    from scipy import ndimage
+
+    rng = np.random.default_rng(7)
+    blob_id = np.zeros((40, 50), np.uint16)
+    for k in range(1, 9):
+        y, x = rng.integers(0, 38), rng.integers(0, 48)
+        blob_id[y:y + 3, x:x + 3] = k  # later blobs may cover earlier ones: some labels are absent
+    assert m3d._boxes(blob_id) == ndimage.find_objects(blob_id)
+    assert m3d._boxes(np.zeros((5, 5), np.uint16)) == ndimage.find_objects(np.zeros((5, 5), np.uint16))
+    xy = np.vstack([rng.uniform(-2, 52, (200, 2)), [[-9.0, 3.0], [3.0, -20.0], [60.0, 45.0]]])
+    expected = [m3d._region_label_at(p, blob_id, 3) for p in np.rint(xy).astype(int)]
+    for p, label in zip(np.rint(xy).astype(int), expected):  # the loop it replaced, written out
+        x, y = p
+        window = blob_id[max(y - 3, 0):y + 4, max(x - 3, 0):x + 4]
+        ys, xs = np.nonzero(window)
+        k = np.argmin((xs + max(x - 3, 0) - x) ** 2 + (ys + max(y - 3, 0) - y) ** 2) if len(xs) else None
+        assert label == (0 if k is None else window[ys[k], xs[k]])
+    np.testing.assert_array_equal(m3d._region_labels(xy, blob_id), expected)

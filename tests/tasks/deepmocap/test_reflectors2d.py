@@ -229,3 +229,68 @@ def test_one_estimate_per_reflector_and_image():
     np.testing.assert_allclose([out["x"][0, 0, 0], out["y"][0, 0, 0]], targets.from_cells(np.array([5.0, 5.0]), 4),
                                atol=0.6)
     np.testing.assert_allclose(out["confidence"][0, 0].values, [0.9, 0.7], atol=0.01)
+
+
+def _reference_peak_sets(confidence, threshold, max_n):
+    """``peak_sets`` as one loop over the maps (the implementation it replaced)."""
+    from scipy import ndimage
+
+    c = np.asarray(confidence, np.float32)
+    is_peak = (c == ndimage.maximum_filter(c, size=(1, 3, 3), mode="constant")) & (c >= threshold)
+    weights = np.clip(np.pad(c, ((0, 0), (1, 1), (1, 1))), 0, None)
+    dy, dx = np.mgrid[-1:2, -1:2]
+    out = []
+    for r in range(len(c)):
+        ys, xs = np.nonzero(is_peak[r])
+        order = np.argsort(-c[r, ys, xs])[:max_n]
+        ys, xs = ys[order], xs[order]
+        w = weights[r, ys[:, None, None] + 1 + dy, xs[:, None, None] + 1 + dx]
+        total = w.sum(axis=(1, 2))
+        cells = np.stack([xs + (w * dx).sum(axis=(1, 2)) / total, ys + (w * dy).sum(axis=(1, 2)) / total], axis=1)
+        out.append((cells.astype(np.float64).reshape(-1, 2), c[r, ys, xs].astype(np.float64)))
+    return out
+
+
+def _reference_suppress_close(xy, confidence, min_distance):
+    keep = np.isfinite(xy[:, 0])
+    for i in np.argsort(-confidence):
+        if not keep[i]:
+            continue
+        close = np.linalg.norm(xy - xy[i], axis=1) < min_distance
+        close[i] = False
+        keep &= ~(close & (confidence <= confidence[i]))
+    return keep
+
+
+@pytest.mark.parametrize("max_n", [1, 3, 40])
+def test_peak_sets_equal_the_per_map_loop_bit_for_bit(max_n):
+    rng = np.random.default_rng(4)
+    maps = rng.uniform(-0.1, 1.0, (12, 32, 32)).astype(np.float16)  # float16, as stored: equal peaks happen
+    maps[3] = 0.0  # a map without peaks
+    maps[5, ::4, ::4] = 0.5  # a map of tied peaks
+    for (cells, values), (ref_cells, ref_values) in zip(r2d.peak_sets(maps, 0.1, max_n),
+                                                        _reference_peak_sets(maps, 0.1, max_n), strict=True):
+        np.testing.assert_array_equal(cells, ref_cells)
+        np.testing.assert_array_equal(values, ref_values)
+
+
+def test_line_integral_sets_pair_every_start_with_every_end_row_major():
+    rng = np.random.default_rng(5)
+    fields = rng.normal(size=(4, 16, 20, 2))
+    starts = [rng.uniform(0, 16, (m, 2)) for m in (2, 0, 3, 1)]
+    ends = [rng.uniform(0, 16, (n, 2)) for n in (3, 2, 0, 2)]
+    for field, a, b, table in zip(fields, starts, ends, r2d.line_integral_sets(fields, starts, ends, 10)):
+        assert table.shape == (len(a), len(b))
+        for i in range(len(a)):
+            for j in range(len(b)):
+                assert table[i, j] == r2d.line_integral(field, a[i], b[j], 10)
+
+
+def test_suppress_close_equals_the_pairwise_loop():
+    rng = np.random.default_rng(6)
+    for _ in range(50):
+        xy = rng.uniform(0, 12, (20, 2))
+        xy[rng.uniform(size=20) < 0.2] = np.nan
+        confidence = np.round(rng.uniform(0, 1, 20), 1)  # ties
+        np.testing.assert_array_equal(r2d.suppress_close(xy, confidence, 3.0),
+                                      _reference_suppress_close(xy, confidence, 3.0))

@@ -128,3 +128,15 @@ def test_only_reflectors_side_by_side_on_the_body_are_neighbours():
     assert table[0, 1] and table[1, 0]  # the forehead patches, 6 cm apart
     assert not table[2, 3] and not table[2, 4]  # the two hands; a hand and its wrist strap (11 cm)
     assert table.diagonal().all() and skeleton.neighbours(names, 0.0) is None
+
+
+def test_rigidity_cost_median_is_numpys_nanmedian_bit_for_bit():
+    from mocapflow.tasks.deepmocap import skeleton as sk
+
+    rng = np.random.default_rng(8)
+    d = rng.uniform(0, 1, (31, 40, 5))
+    d[rng.uniform(size=d.shape) < 0.3] = np.nan
+    d[:, 0, 0] = np.nan
+    d[1:, 0, 0] = 0.25  # a column of one value (odd and even counts follow from the random NaNs)
+    n = np.isfinite(d).sum(0)
+    np.testing.assert_array_equal(sk._nanmedian_first(d, n), np.nanmedian(d, axis=0))
