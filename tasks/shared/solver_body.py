@@ -106,6 +106,23 @@ class SolverBody:
         moved = (m @ local[..., None])[..., 0] + h  # (frame, n, 9, 3)
         return (w[..., None] * moved).sum(-2)  # Eq. of linear blend skinning, as Anny's kernel
 
+    def dense_weights(self, vertices: np.ndarray):
+        """Each chosen vertex's weight on every bone.  (n,) -> (n, bone) tensor"""
+        import torch
+
+        index = torch.from_numpy(np.asarray(vertices, np.int64))
+        out = torch.zeros(len(index), self.n_bones, dtype=torch.float64)
+        return out.scatter_add_(1, self.indices[index], self.weights[index])
+
+    def skin_dense(self, rots, heads, rest_points, rest_heads, dense):
+        """Posed positions of rest points with their bone weights, as ``skin``: sum_k w_k (M_k (x - r_k) + h_k)
+        = (sum_k w_k M_k) x - sum_k w_k (M_k r_k - h_k), two matrix products over the bones (no gather).
+        rest_points (n, 3), dense (n, bone) -> (frame, n, 3)"""
+        frames, bones = rots.shape[:2]
+        blend = (dense @ rots.reshape(frames, bones, 9)).reshape(frames, -1, 3, 3)
+        carried = (rots @ rest_heads[..., None])[..., 0] - heads  # (frame, bone, 3)
+        return (blend @ rest_points[..., None])[..., 0] - dense @ carried
+
 
 @dataclass(frozen=True)
 class BodyFit:
@@ -121,11 +138,12 @@ def posed_vertices(body: SolverBody, fit: BodyFit, vertices: np.ndarray, chunk: 
     with torch.no_grad():
         rest_vertices, rest_heads = body.rest(torch.from_numpy(np.asarray(fit.phenotype, np.float64)))
         out = []
-        index = torch.from_numpy(np.asarray(vertices, np.int64))
+        dense = body.dense_weights(vertices)
+        points = rest_vertices[torch.from_numpy(np.asarray(vertices, np.int64))]
         for s in range(0, fit.root.shape[0], chunk):
             rots, heads = body.kinematics(torch.from_numpy(fit.local[s:s + chunk]),
                                           torch.from_numpy(fit.root[s:s + chunk]), rest_heads)
-            out.append(body.skin(rots, heads, rest_vertices, rest_heads, index).numpy())
+            out.append(body.skin_dense(rots, heads, points, rest_heads, dense).numpy())
     return np.concatenate(out)
 
 

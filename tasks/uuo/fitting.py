@@ -10,6 +10,12 @@ bone, the squared angle for small ones, over its three parameters), zero on fram
 (Eq. 2), the mean squared departure from the anchor's phenotype. Beyond the paper, a ``Floor`` keeps the skin
 above the floor plane (``floor_energy``: the squared depth below it of a fixed set of skin vertices, the soles
 among them, summed per frame). ``minimize`` runs L-BFGS with strong Wolfe line search (§3.6) on any energy of it.
+
+``terms`` states the same energy for the house's Levenberg-Marquardt fitter (tasks/shared/body_fit), which the
+stages use by default: its terms are sums, so the means above become weights (the chamfer's over the samples kept,
+E_Theta's over the held bones' three parameters and the valid frames, E_beta's over the six phenotype values, the
+floor's over the frames). The yaw offset b is not a parameter there: the root's rotation is free per frame, and b
+only changes L-BFGS's path, not the energy.
 """
 
 from __future__ import annotations
@@ -18,10 +24,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mocapflow.tasks.shared import body_fit as lm
 from mocapflow.tasks.shared.solver_body import BodyFit, SolverBody, torch_rodrigues
 from mocapflow.tasks.uuo.matching import evenly, skin_mask
 
 SOLE_HEIGHT_M = 0.04  # rest vertices this low are the soles and toes
+SOLVERS = ("lm", "lbfgs")  # the house's Levenberg-Marquardt fitter, or L-BFGS on the energy (§3.6)
+LM_TOLERANCE = 1e-5  # relative energy decrease at which a Levenberg-Marquardt solve stops
 
 
 @dataclass(frozen=True)
@@ -116,3 +125,33 @@ def minimize(parameters: list, energy, iterations: int) -> float:
         return value
 
     return float(opt.step(closure).detach())
+
+
+@dataclass(frozen=True)
+class Weights:
+    """The energy's weights as the stages state them (the means of ``Fit``'s terms)."""
+
+    data: float  # lambda_3D or lambda_M, on the mean squared distance of the samples kept
+    pose: float  # lambda_Theta
+    shape: float  # lambda_beta
+    floor: float  # on the floor's mean over frames
+
+
+def terms(body: SolverBody, data: lm.Points, anchor: BodyFit, valid: np.ndarray, weights: Weights,
+          floor: Floor | None) -> lm.Terms:
+    """``Fit``'s energy as the body fitter's sums: ``data``'s weight the samples kept (1 or 0), scaled here."""
+    frames = data.target.shape[0]
+    kept = max(float(data.weight.sum()), 1.0)
+    held = 3 * int(body.seen_bones.sum())  # E_Theta: the mean over the seen bones' three parameters, root included
+    points = lm.Points(data.place, data.target, weights.data * data.weight / kept, data.offset)
+    prior = lm.PosePrior(anchor.local, weights.pose * valid.astype(np.float64) / (held * max(valid.sum(), 1.0)),
+                         root=True, form="chord")  # Eq. (5): 2 (1 - cos angle)
+    ground = lm.FloorTerm(floor.height, lm.Places.of_vertices(floor.vertices), weights.floor / frames) \
+        if floor is not None and weights.floor else None
+    return lm.Terms(points, prior, ground, np.asarray(anchor.phenotype, np.float64), weights.shape / 6.0)  # Eq. (2)
+
+
+def solve_lm(body: SolverBody, places: lm.Places, energy: lm.Terms, start: BodyFit, steps: int,
+          skin: lm.Skin | None = None) -> BodyFit:
+    """Levenberg-Marquardt on pose and shape from ``start`` (the body fitter's ``solve_take``)."""
+    return lm.solve_take(body, places, energy, lm.State.of(start), steps, LM_TOLERANCE, skin).result()

@@ -115,6 +115,34 @@ def closest(points: np.ndarray, vertices: np.ndarray, chunk: int = 32) -> tuple[
     return index, ((points - nearest) ** 2).sum(-1)
 
 
+class NearestSkin:
+    """Each frame's closest skin vertex to points given in the skin's own frame, for a skin searched many times
+    (iterated closest points move the points, not the skin): one k-d tree (scipy's cKDTree) over every frame's
+    vertices, the frames set apart along x; a point whose nearest vertex lies in another frame (a point farther
+    from its skin than the gap) is searched among its own frame's vertices.  vertices (frame, vertex, 3)"""
+
+    def __init__(self, vertices: np.ndarray):
+        from scipy.spatial import cKDTree
+
+        self.vertices = vertices
+        self.gap = 4.0 * float(np.ptp(vertices.reshape(-1, 3), axis=0).max()) + 1.0
+        self.shift = np.arange(len(vertices))[:, None] * np.array([self.gap, 0.0, 0.0])  # (frame, 3)
+        self.tree = cKDTree((vertices + self.shift[:, None]).reshape(-1, 3))
+
+    def query(self, points: np.ndarray, frames: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """points (frame', n, 3) of ``frames`` (default: every frame) -> closest vertex (frame', n), squared
+        distance (frame', n)"""
+        frames = np.arange(len(self.vertices)) if frames is None else np.asarray(frames)
+        n_vertex = self.vertices.shape[1]
+        _, flat = self.tree.query(points + self.shift[frames][:, None])
+        index = flat - frames[:, None] * n_vertex
+        stray = (index < 0) | (index >= n_vertex)
+        for f, i in zip(*np.nonzero(stray)):  # beyond the gap: its own frame's vertices, by brute force
+            index[f, i] = int(np.argmin(((self.vertices[frames[f]] - points[f, i]) ** 2).sum(-1)))
+        nearest = np.take_along_axis(self.vertices[frames], index[..., None], 1)
+        return index, ((points - nearest) ** 2).sum(-1)
+
+
 def fit_yaw(markers: np.ndarray, vertices: np.ndarray, yaw: float, iterations: int, keep: float = 0.9,
             keep_rotation: float = 0.9) -> tuple[float, np.ndarray, float]:
     """Iterated closest points with one yaw for the take and a translation per frame.
@@ -131,9 +159,10 @@ def fit_yaw(markers: np.ndarray, vertices: np.ndarray, yaw: float, iterations: i
     rot = yaw_matrix(yaw)
     t = np.nanmedian(markers[seen], axis=0) - np.median(vertices.reshape(-1, 3), axis=0) @ rot.T  # §3.4: medians
     t = np.broadcast_to(t, (len(markers), 3)).copy()
-    t[:, 2] += _best_lift(m, seen, vertices @ rot.T + t[:, None])  # ICP slides slowly along a standing body
+    skin = NearestSkin(vertices)
+    t[:, 2] += _best_lift(m, seen, skin, rot, t)  # ICP slides slowly along a standing body
     for it in range(iterations + 1):
-        nearest, d2 = closest(m, vertices @ rot.T + t[:, None])
+        nearest, d2 = skin.query((m - t[:, None]) @ rot)  # the markers in the skin's frame: v = rot^T (m - t)
         chamfer = float(d2[seen].mean())  # Eq. (1)
         if it == iterations:
             break
@@ -165,14 +194,16 @@ def _yaw_step(m: np.ndarray, v: np.ndarray, use: np.ndarray, per_frame: bool) ->
     return float(np.arctan2((p[:, 0] * q[:, 1] - p[:, 1] * q[:, 0]).sum(), (p[:, :2] * q[:, :2]).sum()))
 
 
-def _best_lift(m: np.ndarray, seen: np.ndarray, placed: np.ndarray, reach: float = 0.6, step: float = 0.03) -> float:
-    """The vertical shift (of a grid) with the least chamfer on a few frames."""
+def _best_lift(m: np.ndarray, seen: np.ndarray, skin: NearestSkin, rot: np.ndarray, t: np.ndarray,
+               reach: float = 0.6, step: float = 0.03) -> float:
+    """The vertical shift (of a grid) of the skin placed by ``rot`` and ``t`` with the least chamfer on a few
+    frames."""
     frames = evenly(np.arange(len(m)), 8)
     lifts = np.arange(-reach, reach + step / 2, step)
     up = np.array([0.0, 0.0, 1.0])
     scores = []
     for lift in lifts:
-        _, d2 = closest(m[frames], placed[frames] + lift * up)
+        _, d2 = skin.query((m[frames] - t[frames, None] - lift * up) @ rot, frames)
         scores.append(np.median(d2[seen[frames]]) if seen[frames].any() else 0.0)
     return float(lifts[int(np.argmin(scores))])
 
@@ -232,9 +263,9 @@ def fit_rigid(markers: np.ndarray, vertices: np.ndarray, rot: np.ndarray, t: np.
     m = np.where(seen[..., None], markers, 0.0)
     rots = np.broadcast_to(rot, (len(markers), 3, 3)).copy()
     t = t.copy()
+    skin = NearestSkin(vertices)
     for _ in range(iterations):
-        placed = np.einsum("fij,fvj->fvi", rots, vertices) + t[:, None]
-        nearest, d2 = closest(m, placed)
+        nearest, d2 = skin.query(np.einsum("fji,fvj->fvi", rots, m - t[:, None]))  # rots^T (m - t)
         v = np.take_along_axis(vertices, nearest[..., None], 1)
         for f in range(len(markers)):
             if not seen[f].any():

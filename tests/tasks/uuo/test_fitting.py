@@ -54,3 +54,16 @@ def test_the_floor_term_lifts_a_sunken_body_onto_the_floor_and_no_higher():
     minimize([fit.root], energy, 50)
     lowest = posed_vertices(solver, fit.result(), index)[..., 2].min(axis=1)
     assert ((lowest > -0.005) & (lowest < 0.0)).all(), lowest  # lifted onto the floor, not above it
+
+
+def test_the_solvers_settings_are_checked():
+    from mocapflow.tasks.uuo.ik import IKConfig, IKError
+    from mocapflow.tasks.uuo.pose_fit import PoseFitError
+
+    with pytest.raises(IKError, match="lbfgs where smooth_weight"):
+        IKConfig(smooth_weight=0.1)  # the smoothing term couples frames: L-BFGS only
+    assert IKConfig(smooth_weight=0.1, solver="lbfgs").solver == "lbfgs"
+    with pytest.raises(PoseFitError, match="solver"):
+        PoseFitConfig(solver="newton")
+    with pytest.raises(PoseFitError, match="steps"):
+        PoseFitConfig(solver="lm", steps=0)

@@ -54,6 +54,23 @@ def test_closest_point_icp_finds_a_planted_yaw_and_shift(body):
     assert chamfer < 1e-5
 
 
+def test_the_nearest_skin_search_finds_what_brute_force_finds_even_far_off():
+    """The k-d tree over every frame's skin (frames set apart) against the brute-force closest points, with points
+    near the skin, far beyond the gap between frames (they would land in another frame) and a subset of frames."""
+    rng = np.random.default_rng(8)
+    vertices = rng.normal(0.0, 0.3, (5, 400, 3))
+    points = vertices[:, rng.choice(400, 30)] + rng.normal(0.0, 0.02, (5, 30, 3))
+    points[1, :4] += [50.0, 0.0, 0.0]  # a ghost a long way off
+    points[3, 2] = [-80.0, 3.0, 1.0]
+    skin = matching.NearestSkin(vertices)
+    index, d2 = skin.query(points)
+    expected, expected_d2 = matching.closest(points, vertices)
+    np.testing.assert_array_equal(index, expected)
+    np.testing.assert_allclose(d2, expected_d2, rtol=1e-12)
+    some = np.array([3, 0])
+    np.testing.assert_array_equal(skin.query(points[some], some)[0], expected[some])
+
+
 def test_the_chamfer_and_the_correspondence_match_hand_computed_values(body):
     b, solver = body
     fit = BodyFit(np.broadcast_to(np.eye(3), (2, len(b.bone_names), 3, 3)).copy(),
