@@ -748,3 +748,20 @@ def energy(body: SolverBody, places: Places, terms: Terms, fit: BodyFit) -> floa
     frames = _frames_of(problem)
     with torch.no_grad():
         return _total(problem, state, _pose(problem, state, problem.rest(state.phenotype), frames), frames)
+
+
+def gradient(body: SolverBody, places: Places, terms: Terms, fit: BodyFit) -> tuple[np.ndarray, np.ndarray]:
+    """The gradient of E (a check on solvers): per frame in the solvers' parameters (each seen bone's world
+    rotation about its head, then the root's head) and in the phenotype.  -> (frame, 3 seen + 3), (6,)"""
+    import torch
+
+    problem = _problem(body, places, terms)
+    state = State.of(fit)
+    frames = _frames_of(problem)
+    with torch.no_grad():
+        rest = problem.rest(state.phenotype, derivatives=True)
+        posed = _pose(problem, state, rest, frames)
+        _, rhs, lever, contacts = _equations(problem, state, rest, posed, frames)
+        _, _, shape = _shape_blocks(problem, rest, posed, frames, lever, contacts)
+    anchor = terms.shape_anchor if terms.shape_anchor is not None else state.phenotype
+    return 2.0 * rhs.numpy(), 2.0 * (shape.sum(0).numpy() + terms.shape_weight * (state.phenotype - anchor))

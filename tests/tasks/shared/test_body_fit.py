@@ -108,6 +108,54 @@ def test_the_solve_ends_at_a_local_minimum_of_every_term(scene):
         assert lm.energy(solver, places, terms, moved) >= best * (1 - 1e-9)
 
 
+def test_the_gradient_is_the_energy_s_own(scene):
+    """Every term on (offset, E_Theta as the chord with the root, the floor with contacts, E_beta): the fitter's
+    gradient against central differences of the energy, for the root's rotation and head, two limb bones' world
+    rotations (about their heads, their children carried along) and the phenotype."""
+    from mocapflow.tasks.shared.kinematics import world_rotations
+
+    solver, truth, vertices, points, start = scene
+    fit = BodyFit(start.local, start.root, np.array([0.37, 0.58, 0.46, 0.43, 0.53, 0.62]))  # off the knots of
+    # Anny's piecewise linear blend shapes, where one-sided and central differences part
+    soles = fitting.floor_vertices(solver.body)
+    height = float(np.median(posed_vertices(solver, fit, soles)[0, :, 2]))  # half the floor's places in contact
+    floor = lm.FloorTerm(height, lm.Places.of_vertices(soles), 5.0)
+    terms = _terms(solver, points + 0.003, truth, offset=0.0095, floor=floor, pose_weight=1e-3, shape_weight=1e-2)
+    places = lm.Places.of_vertices(vertices)
+    pose, shape = lm.gradient(solver, places, terms, fit)
+    seen = np.flatnonzero(solver.seen_bones)
+    world = world_rotations(fit.local, solver.body.bone_parents)
+    eps = 1e-6
+
+    def moved(bone: int, axis: int, step: float) -> BodyFit:
+        delta = np.zeros(3)
+        delta[axis] = step
+        local = fit.local.copy()
+        parent = solver.body.bone_parents[bone]
+        frame = world[0, parent] if bone else np.eye(3)
+        local[0, bone] = rodrigues(frame.T @ delta) @ local[0, bone]  # L_b <- exp(M_parent^T delta) L_b
+        return BodyFit(local, fit.root, fit.phenotype)
+
+    for bone in (0, solver.body.bone("upperarm01.L"), solver.body.bone("lowerleg01.R")):
+        column = 3 * int(np.searchsorted(seen, bone))
+        for axis in range(3):
+            numeric = (lm.energy(solver, places, terms, moved(bone, axis, eps))
+                       - lm.energy(solver, places, terms, moved(bone, axis, -eps))) / (2 * eps)
+            assert pose[0, column + axis] == pytest.approx(numeric, rel=1e-5, abs=1e-9)
+    for axis in range(3):
+        shift = np.zeros((FRAMES, 3))
+        shift[0, axis] = eps
+        numeric = (lm.energy(solver, places, terms, BodyFit(fit.local, fit.root + shift, fit.phenotype))
+                   - lm.energy(solver, places, terms, BodyFit(fit.local, fit.root - shift, fit.phenotype))) / (2 * eps)
+        assert pose[0, 3 * len(seen) + axis] == pytest.approx(numeric, rel=1e-5, abs=1e-9)
+    for k in range(6):
+        step = np.zeros(6)
+        step[k] = 1e-5
+        numeric = (lm.energy(solver, places, terms, BodyFit(fit.local, fit.root, fit.phenotype + step))
+                   - lm.energy(solver, places, terms, BodyFit(fit.local, fit.root, fit.phenotype - step))) / 2e-5
+        assert shape[k] == pytest.approx(numeric, rel=1e-4, abs=1e-7)
+
+
 def test_poses_alone_keep_the_phenotype_and_bad_terms_are_refused(scene):
     solver, truth, vertices, points, start = scene
     places = lm.Places.of_vertices(vertices)
