@@ -228,16 +228,33 @@ def _rest_height(phenotype: Phenotype) -> float:
     return float(np.ptp(_rest(phenotype)["rest_vertices"][:, 2]))
 
 
-def phenotype_for_height(height_m: float, base: Phenotype) -> Phenotype:
-    """``base`` with Anny's height parameter set so that the rest mesh stands ``height_m`` tall.
+HEIGHT_STEPS = 6  # secant steps at most
+HEIGHT_TOLERANCE_M = 1e-6
 
-    The rest mesh is linear in the height parameter (blend shapes), so two evaluations give it exactly.
+
+def phenotype_for_height(height_m: float, base: Phenotype) -> Phenotype:
+    """``base`` with Anny's height parameter set so that the rest mesh stands ``height_m`` tall (to a micrometre).
+
+    The rest mesh is piecewise linear in the height parameter (blend shapes between anchor values) and its height
+    the spread of its vertices, so the line through the two ends is only a start: secant steps finish it.
     """
-    lo, hi = (_rest_height(Phenotype(**{**asdict(base), "height": h})) for h in (0.0, 1.0))
+    def tall(h: float) -> float:
+        return _rest_height(Phenotype(**{**asdict(base), "height": h}))
+
+    lo, hi = tall(0.0), tall(1.0)
     value = (height_m - lo) / (hi - lo)
     if not 0.0 <= value <= 1.0:
         raise MeshBodyError(f"a body {height_m:.3f} m tall is outside what this phenotype reaches "
                             f"({lo:.3f}-{hi:.3f} m); choose a height in that range or another gender or age")
+    slope, error = hi - lo, tall(value) - height_m
+    for _ in range(HEIGHT_STEPS):
+        if abs(error) < HEIGHT_TOLERANCE_M:
+            break
+        step = float(np.clip(value - error / slope, 0.0, 1.0))
+        new_error = tall(step) - height_m
+        if step != value and new_error != error:
+            slope = (new_error - error) / (step - value)
+        value, error = step, new_error
     return Phenotype(**{**asdict(base), "height": float(value)})
 
 

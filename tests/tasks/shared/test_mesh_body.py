@@ -31,6 +31,9 @@ def test_subjects_differ_by_seed_and_repeat_with_it():
     assert a != b and a == mb.random_phenotype(np.random.default_rng(1))
     tall, short = (mb.mesh_body(mb.random_phenotype(np.random.default_rng(5), h)) for h in (1.95, 1.55))
     assert tall.height == pytest.approx(1.95, abs=1e-6) and short.height == pytest.approx(1.55, abs=1e-6)
+    for seed, height in ((8, 1.95), (0, 1.85), (8, 1.70)):  # subjects the line through the ends left 30-50 um off
+        assert mb.mesh_body(mb.random_phenotype(np.random.default_rng(seed), height)).height \
+            == pytest.approx(height, abs=1e-6)
 
 
 def test_the_rest_rotations_give_back_the_rest_mesh_and_a_turn_moves_only_its_limb(body):
