@@ -11,8 +11,8 @@ bone, the squared angle for small ones, over its three parameters), zero on fram
 above the floor plane (``floor_energy``: the squared depth below it of a fixed set of skin vertices, the soles
 among them, summed per frame). ``minimize`` runs L-BFGS with strong Wolfe line search (§3.6) on any energy of it.
 
-``terms`` states the same energy for the house's Levenberg-Marquardt fitter (tasks/shared/body_fit), which the
-stages use by default: its terms are sums, so the means above become weights (the chamfer's over the samples kept,
+``terms`` states the same energy for the house's Levenberg-Marquardt fitter (tasks/shared/body_fit), which inverse
+kinematics and the refinement use by default (the pose fit stays on L-BFGS, measured better): its terms are sums, so the means above become weights (the chamfer's over the samples kept,
 E_Theta's over the held bones' three parameters and the valid frames, E_beta's over the six phenotype values, the
 floor's over the frames). The yaw offset b is not a parameter there: the root's rotation is free per frame, and b
 only changes L-BFGS's path, not the energy.
@@ -152,6 +152,6 @@ def terms(body: SolverBody, data: lm.Points, anchor: BodyFit, valid: np.ndarray,
 
 
 def solve_lm(body: SolverBody, places: lm.Places, energy: lm.Terms, start: BodyFit, steps: int,
-          skin: lm.Skin | None = None) -> BodyFit:
+             skin: lm.Skin | None = None) -> BodyFit:
     """Levenberg-Marquardt on pose and shape from ``start`` (the body fitter's ``solve_take``)."""
     return lm.solve_take(body, places, energy, lm.State.of(start), steps, LM_TOLERANCE, skin).result()

@@ -62,8 +62,8 @@ def inverse_kinematics(body: SolverBody, markers: np.ndarray, vertex: np.ndarray
         seen = np.isfinite(m).all(-1).astype(np.float64)
         data = lm.Points(np.arange(len(labelled)), np.nan_to_num(m), seen, config.offset_m)
         weights = Weights(config.marker_weight, config.pose_weight, config.shape_weight, config.floor_weight)
-        return solve_lm(body, lm.Places.of_vertices(vertex[labelled]), terms(body, data, anchor, valid, weights, floor),
-                     start, config.steps)
+        return solve_lm(body, lm.Places.of_vertices(vertex[labelled]),
+                        terms(body, data, anchor, valid, weights, floor), start, config.steps)
     seen = torch.from_numpy(np.isfinite(m).all(-1).astype(np.float64))  # (frame, labelled)
     target = torch.from_numpy(np.nan_to_num(m))
     index = torch.from_numpy(vertex[labelled])
