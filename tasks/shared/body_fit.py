@@ -127,11 +127,7 @@ def check_terms(terms: Terms, places: Places, frames: int) -> None:
 
 def place_weights(body: SolverBody, places: Places) -> np.ndarray:
     """Skinning weights of each place: the blend of its vertices' Anny weights.  -> (place, bone)"""
-    w = body.weights.numpy()[places.vertices] * places.blend[..., None]  # (place, 3, 9)
-    out = np.zeros((len(places.vertices), body.n_bones))
-    rows = np.broadcast_to(np.arange(len(places.vertices))[:, None, None], w.shape)
-    np.add.at(out, (rows.ravel(), body.indices.numpy()[places.vertices].ravel()), w.ravel())
-    return out
+    return sum(places.blend[:, j, None] * body.dense_weights(places.vertices[:, j]).numpy() for j in range(3))
 
 
 def _below(body: SolverBody) -> np.ndarray:

@@ -64,7 +64,7 @@ def fit_pose(body: SolverBody, markers: np.ndarray, start: BodyFit, anchor: Body
     index = evenly(chain, config.vertices)
     core = np.isin(index, part_vertices(body.body, ("torso", "hips", "head")))
     seen = np.isfinite(markers).all(-1)
-    target = torch.from_numpy(np.where(seen[..., None], markers, 0.0))
+    filled = np.where(seen[..., None], markers, 0.0)
     trunk = [config.core_outlier_m] * (config.core_rounds if core.sum() >= 10 else 0)
     bounds = trunk + list(np.geomspace(*config.outlier_m, config.rounds))
     places = lm.Places.of_vertices(index)
@@ -72,18 +72,17 @@ def fit_pose(body: SolverBody, markers: np.ndarray, start: BodyFit, anchor: Body
     fit = Fit(body, start, anchor, valid) if config.solver == "lbfgs" else None
     current = start
     for r, bound in enumerate(bounds):
-        nearest, d2 = closest(np.where(seen[..., None], markers, 0.0), posed_vertices(body, current, index))
+        nearest, d2 = closest(filled, posed_vertices(body, current, index))
         keep = seen & (d2 < bound ** 2)
         if r < len(trunk):  # the trunk first: samples whose closest vertex is on it, within the trunk's bound
             keep &= core[nearest]
         if fit is None:  # Eq. (1), (4) and the floor as the body fitter's sums
-            data = lm.Points(nearest, np.where(seen[..., None], markers, 0.0), keep.astype(np.float64),
-                             config.offset_m)
+            data = lm.Points(nearest, filled, keep.astype(np.float64), config.offset_m)
             weights = Weights(config.chamfer_weight, config.pose_weight, config.shape_weight, config.floor_weight)
             current = solve_lm(body, places, terms(body, data, anchor, valid, weights, floor), current, config.steps,
                                skin)
         else:
-            _lbfgs_round(body, fit, target, keep, index[nearest], config, floor)
+            _lbfgs_round(body, fit, torch.from_numpy(filled), keep, index[nearest], config, floor)
             current = fit.result()
     return current
 
