@@ -35,8 +35,8 @@ def main() -> None:
                                       "body": "mesh", "views": 1}, "probe", lambda p: p)
     rig = synth.build_rig(spec, None)
     layout = uuo.layout(rig.body, np.random.default_rng([args.seed, 3]), args.markers, args.part)
-    paths = uuo.marker_paths(rig.body, layout, rig.take.posed.vertices[:rig.n_frames])
-    captured = uuo.capture(paths, uuo.MarkerFaults(dropout=0.002, ghosts=3), np.random.default_rng([args.seed, 4]))
+    captured = uuo.record(rig.body, layout, rig.take.posed.vertices[:rig.n_frames], uuo.MarkerFaults(dropout=0.002),
+                          np.random.default_rng([args.seed, 4]), spec.fps)  # the studio's optical faults, and dropouts
     take = uuo.marker_dataset(rig.body, layout, captured, rig.take, spec.fps, 0, rig.n_frames)
     segments = segmentation.rigid_segments(take, segmentation.SegmentConfig())
     body_prior = prior.simulated_prior(take, prior.SimulatedPriorConfig(rotation_deg=args.rotation_deg,

@@ -19,13 +19,16 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def pytest_sessionstart(session):
-    """Under pytest-xdist, build the body model's caches (Anny's model data, warp's skinning kernel) once in the
-    controller before the workers start, so that they never write them at the same time on a fresh machine."""
+    """Under pytest-xdist, build the body model's caches (Anny's model data, warp's skinning kernel and the marker
+    takes' sight-line kernel) once in the controller before the workers start, so that they never write them at
+    the same time on a fresh machine."""
     if getattr(session.config.option, "numprocesses", None) and not hasattr(session.config, "workerinput"):
         from mocapflow.tasks.shared.mesh_body import Phenotype, mesh_body, pose_mesh
+        from mocapflow.tasks.studio.sight_lines import cameras_seeing
 
         body = mesh_body(Phenotype())
-        pose_mesh(body, np.tile(np.eye(3), (1, len(body.bone_names), 1, 1)), np.zeros((1, 3)))
+        posed = pose_mesh(body, np.tile(np.eye(3), (1, len(body.bone_names), 1, 1)), np.zeros((1, 3)))
+        cameras_seeing(posed.vertices, body.faces, posed.vertices[:, :1], np.array([[0.0, -3.0, 1.0]]))
 PLUGINS = ROOT / "tests" / "plugins"
 
 

@@ -4,14 +4,19 @@
       uuo:
         kind: studio_markers
         defaults: {frames: 100, fps: 30.0, start_s: 0.5}
-        markers: {count: 40, part: body, dropout: 0.002, ghosts: 3}   # occlusion: true loses what the cameras miss
+        markers: {count: 40, part: body}   # as an optical system records; occlusion: false for all-visible takes
         video: {width: 640, height: 480}   # optional: a colour video of the take too (a monocular prior's input)
         sequences:
           walk_body40: {motion: ../shared/data/motions/cmu_12_01_walk.bvh, seed: 9101}
           knee_left_leg: {motion: jumping_jack, seed: 9104, markers: {count: 20, part: left_leg}}
 
 A sequence's (and the dataset's) ``markers`` say how many markers, on which part, and what goes wrong while
-recording (tasks/studio/uuo_takes.py); the take is the studio's (tasks/studio/take.py). With ``video`` (a mapping
+recording, the fields of tasks/studio/uuo_takes.py's MarkerFaults. By default a take is what an optical system
+records: a marker is lost where fewer than two of the eight optical cameras see it past the body (``occlusion``),
+its trajectory breaks now and then (``break_per_s``, per marker) and comes back under a new id after any loss
+(``fragment``), and short-lived ghosts appear near the body (``ghosts_per_s``, per second of take); ``dropout``
+adds hidden runs at random. ``occlusion: false, break_per_s: 0, ghosts_per_s: 0`` is the all-visible take of one
+id per marker. The take is the studio's (tasks/studio/take.py). With ``video`` (a mapping
 of tasks/studio/video.py's VideoSpec fields, ``{}`` for its defaults) the take is also filmed in colour by one
 still camera, as the variable ``video`` (frame, y, x, rgb), for the monocular prior (tasks/uuo/monocular.py).
 """
@@ -35,6 +40,7 @@ from mocapflow.tasks.studio import uuo_takes as uuo
 from mocapflow.tasks.studio.video import VideoError, VideoSpec, film
 
 MARKER_DEFAULTS = {"count": 40, "part": "body"}
+RENAMED = {"ghosts": "ghosts_per_s, a rate: ghost trajectories per second of take (0 for none)"}
 _CAPTURES: BoundedCache[str, tuple] = BoundedCache(4)  # fingerprint -> (layout, captured), this process
 
 
@@ -43,6 +49,8 @@ def marker_options(raw: Mapping[str, Any] | None, where: str) -> tuple[int, str,
     raw = {**MARKER_DEFAULTS, **(raw or {})}
     fields = {f.name: f for f in dataclasses.fields(uuo.MarkerFaults)}
     for key in raw:
+        if key in RENAMED:
+            raise CatalogError(f"{where}: markers field {key!r} is now {RENAMED[key]}")
         if key not in fields and key not in MARKER_DEFAULTS:
             known = sorted(set(fields) | set(MARKER_DEFAULTS))
             raise CatalogError(f"{where}: unknown markers field {key!r}{did_you_mean(key, known)}; fields: {known}")
@@ -105,11 +113,8 @@ class StudioMarkersReader:
 
         def record():
             layout = uuo.layout(shot.body, np.random.default_rng([shot.spec.seed, 3]), count, part)
-            vertices = shot.mesh.posed.vertices[:shot.n_frames]
-            paths = uuo.marker_paths(shot.body, layout, vertices)
-            seen_by = uuo.cameras_seeing(vertices, shot.body.faces, paths, uuo.optical_cameras()) \
-                if faults.occlusion else None
-            return layout, uuo.capture(paths, faults, np.random.default_rng([shot.spec.seed, 4]), seen_by)
+            return layout, uuo.record(shot.body, layout, shot.mesh.posed.vertices[:shot.n_frames], faults,
+                                      np.random.default_rng([shot.spec.seed, 4]), shot.spec.fps)
 
         layout, captured = _CAPTURES.get_or_make(seq.fingerprint, record)
         out = uuo.marker_dataset(shot.body, layout, captured, shot.mesh, shot.spec.fps, start, stop)

@@ -160,7 +160,7 @@ def anny_model():
         import warp
 
         warp.config.log_level = warp.LOG_ERROR  # Anny initializes warp on import; keep its banner off the console
-        with _without_cuda_driver_warning():
+        with without_cuda_driver_warning():
             warp.init()  # here, not in Anny's import: on a machine without a GPU its CUDA driver warning is dropped
         import anny
         import torch
@@ -176,7 +176,7 @@ CUDA_DRIVER_WARNING = "Could not find or load the NVIDIA CUDA driver"  # warp's 
 
 
 @contextmanager
-def _without_cuda_driver_warning():
+def without_cuda_driver_warning():
     """Hold what native code writes to stderr (file descriptor 2) while the block runs, then write it back except
     warp's line saying no CUDA driver was found (expected on a CPU machine; Anny skins on the CPU there). Any other
     line, a real error among them, still reaches stderr."""

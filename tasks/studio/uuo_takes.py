@@ -3,13 +3,22 @@
 A ``MarkerLayout`` is a set of points on the skin, given as (face, barycentric) and 9.5 mm off the surface
 along its normal, spread uniformly by area over the whole body or one part (the paper's partial layouts: a
 leg, an arm, a shoulder). ``marker_paths`` tracks them through a skinned take. ``capture`` then records them
-the way an optical system does when nobody labels its output: each sample jittered (0.5-1 mm), markers
-hidden for runs of frames (a run of ``gap_frames`` starts on any frame with probability ``dropout``) and, with
-``occlusion``, on every frame fewer than two of the studio's optical cameras (``optical_cameras``) see it past
-the body, a
-marker that reappears after a gap under a new trajectory id (fragmentation), a few ghost points near the
-body, and the ids in an order that says nothing. ``source`` keeps, per id, the true marker it follows
-(-1 for a ghost): the ground truth a labelling is scored against.
+the way an optical system does when nobody labels its output (``record`` does both, counting the cameras):
+
+- each sample jittered (0.5-1 mm);
+- occlusion (``occlusion``, on by default): a marker is lost on every frame fewer than two of the studio's eight
+  optical cameras (``optical_cameras``, a ring round the capture area) see it past the body, as a marker system
+  needs two rays to triangulate; where the count hovers at two the marker flickers in and out;
+- breaks (``break_per_s``): a trajectory lost for one frame, as trackers lose one at the edge of visibility or
+  where two markers pass close;
+- with ``fragment`` (default), a marker seen again after any loss comes back under a new trajectory id, so
+  occlusion's flicker and the breaks leave short fragments, as raw optical data has them;
+- optionally, hidden runs of ``gap_frames`` started at random (``dropout``);
+- ghosts (``ghosts_per_s``): short-lived spurious trajectories near the body, each riding near a true marker;
+- the ids in an order that says nothing.
+
+``source`` keeps, per id, the true marker it follows (-1 for a ghost): the ground truth a labelling is scored
+against. ``MarkerFaults.clean()`` records every marker on every frame under one id each, without ghosts.
 """
 
 from __future__ import annotations
@@ -25,6 +34,7 @@ from mocapflow.tasks.shared.mesh_body import MeshBody, random_surface_points
 from mocapflow.tasks.studio.mesh_render import surface_points
 
 MARKER_OFFSET_M = 0.0095  # a 9.5 mm marker's centre above the skin
+GHOST_NEAR_M = 0.05  # a ghost rides at least this far from its true marker (closer, a tracker takes it for the marker)
 
 
 class MarkerTakeError(ValueError):
@@ -41,17 +51,24 @@ class MarkerLayout:
 
 @dataclass(frozen=True)
 class MarkerFaults:
-    """What goes wrong while recording (UUO appendix E.3)."""
+    """What goes wrong while recording (UUO appendix E.3); by default, what an optical system's raw data has.
+
+    The rates are per second of take, so a longer take has proportionally more ghosts and breaks. Their defaults
+    are estimates of raw, uncleaned optical data, not measurements (docs/studio.md, the marker takes): a couple of
+    ghost trajectories a second, living 0.1-0.5 s at 30 frames/s, and one break in ten seconds per marker on top
+    of the occlusion's own losses.
+    """
 
     jitter_mm: tuple[float, float] = (0.5, 1.0)  # each marker's noise sigma, drawn in this range
+    occlusion: bool = True  # a marker seen by fewer than ``min_cameras`` of the optical cameras is lost
+    min_cameras: int = 2  # (an optical system triangulates a marker from two cameras or more)
+    break_per_s: float = 0.1  # per marker and second: its trajectory is lost for one frame, then goes on
+    fragment: bool = True  # a marker seen again after any loss comes back under a new id
+    ghosts_per_s: float = 2.0  # ghost trajectories per second of take, each near a true marker
+    ghost_frames: tuple[int, int] = (3, 15)  # how long a ghost lives
+    ghost_reach_m: float = 0.3  # how far from its true marker a ghost rides (at least 5 cm)
     dropout: float = 0.0  # per-frame probability that a seen marker starts a hidden run
     gap_frames: int = 10  # frames a hidden run lasts
-    fragment: bool = True  # a marker seen again after a gap comes back under a new id
-    ghosts: int = 0  # ghost points in the take
-    ghost_frames: tuple[int, int] = (3, 15)  # how long a ghost lives
-    ghost_reach_m: float = 0.3  # how far from a true marker a ghost appears
-    occlusion: bool = False  # a marker seen by fewer than ``min_cameras`` of the optical cameras is lost
-    min_cameras: int = 2  # (an optical system triangulates a marker from two cameras or more)
 
     def __post_init__(self):
         lo, hi = self.jitter_mm
@@ -62,9 +79,20 @@ class MarkerFaults:
         if self.min_cameras < 1:
             raise MarkerTakeError(f"min_cameras must be >= 1 (a marker is triangulated from cameras), got "
                                   f"{self.min_cameras}")
-        if self.gap_frames < 1 or self.ghosts < 0 or not 1 <= self.ghost_frames[0] <= self.ghost_frames[1]:
+        if not (self.ghosts_per_s >= 0 and self.break_per_s >= 0):  # (NaN refused too)
+            raise MarkerTakeError(f"ghosts_per_s ({self.ghosts_per_s}) and break_per_s ({self.break_per_s}) are "
+                                  f"rates per second, >= 0")
+        if self.gap_frames < 1 or not 1 <= self.ghost_frames[0] <= self.ghost_frames[1]:
             raise MarkerTakeError(f"gap_frames ({self.gap_frames}) and ghost_frames ({self.ghost_frames}) must be "
-                                  f">= 1 and ghosts ({self.ghosts}) >= 0")
+                                  f">= 1, ghost_frames a range low <= high")
+        if not self.ghost_reach_m >= GHOST_NEAR_M:
+            raise MarkerTakeError(f"ghost_reach_m must be >= {GHOST_NEAR_M} m (a ghost rides at least that far from "
+                                  f"its marker), got {self.ghost_reach_m}")
+
+    @classmethod
+    def clean(cls, **changes) -> MarkerFaults:
+        """Jitter only (with ``changes``): every marker seen on every frame under one id, no ghost."""
+        return cls(**{"occlusion": False, "break_per_s": 0.0, "ghosts_per_s": 0.0, **changes})
 
 
 @dataclass(frozen=True)
@@ -99,33 +127,46 @@ def optical_cameras(count: int = 8, radius_m: float = 3.5, heights_m: tuple[floa
 def cameras_seeing(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, cameras: np.ndarray,
                    tolerance_m: float = 2e-3) -> np.ndarray:
     """How many cameras see each marker: the body hides no part of the line from the camera to the marker.
-    vertices (frame, vertex, 3), faces (face, 3), points (frame, marker, 3), cameras (camera, 3) -> (frame, marker)"""
-    from mocapflow.tasks.studio.mesh_render import MeshScene
+    vertices (frame, vertex, 3), faces (face, 3), points (frame, marker, 3), cameras (camera, 3) -> (frame, marker)
 
-    count = np.zeros(points.shape[:2], np.int64)
-    for f in range(len(points)):
-        scene = MeshScene(vertices[f], faces)
-        for cam in cameras:
-            ray = points[f] - cam
-            dist = np.linalg.norm(ray, axis=1)
-            _, _, t = scene.cast(np.broadcast_to(cam, ray.shape), ray / dist[:, None])
-            count[f] += t >= dist - tolerance_m
-    return count
+    One mesh refitted frame after frame and one ray query per camera and marker (sight_lines.py): a 300-frame
+    take of 40 markers and 8 cameras in well under a second."""
+    from mocapflow.tasks.studio import sight_lines
+
+    return sight_lines.cameras_seeing(vertices, faces, points, cameras, tolerance_m)
+
+
+def record(body: MeshBody, markers: MarkerLayout, vertices: np.ndarray, faults: MarkerFaults,
+           rng: np.random.Generator, fps: float, cameras: np.ndarray | None = None) -> CapturedMarkers:
+    """A take's markers recorded under ``faults``: their paths on the posed meshes (frame, vertex, 3), with
+    ``faults.occlusion`` the cameras seeing them counted (``optical_cameras()`` unless ``cameras`` are given), then
+    captured at ``fps`` frames a second."""
+    paths = marker_paths(body, markers, vertices)
+    seen_by = cameras_seeing(vertices, body.faces, paths, optical_cameras() if cameras is None else cameras) \
+        if faults.occlusion else None
+    return capture(paths, faults, rng, seen_by, fps=fps)
 
 
 def capture(truth: np.ndarray, faults: MarkerFaults, rng: np.random.Generator,
-            cameras_seen: np.ndarray | None = None) -> CapturedMarkers:
+            cameras_seen: np.ndarray | None = None, *, fps: float | None = None) -> CapturedMarkers:
     """The unlabelled recording of true marker paths (frame, marker, 3) under ``faults``; with
-    ``faults.occlusion``, ``cameras_seen`` (frame, marker) counts the cameras seeing each marker (cameras_seeing)."""
+    ``faults.occlusion``, ``cameras_seen`` (frame, marker) counts the cameras seeing each marker (cameras_seeing);
+    with rates (``break_per_s``, ``ghosts_per_s``), ``fps`` is the take's frame rate."""
     n_frames, n_markers, _ = truth.shape
+    if (faults.break_per_s > 0 or faults.ghosts_per_s > 0) and not (fps is not None and fps > 0):
+        raise MarkerTakeError(f"break_per_s and ghosts_per_s are rates per second: capture needs the take's frame "
+                              f"rate (fps > 0), got fps={fps}")
     sigma = rng.uniform(*faults.jitter_mm, n_markers) / 1000.0
     seen = _visibility(n_frames, n_markers, faults, rng)  # (frame, marker)
     if faults.occlusion:
         if cameras_seen is None or cameras_seen.shape != (n_frames, n_markers):
             raise MarkerTakeError(f"occlusion needs how many cameras see each marker per frame, ({n_frames}, "
-                                  f"{n_markers}); got {None if cameras_seen is None else cameras_seen.shape}")
+                                  f"{n_markers}); got {None if cameras_seen is None else cameras_seen.shape} "
+                                  f"(cameras_seeing, or record; occlusion=False for the all-visible take)")
         seen &= cameras_seen >= faults.min_cameras
     noisy = truth + rng.standard_normal(truth.shape) * sigma[None, :, None]
+    if faults.break_per_s > 0:
+        seen &= ~_breaks(n_frames, n_markers, faults.break_per_s / fps, rng)
     columns, source = [], []
     for m in range(n_markers):
         for start, stop in _runs(seen[:, m]) if faults.fragment else [(0, n_frames)]:
@@ -135,12 +176,21 @@ def capture(truth: np.ndarray, faults: MarkerFaults, rng: np.random.Generator,
             column[keep] = noisy[keep, m]
             columns.append(column)
             source.append(m)
-    for _ in range(faults.ghosts):
-        columns.append(_ghost(truth, faults, rng))
-        source.append(-1)
+    if faults.ghosts_per_s > 0 and n_markers:
+        for _ in range(ghost_count(faults.ghosts_per_s * n_frames / fps, rng)):
+            columns.append(_ghost(truth, faults, rng))
+            source.append(-1)
     order = rng.permutation(len(columns))  # ids carry no label
     positions = np.stack(columns, axis=1)[:, order] if columns else np.zeros((n_frames, 0, 3))
     return CapturedMarkers(positions, np.asarray(source, np.int64)[order], truth)
+
+
+def ghost_count(expected: float, rng: np.random.Generator) -> int:
+    """The ghosts of a take expected to have ``expected`` (rate x length): its whole part, and one more with the
+    probability of its fraction, so that the count follows the take's length at the rate, never more than one off."""
+    expected = round(expected, 9)  # 1.25 ghosts/s x 0.8 s is one ghost, not 0.9999999
+    whole = int(np.floor(expected))
+    return whole + int(rng.random() < expected - whole)
 
 
 def _visibility(n_frames: int, n_markers: int, faults: MarkerFaults, rng: np.random.Generator) -> np.ndarray:
@@ -153,6 +203,14 @@ def _visibility(n_frames: int, n_markers: int, faults: MarkerFaults, rng: np.ran
     return seen
 
 
+def _breaks(n_frames: int, n_markers: int, per_frame: float, rng: np.random.Generator) -> np.ndarray:
+    """(frame, marker) bool: the frames a trajectory breaks on, each with probability ``per_frame``; never the first
+    or the last frame (a break there would cut nothing off)."""
+    lost = rng.random((n_frames, n_markers)) < per_frame
+    lost[:1] = lost[-1:] = False
+    return lost
+
+
 def _runs(seen: np.ndarray) -> list[tuple[int, int]]:
     """[start, stop) of each run of True."""
     edges = np.diff(np.concatenate([[0], seen.astype(np.int8), [0]]))
@@ -160,16 +218,17 @@ def _runs(seen: np.ndarray) -> list[tuple[int, int]]:
 
 
 def _ghost(truth: np.ndarray, faults: MarkerFaults, rng: np.random.Generator) -> np.ndarray:
-    """A spurious point living a few frames near a random true marker, drifting slowly.  # (frame, 3)"""
+    """A spurious point living a few frames near a random true marker (5 cm to ``ghost_reach_m`` from it), riding
+    along with it as a reflection on the body does and drifting slowly off.  # (frame, 3)"""
     n_frames = truth.shape[0]
     life = int(rng.integers(faults.ghost_frames[0], faults.ghost_frames[1] + 1))
     start = int(rng.integers(0, max(n_frames - life, 0) + 1))
-    near = truth[start, int(rng.integers(truth.shape[1]))]
+    near = int(rng.integers(truth.shape[1]))
     direction = rng.standard_normal(3)
-    place = near + direction / np.linalg.norm(direction) * rng.uniform(0.05, faults.ghost_reach_m)
+    offset = direction / np.linalg.norm(direction) * rng.uniform(GHOST_NEAR_M, faults.ghost_reach_m)
     column = np.full((n_frames, 3), np.nan)
     stop = min(start + life, n_frames)
-    column[start:stop] = place + np.cumsum(rng.normal(0, 0.002, (stop - start, 3)), axis=0)
+    column[start:stop] = truth[start:stop, near] + offset + np.cumsum(rng.normal(0, 0.002, (stop - start, 3)), axis=0)
     return column
 
 

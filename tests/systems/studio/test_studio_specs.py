@@ -11,12 +11,14 @@ import pytest
 import xarray as xr
 
 from conftest import SHARED, last_json, mocapflow, read_artifacts
-from mocapflow.pipeline.errors import InputError, InputWarning
+from mocapflow.pipeline.errors import CatalogError, InputError, InputWarning
 from mocapflow.pipeline.hashing import digest
+from mocapflow.systems.studio.film_uuo import marker_options
 from mocapflow.systems.studio.specs import LATER_FIELDS, check_in_view, fingerprint, make_spec
 from mocapflow.tasks.studio.cameras import layout as camera_layout
 from mocapflow.tasks.shared.body import JOINT_INDEX, Subject
 from mocapflow.tasks.studio import bvh
+from mocapflow.tasks.studio.uuo_takes import MarkerFaults
 from motion_files import USER_MAP, mixamo_text
 from mocapflow.tasks.studio.synth import STUDIO_VERSION, SequenceSpec, build_rig, synthesize
 
@@ -176,10 +178,11 @@ datasets:
   uuo:
     kind: studio_markers
     defaults: {{frames: 12, views: 1}}
-    markers: {{count: 30, dropout: 0.02, ghosts: 2}}
+    markers: {{count: 30, dropout: 0.02, ghosts_per_s: 5.0}}   # occluded, broken, 2 ghosts in 0.4 s
     sequences:
       walk: {{motion: {shared}/motions/cmu_12_01_walk.bvh, seed: 8}}
-      arm: {{motion: elbow_flexion, seed: 9, markers: {{count: 12, part: right_arm, dropout: 0.0, ghosts: 0}}}}
+      arm: {{motion: elbow_flexion, seed: 9, markers: {{count: 12, part: right_arm, dropout: 0.0, occlusion: false,
+                                                      break_per_s: 0.0, ghosts_per_s: 0.0}}}}
 stages:
   markers: {{task: ingest_markers, dataset: uuo}}
   segments: {{task: rigid_segments, inputs: [markers]}}
@@ -208,9 +211,23 @@ def test_unlabelled_marker_takes_on_the_mesh_body_run_through_the_engine(tmp_pat
     assert arm["position"].shape == (12, 12, 3) and not np.isnan(arm["position"]).any()
     assert walk["gt_joints"].shape == (12, 20, 3) and walk["gt_bone_rotations"].shape == (12, 104, 4)
     assert last_json(mocapflow("run", "--json", cwd=tmp_path))["executed"] == []
-    (tmp_path / "catalog.yaml").write_text(MARKER_CATALOG.format(shared=SHARED).replace("ghosts: 2", "ghost: 2"))
+    (tmp_path / "catalog.yaml").write_text(MARKER_CATALOG.format(shared=SHARED).replace("ghosts_per_s", "ghost_per_s"))
     proc = mocapflow("run", cwd=tmp_path, check=False)
-    assert proc.returncode == 2 and "unknown markers field 'ghost' (did you mean 'ghosts'?)" in proc.stderr
+    assert proc.returncode == 2 and "unknown markers field 'ghost_per_s' (did you mean 'ghosts_per_s'?)" in proc.stderr
+
+
+def test_marker_options_default_to_an_optical_systems_faults_and_keep_the_all_visible_take():
+    count, part, faults = marker_options(None, "uuo.markers")
+    assert (count, part) == (40, "body") and faults == MarkerFaults()
+    assert faults.occlusion and (faults.ghosts_per_s, faults.break_per_s, faults.fragment) == (2.0, 0.1, True)
+    _, _, visible = marker_options({"count": 12, "occlusion": False, "break_per_s": 0, "ghosts_per_s": 0}, "seq")
+    assert visible == MarkerFaults.clean() and isinstance(visible.ghosts_per_s, float)
+    _, _, rated = marker_options({"ghosts_per_s": 3.5, "break_per_s": 0.25, "ghost_frames": [2, 6]}, "seq")
+    assert (rated.ghosts_per_s, rated.break_per_s, rated.ghost_frames, rated.occlusion) == (3.5, 0.25, (2, 6), True)
+    with pytest.raises(CatalogError, match=r"seq: markers field 'ghosts' is now ghosts_per_s, a rate"):
+        marker_options({"ghosts": 3}, "seq")
+    with pytest.raises(CatalogError, match=r"seq: ghosts_per_s \(-1.0\) and break_per_s \(0.1\) are rates"):
+        marker_options({"ghosts_per_s": -1}, "seq")
 
 
 def test_a_joint_map_file_is_read_into_the_spec_and_drives_the_retargeting(tmp_path):

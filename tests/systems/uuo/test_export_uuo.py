@@ -30,7 +30,8 @@ def take():
     rig = build_rig(SequenceSpec("side_reaches", frames=12, seed=35, body="mesh", views=1))
     layout = uuo.layout(rig.body, np.random.default_rng(1), 15)
     rec = uuo.capture(uuo.marker_paths(rig.body, layout, rig.take.posed.vertices[:12]),
-                      uuo.MarkerFaults(dropout=0.05, ghosts=2), np.random.default_rng(2))
+                      uuo.MarkerFaults.clean(dropout=0.05, ghosts_per_s=5.0), np.random.default_rng(2),
+                      fps=30.0)  # 12 frames, 0.4 s: two ghosts
     markers = uuo.marker_dataset(rig.body, layout, rec, rig.take, 30.0, 0, 12)
     body, solver = solve._bodies(markers.attrs["phenotype"])
     world = Rotation.from_quat(markers.gt_bone_rotations.values.reshape(-1, 4)).as_matrix().reshape(12, -1, 3, 3)

@@ -20,7 +20,7 @@ datasets:
   uuo:
     kind: studio_markers
     defaults: {{frames: 10, views: 1}}
-    markers: {{count: 30, dropout: 0.0, ghosts: 0}}
+    markers: {{count: 30, occlusion: false, break_per_s: 0.0, ghosts_per_s: 0.0}}
     video: {video}
     sequences:
       reach: {{motion: side_reaches, seed: 4}}

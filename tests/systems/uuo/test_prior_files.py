@@ -98,7 +98,7 @@ def test_a_takes_prior_file_becomes_a_body_prior_through_the_engine(tmp_path):
     rig = build_rig(SequenceSpec("side_reaches", frames=24, seed=34, body="mesh", views=1))
     layout = uuo.layout(rig.body, np.random.default_rng(1), 20)
     take = uuo.marker_dataset(rig.body, layout, uuo.capture(uuo.marker_paths(rig.body, layout,
-                              rig.take.posed.vertices[:24]), uuo.MarkerFaults(), np.random.default_rng(2)),
+                              rig.take.posed.vertices[:24]), uuo.MarkerFaults.clean(), np.random.default_rng(2)),
                               rig.take, 30.0, 0, 24)
     (tmp_path / "takes").mkdir()
     (tmp_path / "priors").mkdir()

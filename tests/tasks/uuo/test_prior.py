@@ -17,7 +17,7 @@ from mocapflow.tasks.uuo import prior
 def take():
     rig = build_rig(SequenceSpec("side_reaches", frames=40, seed=31, body="mesh", views=1))
     layout = uuo.layout(rig.body, np.random.default_rng(1), 30)
-    rec = uuo.capture(uuo.marker_paths(rig.body, layout, rig.take.posed.vertices[:40]), uuo.MarkerFaults(),
+    rec = uuo.capture(uuo.marker_paths(rig.body, layout, rig.take.posed.vertices[:40]), uuo.MarkerFaults.clean(),
                       np.random.default_rng(2))
     return uuo.marker_dataset(rig.body, layout, rec, rig.take, 30.0, 0, 40)
 

@@ -14,7 +14,7 @@ from mocapflow.tasks.uuo import prior
 def take():
     rig = build_rig(SequenceSpec("side_reaches", frames=30, seed=33, body="mesh", views=1))
     layout = uuo.layout(rig.body, np.random.default_rng(1), 20)
-    rec = uuo.capture(uuo.marker_paths(rig.body, layout, rig.take.posed.vertices[:30]), uuo.MarkerFaults(),
+    rec = uuo.capture(uuo.marker_paths(rig.body, layout, rig.take.posed.vertices[:30]), uuo.MarkerFaults.clean(),
                       np.random.default_rng(2))
     return uuo.marker_dataset(rig.body, layout, rec, rig.take, 30.0, 0, 30)
 

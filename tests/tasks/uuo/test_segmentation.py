@@ -42,7 +42,7 @@ def test_markers_on_the_mesh_body_group_by_what_moves_rigidly_together():
     rig = build_rig(SequenceSpec("jumping_jack", frames=45, seed=14, body="mesh", views=1, variation=1.0))
     layout = uuo.layout(rig.body, np.random.default_rng(2), 40)
     paths = uuo.marker_paths(rig.body, layout, rig.take.posed.vertices[:45])
-    rec = uuo.capture(paths, uuo.MarkerFaults(), np.random.default_rng(3))
+    rec = uuo.capture(paths, uuo.MarkerFaults.clean(), np.random.default_rng(3))
     groups = seg.segment(rec.positions, seg.SegmentConfig())
     truth = 1000 * seg.distance_spread(paths[:, rec.source], 10, 1.0)  # mm, without the capture's noise
     same = groups[:, None] == groups[None, :]
