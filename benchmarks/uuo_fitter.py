@@ -1,9 +1,10 @@
 """UUO's solver on the house's Levenberg-Marquardt body fitter against L-BFGS, on a tuning split, and the choice.
 
 A tuning split of procedural exercises (never the CMU clips of the held-out split, nor their motions: no walk,
-jumping jack, squat, jog or knee raise), one subject seed each, 40 markers on the body with ghosts and dropouts,
-the realistic simulated prior; every take through the stages as a catalog runs them (four root-yaw hypotheses,
-the best refined), once per solver, one thread:
+jumping jack, squat, jog or knee raise), one subject seed each, 40 markers on the body recorded as the studio
+records them by default (occlusion, breaks, ghosts) with the held-out split's dropouts, the realistic simulated
+prior; every take through the stages as a catalog runs them (four root-yaw hypotheses, the best refined), once per
+solver, one thread:
 
     python benchmarks/uuo_fitter.py [--frames 48] [--takes 6] [--variants lm,lbfgs,lbfgs+lm,lm5]
 
@@ -33,7 +34,8 @@ TUNING = ("side_reaches", "elbow_flexion", "kick_box_kicking", "side_step_knee_e
           "dance_swing")
 
 
-def make_take(motion: str, seed: int, frames: int):
+def make_take(motion: str, seed: int, frames: int, part: str = "body"):
+    """A tuning take: 40 markers on the whole body, or 20 on a part (the held-out split's partial layouts)."""
     from mocapflow.systems.studio import specs as studio_io
     from mocapflow.tasks.studio import synth, uuo_takes as uuo
     from mocapflow.tasks.uuo import prior, segmentation
@@ -41,9 +43,9 @@ def make_take(motion: str, seed: int, frames: int):
     spec, _, _ = studio_io.make_spec({"motion": motion, "seed": seed, "frames": frames, "body": "mesh", "views": 1},
                                      "tuning", lambda p: p)
     rig = synth.build_rig(spec, None)
-    layout = uuo.layout(rig.body, np.random.default_rng([seed, 3]), 40, "body")
-    paths = uuo.marker_paths(rig.body, layout, rig.take.posed.vertices[:rig.n_frames])
-    captured = uuo.capture(paths, uuo.MarkerFaults(dropout=0.002, ghosts=3), np.random.default_rng([seed, 4]))
+    layout = uuo.layout(rig.body, np.random.default_rng([seed, 3]), 40 if part == "body" else 20, part)
+    captured = uuo.record(rig.body, layout, rig.take.posed.vertices[:rig.n_frames], uuo.MarkerFaults(dropout=0.002),
+                          np.random.default_rng([seed, 4]), spec.fps)  # the studio's optical faults, and dropouts
     take = uuo.marker_dataset(rig.body, layout, captured, rig.take, spec.fps, 0, rig.n_frames)
     return take, segmentation.rigid_segments(take, segmentation.SegmentConfig()), \
         prior.simulated_prior(take, prior.SimulatedPriorConfig(seed=seed))

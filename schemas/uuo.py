@@ -57,3 +57,19 @@ UUO_BODY = register_schema(ArtifactSchema(
     description="a body solved from unlabelled markers (UUO §3.5): pose, root and shape per take, each marker's "
                 "vertex and part",
 ))
+
+UUO_SCREEN = register_schema(ArtifactSchema(
+    name="uuo_screen",
+    version=1,
+    coords={"hypothesis": VarSpec(("hypothesis",), "int64",
+                                  description="rank: the placements facing apart first, then the rest by chamfer")},
+    variables={
+        "yaw_deg": VarSpec(("hypothesis",), "float64", "deg", description="the root yaw part matching started from"),
+        "mirror": VarSpec(("hypothesis",), "bool", description="the prior mirrored left-right"),
+        "matched_yaw_deg": VarSpec(("hypothesis",), "float64", "deg", description="the yaw part matching ended at"),
+        "chamfer": VarSpec(("hypothesis",), "float64", "m2", description="Eq. (1) on the search's frames"),
+        "parts": VarSpec(("hypothesis",), "str", description="the matched chain of parts, comma-separated"),
+    },
+    required_attrs={"distinct": int, "symmetric_prior": bool, "step_deg": float},
+    description="the prior placed on the markers from every root yaw and mirrored, ranked (UUO §3.5.1, widened)",
+))

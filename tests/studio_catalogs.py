@@ -8,14 +8,16 @@ UUO_FAST_STAGES = """\
     task: simulated_prior
     inputs: [markers]
     params: {form: mild, rotation_deg: 0.0, yaw_deg: 0.0, lost: 0.0, phenotype_noise: 0.0, drift_m: 0.0}
-  yaw0:
-    task: solve_hypothesis
-    inputs: [markers, segments, prior]
-    params: &fast
-      yaw_deg: 0.0
-      matching: {frames: 12, iterations: 12}
-      pose_fit: {rounds: 3, iterations: 10}
-      ik: {iterations: 40}
+  screen: {task: screen_hypotheses, inputs: [markers, segments, prior], params: {matching: {frames: 12, iterations: 12}}}
+  h0:
+    task: solve_screened
+    inputs: [markers, segments, prior, screen]
+    params:
+      rank: 0
+      solve: &fast
+        matching: {frames: 12, iterations: 12}
+        pose_fit: {rounds: 3, iterations: 10}
+        ik: {iterations: 40}
 """
 
 
@@ -26,17 +28,17 @@ datasets:
   uuo:
     kind: studio_markers
     defaults: {frames: 24, views: 1}
-    markers: {count: 30, ghosts: 1}
+    markers: {count: 30, occlusion: false, break_per_s: 0.0, ghosts_per_s: 1.25}   # all visible, one ghost in 0.8 s
     sequences:
       reach: {motion: side_reaches, seed: 8}
 stages:
 """ + UUO_FAST_STAGES + """\
-  yaw90: {task: solve_hypothesis, inputs: [markers, segments, prior], params: {<<: *fast, yaw_deg: 90.0}}
-  yaw180: {task: solve_hypothesis, inputs: [markers, segments, prior], params: {<<: *fast, yaw_deg: 180.0}}
-  yaw270: {task: solve_hypothesis, inputs: [markers, segments, prior], params: {<<: *fast, yaw_deg: 270.0}}
+  h1: {task: solve_screened, inputs: [markers, segments, prior, screen], params: {rank: 1, solve: *fast}}
+  h2: {task: solve_screened, inputs: [markers, segments, prior, screen], params: {rank: 2, solve: *fast}}
+  h3: {task: solve_screened, inputs: [markers, segments, prior, screen], params: {rank: 3, solve: *fast}}
   solve:
     task: best_hypothesis
-    inputs: {markers: markers, yaw0: yaw0, yaw90: yaw90, yaw180: yaw180, yaw270: yaw270}
+    inputs: {markers: markers, h0: h0, h1: h1, h2: h2, h3: h3}
     params: {ik: {iterations: 40}}
 """
 
@@ -77,7 +79,7 @@ datasets:
   uuo:
     kind: studio_markers
     defaults: {views: 1}
-    markers: {count: 30, ghosts: 1}
+    markers: {count: 30, occlusion: false, break_per_s: 0.0, ghosts_per_s: 1.0}   # all visible, one ghost in 1 s
   suit:
     kind: studio_suit
     suit: small
@@ -94,10 +96,10 @@ stages:
   skeleton: {task: calibrate_skeleton, inputs: {markers: smoothed}}
   poses: {task: solve_poses, inputs: {skeleton: skeleton, markers: smoothed, views: markers3d}}
 """ + UUO_FAST_STAGES + """\
-  yaw180: {task: solve_hypothesis, inputs: [markers, segments, prior], params: {<<: *fast, yaw_deg: 180.0}}
+  h1: {task: solve_screened, inputs: [markers, segments, prior, screen], params: {rank: 1, solve: *fast}}
   solve:
     task: best_hypothesis
-    inputs: {markers: markers, yaw0: yaw0, yaw90: yaw0, yaw180: yaw180, yaw270: yaw180}
+    inputs: {markers: markers, h0: h0, h1: h0, h2: h1, h3: h1}
     params: {ik: {iterations: 40}}
   images: {task: ingest_suit, dataset: suit}
   labels: {task: oracle_labels, inputs: [images], params: {noise_px: 0.2, wrong: 0.02}}

@@ -87,8 +87,9 @@ def score_take(truth_of: dict, solved) -> dict:
     out["facing_error_deg"] = metrics.facing_error_deg(joints, truth, names)
     swapped, sided = metrics.side_swaps(true_part[labelled], solved["part"].values[labelled])
     out["side_swap_rate"] = swapped / sided if sided else float("nan")
-    out["turned"] = float(out["facing_error_deg"] > metrics.TURNED_DEG)  # counted over takes by _summary
+    out["turned"] = float(out["facing_error_deg"] > metrics.TURNED_DEG)  # counted over takes by over_takes
     out["mirrored"] = float(sided > 0 and swapped > metrics.MIRRORED_SHARE * sided)
+    out["too_close"] = float(bool(solved.attrs.get("too_close", False)))  # the solver's own doubt (solve.choose)
     return out
 
 
@@ -156,9 +157,13 @@ def prior_figures(prior: xr.Dataset, truth_joints: np.ndarray) -> dict:
     return {f"prior_{k}": 1000.0 * measure(joints, truth) for k, measure in _PRIOR_MEASURES.items()}
 
 
-def _summary(rows: list[dict]) -> dict:
-    """Over takes: each figure's median (``key``), its 90th percentile (``key_p90``) and worst (``key_max``)."""
-    keys = [k for k, v in rows[0].items() if isinstance(v, float)] if rows else []
+COUNTED = ("turned", "mirrored", "too_close")  # per take 0 or 1: counted over takes, never a median
+
+
+def over_takes(rows: list[dict]) -> dict:
+    """Over takes: each figure's median (``key``), its 90th percentile (``key_p90``) and worst (``key_max``); the
+    takes solved turned around or mirrored, and those whose facing was too close to call, counted."""
+    keys = [k for k, v in rows[0].items() if isinstance(v, float) and k not in COUNTED] if rows else []
     out = {}
     for k in keys:
         values = np.array([r.get(k, np.nan) for r in rows], float)
@@ -166,12 +171,18 @@ def _summary(rows: list[dict]) -> dict:
         out[k] = float(np.median(finite)) if len(finite) else float("nan")
         out[f"{k}_p90"] = float(np.percentile(finite, 90)) if len(finite) else float("nan")
         out[f"{k}_max"] = float(finite.max()) if len(finite) else float("nan")
+    out["takes"] = len(rows)
+    for failure in COUNTED:
+        out[f"{failure}_takes"] = int(sum(r.get(failure, 0.0) for r in rows))
+    return out
+
+
+def _summary(rows: list[dict]) -> dict:
+    """over_takes, with the median MPJPE after each solver stage (Table 4)."""
+    out = over_takes(rows)
     stage_names = {s for r in rows for s in r["stages_mpjpe_mm"]}
     out["stages_mpjpe_mm"] = {s: float(np.nanmedian([r["stages_mpjpe_mm"].get(s, np.nan) for r in rows]))
                               for s in sorted(stage_names)}
-    out["takes"] = len(rows)
-    for failure in ("turned", "mirrored"):  # takes solved turned around or mirrored: a count, not a median
-        out[f"{failure}_takes"] = int(sum(r.get(failure, 0.0) for r in rows))
     return out
 
 
@@ -182,13 +193,15 @@ def uuo_headline(result: dict) -> dict:
     for i, (stage, r) in enumerate(result.get("uuo", {}).items()):
         o = r["overall"]
         if "reference" in r:  # recorded takes against their labelled reference
-            out.update({f"uuo_real_{stage}_{k}": o[k] for k in ("mpjpe_mm", "m2s_mm", "consistency")})
+            out.update({f"uuo_real_{stage}_{k}": o[k] for k in ("mpjpe_mm", "mpjpe_mm_p90", "m2s_mm", "consistency",
+                                                                 "agreement", "turned_takes", "mirrored_takes",
+                                                                 "too_close_takes", "takes")})
             continue
         if i == 0:
             out.update({"uuo_stage": stage, "uuo_mpjpe_mm": o["mpjpe_mm"], "uuo_mpjve_mm": o["mpjve_mm"],
                         "uuo_v2v_mm": o["v2v_mm"], "uuo_m2s_mm": o["m2s_mm"],
                         "uuo_ghost_label_rate": o["ghost_label_rate"], "uuo_turned_takes": o["turned_takes"],
-                        "uuo_mirrored_takes": o["mirrored_takes"]})
+                        "uuo_mirrored_takes": o["mirrored_takes"], "uuo_too_close_takes": o["too_close_takes"]})
             if "prior_aligned_mpjpe_mm" in o:
                 out["uuo_prior_aligned_mpjpe_mm"] = o["prior_aligned_mpjpe_mm"]
             for layout, lr in r["layouts"].items():
@@ -207,7 +220,8 @@ def uuo_table(result: dict) -> list[str]:
     if any("reference" in r for r in result.values()):
         return reference_table(result)
     rows = [("UUO stage", "layout", "takes", "MPJPE mm (p90)", "part MPJPE (p90)", "MPJVE mm/frame", "V2V mm",
-             "m2s mm (truth)", "labelled", "right part", "ghosts labelled", "prior aligned mm", "turned / mirrored")]
+             "m2s mm (truth)", "labelled", "right part", "ghosts labelled", "prior aligned mm",
+             "turned / mirrored / too close")]
     for stage, r in result.items():
         for layout, lr in [("all", r["overall"])] + list(r["layouts"].items()):
             part = lr.get("part_mpjpe_mm", float("nan"))
@@ -219,9 +233,10 @@ def uuo_table(result: dict) -> list[str]:
                          f"{lr['part_right']:.0%}",
                          "-" if np.isnan(lr["ghost_label_rate"]) else f"{lr['ghost_label_rate']:.0%}",
                          "-" if np.isnan(prior) else f"{prior:.1f}",
-                         f"{lr['turned_takes']} / {lr['mirrored_takes']}"))
+                         f"{lr['turned_takes']} / {lr['mirrored_takes']} / {lr['too_close_takes']}"))
     lines = ["median over takes (90th percentile); turned / mirrored: takes solved turned around (facing off by "
-             f"more than {metrics.TURNED_DEG:.0f} degrees) or mirrored (most sided labels on the other side)"] \
+             f"more than {metrics.TURNED_DEG:.0f} degrees) or mirrored (most sided labels on the other side); too "
+             "close: takes whose facing or handedness the solver found too close to call"] \
         + format_rows(rows)
     stage_rows = [("UUO stage", "after matching", "pose fit", "IK", "refined")]
     for stage, r in result.items():
@@ -266,7 +281,15 @@ def score_against_reference(solved, reference, raw_labels: list[str], raw_positi
     reference_part = dict(zip((str(m) for m in reference["marker"].values), (str(p) for p in reference["part"].values)))
     per_label = label_consistency(raw_labels, solved["part"].values, raw_positions, reference_part)
     weights = np.array([r["frames"] for r in per_label.values()], float)
+    got = solved["part"].values
+    expected = np.array([reference_part.get(label, "") for label in raw_labels])
+    labelled = (got != "") & (expected != "")
+    swapped, sided = metrics.side_swaps(expected[labelled], got[labelled])
+    facing = metrics.facing_error_deg(joints, ref_joints, [str(j) for j in solved["joint"].values])
     return {"frames": len(joints), "labels": len(per_label), "trajectories": len(raw_labels),
+            "facing_error_deg": facing, "turned": float(facing > metrics.TURNED_DEG),
+            "mirrored": float(sided > 0 and swapped > metrics.MIRRORED_SHARE * sided),
+            "too_close": float(bool(solved.attrs.get("too_close", False))),
             "mpjpe_mm": 1000 * metrics.mpjpe(joints, ref_joints), "mpjve_mm": 1000 * metrics.mpjve(joints, ref_joints),
             "v2v_mm": 1000 * metrics.v2v(vertices, ref_vertices),
             "m2s_mm": 1000 * metrics.m2s(real_positions, vertices, body.faces),
@@ -305,22 +328,27 @@ def evaluate_against_reference(catalog, plan, store, stages: list[str], referenc
                 raw["position"].transpose("frame", "marker", "xyz").values, real.astype(np.float64))
             per_sequence.setdefault(seq.id, {})[f"uuo_{stage}"] = {k: v for k, v in takes[seq.id].items()
                                                                    if k != "per_label"}
-        keys = [k for k, v in next(iter(takes.values())).items() if isinstance(v, float)] if takes else []
-        out[stage] = {"reference": reference, "takes": takes,
-                      "overall": {**{k: float(np.nanmean([t[k] for t in takes.values()])) for k in keys},
-                                  "takes": len(takes)}}
+        out[stage] = {"reference": reference, "takes": takes, "overall": over_takes(list(takes.values()))}
     return out
 
 
 def reference_table(result: dict) -> list[str]:
     rows = [("UUO stage", "take", "MPJPE mm", "MPJVE mm/frame", "V2V mm", "m2s mm (reference)", "labels",
-             "consistency", "agrees with reference")]
+             "consistency", "agrees with reference", "turned / mirrored / too close")]
     for stage, r in result.items():
-        for take, t in list(r["takes"].items()) + [("all", r["overall"])]:
+        for take, t in r["takes"].items():
             rows.append((stage, take, f"{t['mpjpe_mm']:.1f}", f"{t['mpjve_mm']:.2f}", f"{t['v2v_mm']:.1f}",
-                         f"{t['m2s_mm']:.1f} ({t['m2s_reference_mm']:.1f})", str(t.get("labels", "-")),
-                         f"{t['consistency']:.0%}", f"{t['agreement']:.0%}"))
-    return [f"against the labelled reference ({next(iter(result.values()))['reference']})"] + format_rows(rows)
+                         f"{t['m2s_mm']:.1f} ({t['m2s_reference_mm']:.1f})", str(t["labels"]),
+                         f"{t['consistency']:.0%}", f"{t['agreement']:.0%}",
+                         " / ".join("yes" if t[k] else "-" for k in COUNTED)))
+        o = r["overall"]
+        rows.append((stage, f"median (p90) of {o['takes']}", f"{o['mpjpe_mm']:.1f} ({o['mpjpe_mm_p90']:.1f})",
+                     f"{o['mpjve_mm']:.2f}", f"{o['v2v_mm']:.1f}",
+                     f"{o['m2s_mm']:.1f} ({o['m2s_reference_mm']:.1f})", "-", f"{o['consistency']:.0%}",
+                     f"{o['agreement']:.0%}", " / ".join(str(o[f"{k}_takes"]) for k in COUNTED)))
+    return [f"against the labelled reference ({next(iter(result.values()))['reference']}); the last row of a stage: "
+            "medians over takes (90th percentile), takes turned, mirrored or too close to call counted"] \
+        + format_rows(rows)
 
 
 EVALUATOR = Evaluator("uuo", applies, evaluate, uuo_headline, uuo_table)

@@ -28,12 +28,22 @@ def takes(catalog, plan, store) -> list[Take]:
     solve, source = default_stage(catalog), stage_writing(catalog, "raw_markers")
     for take in out:
         if solve is not None:
-            _add_joints(take, plan.open(store, solve, take.id))
-            take.note = f"joints in the 3D view: the solve of stage {solve}"
+            solved = plan.open(store, solve, take.id)
+            _add_joints(take, solved)
+            take.note = f"joints in the 3D view: the solve of stage {solve}" + _doubt(solved.attrs)
         raw = plan.open(store, source, take.id) if source else None
         if take.joints is not None and raw is not None and "gt_joints" in raw:
             take.gt_joints = raw["gt_joints"].values.astype(np.float64)
     return out
+
+
+def _doubt(attrs) -> str:
+    """What the solver says of its facing when two hypotheses were too close to call (solve.choose)."""
+    if not attrs.get("too_close"):
+        return ""
+    return (f"; facing too close to call: the hypothesis kept (yaw {float(attrs['matched_yaw_deg']):.0f} deg"
+            f"{', mirrored' if attrs.get('mirror') else ''}) beat one facing or sided otherwise by only "
+            f"{float(attrs['call_margin_deg']):.1f} deg of plausibility; check the facing before using this take")
 
 
 def _add_joints(take: Take, solved) -> None:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from mocapflow.pipeline.registry import NoParams, TaskSpec
-from mocapflow.tasks.uuo import labelled, monocular, prior, segmentation, solve
+from mocapflow.tasks.uuo import hypotheses, labelled, monocular, prior, segmentation, solve
 
 TASKS = (
     # The marker-file counterpart: a `markers` dataset's C3D or TRC recordings as raw_markers (frame, marker, xyz).
@@ -38,7 +38,7 @@ TASKS = (
         description="markers only: a neutral body standing in its rest pose as the prior (the paper's marker-only rows)",
     ),
     TaskSpec(
-        name="solve_hypothesis", fn=solve.solve_hypothesis, version="3", params=solve.HypothesisConfig,
+        name="solve_hypothesis", fn=solve.solve_hypothesis, version="4", params=solve.HypothesisConfig,
         output="uuo_body", partition="sequence", whole_sequence=True,
         inputs={"markers": "raw_markers", "segments": "marker_segments", "prior": "body_prior"},
         reads={"markers": ("position",)},
@@ -46,17 +46,34 @@ TASKS = (
                     "inverse kinematics (§3.4-3.5, stages 2-4)",
     ),
     TaskSpec(
-        name="best_hypothesis", fn=solve.best_hypothesis, version="4", params=solve.RefineConfig,
-        output="uuo_body", partition="sequence", whole_sequence=True,
-        inputs={"markers": "raw_markers", "yaw0": "uuo_body", "yaw90": "uuo_body", "yaw180": "uuo_body",
-                "yaw270": "uuo_body"},
+        name="screen_hypotheses", fn=solve.screen_hypotheses, version="1", params=hypotheses.ScreenConfig,
+        output="uuo_screen", partition="sequence", whole_sequence=True,
+        inputs={"markers": "raw_markers", "segments": "marker_segments", "prior": "body_prior"},
         reads={"markers": ("position",)},
-        description="the root-yaw hypothesis of least chamfer (Eq. 3; among close ones, the pose agreeing with the "
-                    "prior and rigid groups kept to one side), refined (stage 5)",
+        description="the prior placed by part matching from every root yaw 30 degrees apart and mirrored, the "
+                    "placements facing apart ranked by chamfer for the solve stages (§3.5.1, widened)",
     ),
     TaskSpec(
-        name="single_hypothesis", fn=solve.single_hypothesis, version="4", params=solve.RefineConfig,
-        output="uuo_body", partition="sequence", whole_sequence=True, inputs={"markers": "raw_markers", "yaw0": "uuo_body"},
+        name="solve_screened", fn=solve.solve_screened, version="1", params=solve.ScreenedConfig,
+        output="uuo_body", partition="sequence", whole_sequence=True,
+        inputs={"markers": "raw_markers", "segments": "marker_segments", "prior": "body_prior",
+                "screen": "uuo_screen"},
+        reads={"markers": ("position",)},
+        description="UUO from the screen's placement of a given rank: chamfer pose fit, marker-vertex "
+                    "correspondence, inverse kinematics (§3.5, stages 2-4)",
+    ),
+    TaskSpec(
+        name="best_hypothesis", fn=solve.best_hypothesis, version="5", params=solve.RefineConfig,
+        output="uuo_body", partition="sequence", whole_sequence=True,
+        inputs={"markers": "raw_markers", "h0": "uuo_body", "h1": "uuo_body", "h2": "uuo_body", "h3": "uuo_body"},
+        reads={"markers": ("position",)},
+        description="of four solved hypotheses, the one of least chamfer (Eq. 3; among close ones, the most "
+                    "plausible: pose agreeing with the prior, rigid groups on one side, hinges bent their way), "
+                    "refined (stage 5); a runner-up facing otherwise within call_deg is reported too close to call",
+    ),
+    TaskSpec(
+        name="single_hypothesis", fn=solve.single_hypothesis, version="5", params=solve.RefineConfig,
+        output="uuo_body", partition="sequence", whole_sequence=True, inputs={"markers": "raw_markers", "h0": "uuo_body"},
         reads={"markers": ("position",)},
         description="one root-yaw hypothesis, refined (the paper's '- MHT' ablation, Table 3)",
     ),

@@ -67,6 +67,7 @@ class SolverBody:
                        for d in range(1, depth.max() + 1)]
         self.seen_bones = np.array([not n.startswith(_UNSEEN_PREFIXES) for n in body.bone_names])
         self.facing = torch.from_numpy(FACING)
+        self._rests: dict[bytes, tuple] = {}  # phenotype -> rest(), the last few (rest_fixed)
 
     def rest(self, phenotype):
         """Rest vertices (vertex, 3) and rest bone heads (bone, 3) in the studio's axes (unlifted) for a phenotype
@@ -75,6 +76,19 @@ class SolverBody:
         kwargs = {name: phenotype[i:i + 1] for i, name in enumerate(PHENOTYPE_NAMES)}
         out = model(phenotype_kwargs=kwargs)
         return out["rest_vertices"][0] @ self.facing.T, out["rest_bone_poses"][0, :, :3, 3] @ self.facing.T
+
+    def rest_fixed(self, phenotype: np.ndarray):
+        """``rest`` of a fixed phenotype, without gradients, the last four kept: part matching and the screens pose
+        one prior hundreds of times, and Anny's blend shapes cost more than the skinning."""
+        import torch
+
+        key = np.asarray(phenotype, np.float64).tobytes()
+        if key not in self._rests:
+            with torch.no_grad():
+                self._rests[key] = self.rest(torch.from_numpy(np.asarray(phenotype, np.float64)))
+            if len(self._rests) > 4:
+                self._rests.pop(next(iter(self._rests)))
+        return self._rests[key]
 
     def kinematics(self, local, root, rest_heads):
         """World rotations and heads.  local (frame, bone, 3, 3), root (frame, 3), rest_heads (bone, 3)
@@ -135,8 +149,8 @@ def posed_vertices(body: SolverBody, fit: BodyFit, vertices: np.ndarray, chunk: 
     """Skinned positions of chosen vertices over the take.  -> (frame, n, 3)"""
     import torch
 
+    rest_vertices, rest_heads = body.rest_fixed(fit.phenotype)
     with torch.no_grad():
-        rest_vertices, rest_heads = body.rest(torch.from_numpy(np.asarray(fit.phenotype, np.float64)))
         out = []
         dense = body.dense_weights(vertices)
         points = rest_vertices[torch.from_numpy(np.asarray(vertices, np.int64))]
@@ -151,6 +165,6 @@ def posed_heads(body: SolverBody, fit: BodyFit) -> np.ndarray:
     """Every bone's head over the take.  -> (frame, bone, 3)"""
     import torch
 
+    _, rest_heads = body.rest_fixed(fit.phenotype)
     with torch.no_grad():
-        _, rest_heads = body.rest(torch.from_numpy(np.asarray(fit.phenotype, np.float64)))
         return body.kinematics(torch.from_numpy(fit.local), torch.from_numpy(fit.root), rest_heads)[1].numpy()

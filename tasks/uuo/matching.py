@@ -208,26 +208,17 @@ def _best_lift(m: np.ndarray, seen: np.ndarray, skin: NearestSkin, rot: np.ndarr
     return float(lifts[int(np.argmin(scores))])
 
 
-def match_parts(markers: np.ndarray, segments: np.ndarray, body: MeshBody, prior_vertices, yaw: float,
-                config: MatchConfig) -> Match:
-    """The chain of parts the markers sit on and the prior's placement, for one yaw hypothesis.
-
-    markers (frame, marker, 3); segments (marker,); prior_vertices(frames, vertex_indices) -> (frame', n, 3) the
-    prior's posed skin at chosen frames and vertices (a callable, so only what the search needs is skinned).
-    """
-    n_frames = markers.shape[0]
-    seen_frames = np.flatnonzero(np.isfinite(markers).all(-1).any(1))
-    if not len(seen_frames):
-        raise MatchingError("no frame of the take has a marker; part matching needs markers")
-    frames = evenly(seen_frames, config.frames)
+def search_parts(markers: np.ndarray, segments: np.ndarray, body: MeshBody, prior_vertices, yaw: float,
+                 config: MatchConfig) -> tuple[tuple[str, ...], float, float, int]:
+    """The chain of parts the markers sit on, searched on ``config.frames`` frames from one yaw hypothesis:
+    every connected chain of K parts fitted, the best grown part by part while a neighbour pays.
+    markers (frame, marker, 3); segments (marker,); prior_vertices as for match_parts
+    -> (parts, the fitted yaw in radians, its chamfer Eq. (1) in m^2, candidates tried)"""
     k = chain_length(segments, config.min_group)
     chains = connected_chains(len(PART_NAMES) if k >= config.whole_body_from else k)
 
     def trial(parts: tuple[str, ...], start_yaw: float, iterations: int):
-        index = part_vertices(body, parts)
-        index = evenly(index, config.vertices)
-        return fit_yaw(markers[frames], prior_vertices(frames, index), start_yaw, iterations, config.keep,
-                       config.keep_rotation)
+        return try_chain(markers, body, prior_vertices, parts, start_yaw, config, iterations)
 
     parts, fit = min(((p, trial(p, yaw, config.iterations)) for p in chains), key=lambda c: c[1][2])
     tried = len(chains)
@@ -239,11 +230,53 @@ def match_parts(markers: np.ndarray, segments: np.ndarray, body: MeshBody, prior
         if best_fit[2] > (1.0 - config.grow_gain) * fit[2]:
             break
         parts, fit = best_parts, best_fit
-    yaw_fit, _, chamfer = fit
+    return parts, fit[0], fit[2], tried
+
+
+def search_frames(markers: np.ndarray, count: int) -> np.ndarray:
+    """The ``count`` evenly spaced frames with a marker that the search fits."""
+    seen_frames = np.flatnonzero(np.isfinite(markers).all(-1).any(1))
+    if not len(seen_frames):
+        raise MatchingError("no frame of the take has a marker; part matching needs markers")
+    return evenly(seen_frames, count)
+
+
+def try_chain(markers: np.ndarray, body: MeshBody, prior_vertices, parts: tuple[str, ...], yaw: float,
+              config: MatchConfig, iterations: int | None = None) -> tuple[float, np.ndarray, float]:
+    """One candidate chain fitted to the markers on the search's frames from ``yaw`` (fit_yaw).
+    -> (yaw, translation (frame', 3), chamfer Eq. (1) in m^2)"""
+    frames = search_frames(markers, config.frames)
+    index = evenly(part_vertices(body, parts), config.vertices)
+    return fit_yaw(markers[frames], prior_vertices(frames, index), yaw,
+                   config.iterations if iterations is None else iterations, config.keep, config.keep_rotation)
+
+
+def mirror_parts(parts: tuple[str, ...]) -> tuple[str, ...]:
+    """A chain with its sides swapped (left_thigh <-> right_thigh), sorted."""
+    swap = {"left": "right", "right": "left"}
+    return tuple(sorted(swap[p.split("_", 1)[0]] + "_" + p.split("_", 1)[1] if p.split("_", 1)[0] in swap else p
+                        for p in parts))
+
+
+def match_parts(markers: np.ndarray, segments: np.ndarray, body: MeshBody, prior_vertices, yaw: float,
+                config: MatchConfig, parts: tuple[str, ...] | None = None) -> Match:
+    """The chain of parts the markers sit on and the prior's placement, for one yaw hypothesis.
+
+    markers (frame, marker, 3); segments (marker,); prior_vertices(frames, vertex_indices) -> (frame', n, 3) the
+    prior's posed skin at chosen frames and vertices (a callable, so only what the search needs is skinned).
+    ``parts``: a chain already found (hypotheses.screen): no search, the prior placed on it from ``yaw``.
+    """
+    n_frames = markers.shape[0]
+    searched = parts is None
+    if searched:
+        parts, yaw, chamfer, tried = search_parts(markers, segments, body, prior_vertices, yaw, config)
     index = part_vertices(body, parts)
     index = evenly(index, 2 * config.vertices)
-    _, t, _ = fit_yaw(markers, prior_vertices(np.arange(n_frames), index), yaw_fit, config.iterations, config.keep,
-                      config.keep_rotation)
+    yaw_all, t, chamfer_all = fit_yaw(markers, prior_vertices(np.arange(n_frames), index), yaw, config.iterations,
+                                      config.keep, config.keep_rotation)
+    yaw_fit = yaw if searched else yaw_all  # a chain given: its yaw refined on every frame
+    if not searched:
+        chamfer, tried = chamfer_all, 0
     have = np.isfinite(markers).all(-1).any(1)
     for axis in range(3):  # frames without a marker take the translation of their neighbours
         t[:, axis] = np.interp(np.arange(n_frames), np.flatnonzero(have), t[have, axis])

@@ -1,4 +1,5 @@
-"""The UUO solver through the engine: four root-yaw hypotheses as their own tasks, the best one refined, cached."""
+"""The UUO solver through the engine: the placements screened, four solved as their own tasks, the best one
+refined, cached."""
 
 from __future__ import annotations
 
@@ -13,8 +14,8 @@ from studio_catalogs import UUO_CATALOG as CATALOG
 def test_unlabelled_markers_are_solved_through_the_engine_and_one_hypothesis_reruns_alone(request, tmp_path):
     first = shared_run(request, "uuo", CATALOG)  # the pytest run's one run of the catalog (the report reads it too)
     project = copy_run(request, "uuo", tmp_path / "project")
-    assert sorted(first["executed"]) == sorted(f"{s}/reach" for s in ("markers", "segments", "prior", "yaw0", "yaw90",
-                                                                       "yaw180", "yaw270", "solve"))
+    assert sorted(first["executed"]) == sorted(f"{s}/reach" for s in ("markers", "segments", "prior", "screen", "h0",
+                                                                       "h1", "h2", "h3", "solve"))
     stored = {pid: arrays for (pid, _), arrays in read_artifacts(project / "storage").items()}
     markers, solved = stored["markers/reach"], stored["solve/reach"]
     assert solved["joints"].shape == (24, 20, 3) and solved["bone_rotation"].shape == (24, 104, 4)
@@ -30,9 +31,9 @@ def test_unlabelled_markers_are_solved_through_the_engine_and_one_hypothesis_rer
     assert scores["uuo_prior_aligned_mpjpe_mm"] < 1.0  # the catalog's exact prior (form: mild, no error)
     assert scores["uuo_ghost_label_rate"] == (solved["vertex"][~real] >= 0).mean()  # a labelled ghost: a false label
     assert scores["uuo_turned_takes"] == 0 and scores["uuo_mirrored_takes"] == 0  # placed and posed the right way
-    (project / "catalog.yaml").write_text(CATALOG.replace("yaw_deg: 270.0}", "yaw_deg: 270.0, outlier_m: 0.11}"))
+    (project / "catalog.yaml").write_text(CATALOG.replace("{rank: 3, solve: *fast}", "{rank: 4, solve: *fast}"))
     again = last_json(mocapflow("run", "--json", cwd=project))
-    assert sorted(again["executed"]) == ["solve/reach", "yaw270/reach"]  # one hypothesis changed: it and the choice
+    assert sorted(again["executed"]) == ["h3/reach", "solve/reach"]  # one hypothesis changed: it and the choice
     (project / "catalog.yaml").write_text(CATALOG.replace("pose_fit: {rounds: 3", "pose_fit: {round: 3"))
     proc = mocapflow("run", cwd=project, check=False)
     assert proc.returncode == 2

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from mocapflow.tasks.shared import mesh_body as mb
 from mocapflow.tasks.studio import uuo_takes as uuo
 from mocapflow.tasks.studio.synth import SequenceSpec, build_rig
-from mocapflow.tasks.uuo import correspondence, matching, prior, segmentation, solve
+from mocapflow.tasks.uuo import correspondence, hypotheses, matching, prior, segmentation, solve
 from mocapflow.tasks.shared.solver_body import BodyFit, SolverBody, posed_vertices
 
 FRAMES = 24
@@ -22,7 +22,7 @@ def take():
     rig = build_rig(SequenceSpec("side_reaches", frames=FRAMES, seed=41, body="mesh", views=1))
     layout = uuo.layout(rig.body, np.random.default_rng(5), 40)
     rec = uuo.capture(uuo.marker_paths(rig.body, layout, rig.take.posed.vertices[:FRAMES]),
-                      uuo.MarkerFaults(ghosts=1), np.random.default_rng(6))
+                      uuo.MarkerFaults.clean(ghosts_per_s=1.25), np.random.default_rng(6), fps=30.0)  # one ghost
     return uuo.marker_dataset(rig.body, layout, rec, rig.take, 30.0, 0, FRAMES)
 
 
@@ -115,18 +115,38 @@ def _turned_prior(take):
     return turned
 
 
-def test_a_take_with_a_turned_prior_is_solved_back_and_four_hypotheses_beat_one(take):
-    turned = _turned_prior(take)
+def _mirrored_prior(body_prior):
+    """The prior with its sides swapped (a monocular estimate that took the left limbs for the right)."""
+    from mocapflow.tasks.shared.kinematics import world_rotations
+
+    body, _ = solve._bodies(body_prior.attrs["phenotype"])
+    fit = hypotheses.mirrored(solve.body_fit(body_prior), hypotheses.mirror_bones(body.bone_names))
+    out = body_prior.copy(deep=True)
+    out["bone_rotation"].values[:] = Rotation.from_matrix(world_rotations(fit.local, body.bone_parents).reshape(
+        -1, 3, 3)).as_quat().reshape(out["bone_rotation"].shape)
+    return out
+
+
+def test_a_take_with_a_turned_mirrored_prior_is_solved_back_from_the_screened_placements(take):
+    """The exact prior turned half round and mirrored: the screen's placements (every 30 degrees, mirrored or not)
+    hold the way back, the four best solved, the best refined; one hypothesis from the prior as it is fails."""
+    turned = _mirrored_prior(_turned_prior(take))
     segments = segmentation.rigid_segments(take, segmentation.SegmentConfig())
-    hyps = {f"yaw{y}": solve.solve_hypothesis(take, segments, turned, dataclasses.replace(FAST, yaw_deg=float(y)))
-            for y in (0, 90, 180, 270)}
+    screen = solve.screen_hypotheses(take, segments, turned, hypotheses.ScreenConfig(matching=FAST.matching))
+    assert screen.sizes["hypothesis"] == 24 and not screen.attrs["symmetric_prior"]  # 12 yaws, mirrored or not
+    assert screen.attrs["distinct"] == 4
+    hyps = {f"h{r}": solve.solve_screened(take, segments, turned, screen, solve.ScreenedConfig(rank=r, solve=FAST))
+            for r in range(4)}
     best = solve.best_hypothesis(take, **hyps, config=solve.RefineConfig())
     truth = take["gt_joints"].values
     mpjpe = np.linalg.norm(best["joints"].values - truth, axis=-1).mean()
     assert mpjpe < 0.03, mpjpe  # within 3 cm of the true joints
-    assert abs(abs(best.attrs["matched_yaw_deg"]) - 180.0) < 10.0  # from 90 or 180 the search finds the half turn
-    assert len(best.attrs["hypothesis_chamfer"]) == 4
-    single = np.linalg.norm(solve.single_hypothesis(take, hyps["yaw0"], solve.RefineConfig())["joints"].values
+    assert best.attrs["mirror"] and abs(abs(best.attrs["matched_yaw_deg"]) - 180.0) < 10.0  # turned and mirrored
+    assert len(best.attrs["hypothesis_chamfer"]) == 4 and sum(best.attrs["hypotheses_mirror"]) >= 1
+    with pytest.raises(solve.SolveError, match="rank 24 asks for more placements"):
+        solve.solve_screened(take, segments, turned, screen, solve.ScreenedConfig(rank=24, solve=FAST))
+    as_is = solve.solve_hypothesis(take, segments, turned, FAST)  # the paper's first hypothesis, not mirrored
+    single = np.linalg.norm(solve.single_hypothesis(take, as_is, solve.RefineConfig())["joints"].values
                             - truth, axis=-1).mean()
     assert single > 3 * mpjpe  # Table 3: one hypothesis started the wrong way round stays wrong
     real = take["gt_source"].values >= 0
@@ -136,6 +156,7 @@ def test_a_take_with_a_turned_prior_is_solved_back_and_four_hypotheses_beat_one(
     np.testing.assert_allclose(seen, best["joints"].values)
 
     # the baseline without a solve (the paper's HMR2.0+RR): the prior placed from the best of the four yaws
+    turned = _turned_prior(take)
     placed = solve.rigid_prior(take, segments, turned, solve.RigidPriorConfig(matching=FAST.matching))
     placed_mpjpe = np.linalg.norm(placed["joints"].values - truth, axis=-1).mean()
     assert placed_mpjpe < 0.05, placed_mpjpe  # an exact pose turned and shifted: the placement brings it back
@@ -194,15 +215,28 @@ def test_close_hypotheses_are_told_apart_by_the_priors_pose_and_one_side_per_rig
     count = sum(1 for n in b.bone_names if n in prior.PRIOR_BONES) - 1
     assert solve.pose_disagreement(b, bent, local) == pytest.approx(90.0 / count)
 
-    def hyp(chamfer, pose_deg, split):
-        return xr.Dataset(attrs={"chamfer": chamfer, "prior_pose_deg": pose_deg, "side_split": split})
+    def hyp(chamfer, pose_deg, split, yaw=0.0, mirror=False, hyper=0.0, backward=0.0):
+        return xr.Dataset(attrs={"chamfer": chamfer, "prior_pose_deg": pose_deg, "side_split": split,
+                                 "matched_yaw_deg": yaw, "mirror": mirror, "hyperextension_deg": hyper,
+                                 "backward_travel": backward})
 
     config = solve.RefineConfig()
     # the least chamfer wins when no other comes close ...
-    assert solve.choose([hyp(1.0, 30, 0.0), hyp(2.0, 5, 0.0)], config) == 0
+    assert solve.choose([hyp(1.0, 30, 0.0), hyp(2.0, 5, 0.0)], config).index == 0
     # ... among close ones, the pose like the prior's, and groups kept to one side
-    assert solve.choose([hyp(1.0, 30, 0.0), hyp(1.2, 5, 0.0), hyp(5.0, 1, 0.0)], config) == 1
-    assert solve.choose([hyp(1.0, 10, 0.0), hyp(1.1, 5, 0.2)], config) == 0
+    assert solve.choose([hyp(1.0, 30, 0.0), hyp(1.2, 5, 0.0), hyp(5.0, 1, 0.0)], config).index == 1
+    assert solve.choose([hyp(1.0, 10, 0.0), hyp(1.1, 5, 0.2)], config).index == 0
+    # ... and knees bent backward count against a hypothesis, degree for degree
+    assert solve.choose([hyp(1.0, 5, 0.0, hyper=30.0), hyp(1.1, 10, 0.0, yaw=180.0)], config).index == 1
+    walked = solve.RefineConfig(travel_deg=50.0)  # walking backward, when weighed
+    assert solve.choose([hyp(1.0, 5, 0.0, backward=0.9), hyp(1.1, 10, 0.0, yaw=180.0)], walked).index == 1
+    # a runner-up facing otherwise (or mirrored) within call_deg: too close to call
+    near = solve.choose([hyp(1.0, 10, 0.0), hyp(1.1, 12, 0.0, yaw=170.0), hyp(1.2, 11, 0.0, yaw=20.0)], config)
+    assert (near.index, near.runner_up, near.too_close) == (0, 1, True) and near.margin_deg == pytest.approx(2.0)
+    far = solve.choose([hyp(1.0, 10, 0.0), hyp(1.1, 30, 0.0, mirror=True)], config)
+    assert (far.runner_up, far.too_close) == (1, False) and far.margin_deg == pytest.approx(20.0)
+    alone = solve.choose([hyp(1.0, 10, 0.0), hyp(1.1, 11, 0.0, yaw=30.0)], config)  # the same facing: no rival
+    assert alone.runner_up is None and not alone.too_close
     with pytest.raises(solve.SolveError, match="close >= 1"):
         solve.RefineConfig(close=0.5)
 
@@ -225,3 +259,27 @@ def test_a_chosen_body_far_from_every_marker_is_kept_unrefined_and_labels_nothin
     np.testing.assert_allclose(kept["root"].values, away.root)
     np.testing.assert_allclose(kept["joints"].values, hypothesis["joints"].values, atol=1e-6)
     assert "no marker trajectory lies within 0.11 m of the chosen hypothesis' body" in caplog.text
+
+
+def test_a_take_the_solver_cannot_use_is_refused_naming_its_frames(take):
+    """Too few markers on the body, a unit the file misstates, a subject leaving the volume: a clear message,
+    before any solve (the engine stores nothing for a failed task)."""
+    positions = take["position"].transpose("frame", "marker", "xyz").values.astype(np.float64)
+    frames = take["frame"].values + 100
+    solve.check_take(positions, 30.0, frames)  # the take itself is fine
+    few = positions.copy()
+    few[:, 3:] = np.nan
+    with pytest.raises(solve.SolveError, match="too few markers on the body to solve: a median of 3 per frame over "
+                                               "frames 100-123"):
+        solve.check_take(few, 30.0, frames)
+    with pytest.raises(solve.SolveError, match="span a median of 0.00.* m on a frame.*unit is likely misstated"):
+        solve.check_take(positions / 1000.0, 30.0, frames)  # metres labelled as millimetres
+    gone = positions.copy()
+    gone[16:, 2:] = np.nan  # from frame 116 on, two samples a frame: 8 frames, 0.8 s at 10 frames/s
+    with pytest.raises(solve.SolveError, match=r"frames 116-123 have fewer than 4 markers for more than 0.5 s"):
+        solve.check_take(gone, 10.0, frames)
+    solve.check_take(gone, 30.0, frames)  # at 30 frames/s the same 8 frames are 0.27 s: a gap the solver bridges
+    left = take.assign(position=take["position"].where(take["frame"] < take["frame"].values[16])).assign_attrs(fps=10.0)
+    with pytest.raises(solve.SolveError, match="subject left the capture volume"):
+        solve.screen_hypotheses(left, segmentation.rigid_segments(take, segmentation.SegmentConfig()),
+                                _turned_prior(take), hypotheses.ScreenConfig())
