@@ -118,24 +118,39 @@ def evaluate_uuo(catalog, plan, store, stages: list[str], per_sequence: dict) ->
     if markers_stage is None:
         raise PlanError("the catalog solves UUO bodies but has no stage writing raw_markers to score them against")
     truths, priors = {}, {}
-    prior_stage = stage_writing(catalog, "body_prior")
     for seq in plan.sequences:
         markers = plan.open(store, markers_stage, seq.id).load()
         if "gt_joints" not in markers:
             raise PlanError(f"sequence {seq.id!r} has no ground truth (gt_joints); evaluate UUO on studio takes")
         truths[seq.id] = take_truth(markers)
-        priors[seq.id] = prior_figures(plan.open(store, prior_stage, seq.id).load(), markers["gt_joints"].values) \
-            if prior_stage else {}
     out = {}
     for stage in stages:
+        prior_stage = prior_of(catalog, stage)  # the prior this solve started from (a catalog may hold several)
         takes = {}
         for seq in plan.sequences:
-            takes[seq.id] = {**score_take(truths[seq.id], plan.open(store, stage, seq.id).load()), **priors[seq.id]}
+            if (prior_stage, seq.id) not in priors:
+                priors[prior_stage, seq.id] = prior_figures(plan.open(store, prior_stage, seq.id).load(),
+                                                            truths[seq.id]["joints"]) if prior_stage else {}
+            takes[seq.id] = {**score_take(truths[seq.id], plan.open(store, stage, seq.id).load()),
+                             **priors[prior_stage, seq.id]}
             per_sequence.setdefault(seq.id, {})[f"uuo_{stage}"] = takes[seq.id]
         out[stage] = {"overall": _summary(list(takes.values())), "takes": takes,
                       "layouts": {layout: _summary([t for t in takes.values() if t["layout"] == layout])
                                   for layout in sorted({t["layout"] for t in takes.values()})}}
     return out
+
+
+def prior_of(catalog, stage: str) -> str | None:
+    """The stage writing the body_prior that ``stage`` was solved from: the first found upstream, breadth first."""
+    queue, seen = [stage], {stage}
+    while queue:
+        for upstream in catalog.stages[queue.pop(0)].inputs.values():
+            if catalog.stages[upstream].spec.output == "body_prior":
+                return upstream
+            if upstream not in seen:
+                seen.add(upstream)
+                queue.append(upstream)
+    return None
 
 
 # The prior's error (tasks/uuo/prior.py): after part matching's alignment, after one rigid registration with scale

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from mocapflow.pipeline.registry import NoParams, TaskSpec
-from mocapflow.tasks.uuo import hypotheses, labelled, monocular, prior, segmentation, solve
+from mocapflow.tasks.uuo import combine, hypotheses, labelled, monocular, prior, segmentation, solve
 
 TASKS = (
     # The marker-file counterpart: a `markers` dataset's C3D or TRC recordings as raw_markers (frame, marker, xyz).
@@ -104,6 +104,16 @@ TASKS = (
         output="body_prior", partition="sequence", inputs={"markers": "raw_markers", "reference": "uuo_body"},
         reads={"markers": ("position",), "reference": ("bone_rotation", "root", "joints")}, whole_sequence=True,
         description="a solved reference body (a recorded take's labelled solve) degraded like a monocular estimate",
+    ),
+    TaskSpec(
+        name="combine_priors", fn=combine.combine_priors, version="1", params=combine.CombinePriorsConfig,
+        output="body_prior", partition="sequence", whole_sequence=True,
+        inputs={"prior0": "body_prior", "prior1": "body_prior", "prior2": "body_prior"},
+        reads={"prior0": ("bone_rotation", "root", "joints", "valid"),
+               "prior1": ("bone_rotation", "root", "joints", "valid"),
+               "prior2": ("bone_rotation", "root", "joints", "valid")},
+        description="three prior draws or estimates of one take combined robustly: aligned by one yaw, each joint's "
+                    "rotation a Cauchy-weighted mean from the median, the roots' median, a frame valid in two",
     ),
     TaskSpec(
         name="merge_labels", fn=labelled.merge_labels, version="1", params=labelled.MergeLabelsConfig,

@@ -18,6 +18,12 @@ The world landmarks are turned back by the region's rotation (image axes: x righ
 camera), then onto Z up, and the template's 20 joints are read off them (``template_joints``). ``monocular_prior``
 fits Anny to those joints as a prior file is fitted (tasks/uuo/prior.py). The estimate knows nothing of the
 studio's truth: it sees the video's pixels only.
+
+A second and third estimate of one take, for combining three (tasks/uuo/combine.py), come from the estimator's
+input perturbed (``shift_px``, ``scale``, ``flip`` of MonocularPriorConfig; ``perturb_frames``): the networks
+are deterministic, so a rerun on the same pixels repeats itself exactly, while a moved, zoomed or mirrored video
+changes the detector's box and the landmark network's crop, and so the estimate (test-time augmentation). Such
+estimates share the networks' biases: their errors are correlated, unlike independent simulated draws.
 """
 
 from __future__ import annotations
@@ -62,11 +68,22 @@ class MonocularPriorConfig:
     min_detection: float = 0.5  # the detector's score for a body (mediapipe's default)
     min_presence: float = 0.5  # the landmark network's presence flag below which the frame is lost
     fit: FilePriorConfig = field(default_factory=FilePriorConfig)
+    # The estimator's input perturbed, for a second and third estimate of one take (tasks/uuo/combine.py): every
+    # frame moved by shift_px (x right, y down, pixels) and zoomed by scale about its centre (the edge pixels
+    # repeated), and with flip mirrored left-right, the landmarks mirrored back and their sides swapped. The
+    # default perturbs nothing.
+    shift_px: tuple[float, float] = (0.0, 0.0)
+    scale: float = 1.0
+    flip: bool = False
 
     def __post_init__(self):
         if not (0 < self.min_detection < 1 and 0 < self.min_presence < 1):
             raise PriorError(f"monocular prior thresholds must lie in (0, 1), got min_detection={self.min_detection}, "
                              f"min_presence={self.min_presence}")
+        if len(self.shift_px) != 2 or not np.isfinite(self.shift_px).all() or not 0.5 <= self.scale <= 2.0:
+            raise PriorError(f"monocular prior perturbation out of range: shift_px two finite pixel offsets (x, y) "
+                             f"(got {self.shift_px}), scale in [0.5, 2] (got {self.scale}); (0, 0) and 1 perturb "
+                             "nothing")
 
 
 # ---- the networks' geometry (kernels) ------------------------------------------------------------------------
@@ -183,6 +200,40 @@ def template_joints(landmarks: np.ndarray) -> np.ndarray:
     return np.stack([named[name] for name in JOINT_NAMES], axis=-2)
 
 
+# BlazePose's 33 body landmarks with the sides swapped (the nose stays): a mirrored image's landmarks read back.
+MIRRORED_LANDMARKS = np.array([0, 4, 5, 6, 1, 2, 3, 8, 7, 10, 9, 12, 11, 14, 13, 16, 15, 18, 17, 20, 19, 22, 21, 24, 23,
+                               26, 25, 28, 27, 30, 29, 32, 31])
+
+
+def perturb_frames(frames: np.ndarray, shift_px: tuple[float, float] = (0.0, 0.0), scale: float = 1.0,
+                   flip: bool = False) -> np.ndarray:
+    """Video frames (frame, y, x, 3) uint8 zoomed by ``scale`` about each frame's centre, moved by ``shift_px``
+    (x, y) pixels (the edge pixels repeated into what comes into view) and, with ``flip``, mirrored left-right.
+    Nothing asked, the frames themselves."""
+    import cv2
+
+    if tuple(shift_px) == (0.0, 0.0) and scale == 1.0 and not flip:
+        return frames
+    h, w = frames.shape[1:3]
+    centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    warp = np.zeros((2, 3))
+    warp[:, :2] = np.eye(2) * scale
+    warp[:, 2] = centre - scale * centre + np.asarray(shift_px, float)
+    if flip:  # x -> (w - 1) - x after the zoom and shift
+        warp = np.array([[-1.0, 0.0, w - 1.0], [0.0, 1.0, 0.0]]) @ np.vstack([warp, [0.0, 0.0, 1.0]])
+    moved = [cv2.warpAffine(image, warp, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+             for image in frames]
+    return np.stack(moved) if moved else frames
+
+
+def unmirror_landmarks(landmarks: np.ndarray) -> np.ndarray:
+    """World landmarks (..., 33, 3) Z up estimated on a left-right mirrored image, back to the real body: x negated
+    (image right is world x, to_z_up) and the sides swapped.  -> (..., 33, 3)"""
+    out = landmarks[..., MIRRORED_LANDMARKS, :].copy()
+    out[..., 0] *= -1.0
+    return out
+
+
 # ---- the estimator (the two networks run by LiteRT) ----------------------------------------------------------
 
 def _interpreter(model: bytes, what: str):
@@ -274,8 +325,11 @@ def monocular_prior(markers: xr.Dataset, config: MonocularPriorConfig, detector:
         raise PriorError("a monocular prior needs the take's video and these markers have none; film it (the "
                          "studio_markers dataset's 'video' option) or bring an estimate as a prior file (file_prior)")
     estimator = BlazePose(detector, landmarker, config.min_detection, config.min_presence)
-    frames = markers["video"].transpose("frame", "y", "x", "rgb").values
+    frames = perturb_frames(markers["video"].transpose("frame", "y", "x", "rgb").values, config.shift_px,
+                            config.scale, config.flip)
     landmarks, presence = estimator.track(frames)
+    if config.flip:
+        landmarks = unmirror_landmarks(landmarks)
     joints = template_joints(landmarks)
     found = np.isfinite(joints).all(axis=(1, 2))
     if not found.any():
@@ -283,4 +337,6 @@ def monocular_prior(markers: xr.Dataset, config: MonocularPriorConfig, detector:
                          "(a person in view, lit) or use prior: simulated or none")
     out = joints_prior(markers["frame"].values, joints, float(markers.attrs.get("fps", 0.0)), config.fit, "monocular")
     return out.assign_attrs(estimator="BlazePose GHUM 3D full (mediapipe 0.10.14 models, LiteRT)",
-                            found_frames=int(found.sum()), presence_median=float(np.median(presence[found])))
+                            found_frames=int(found.sum()), presence_median=float(np.median(presence[found])),
+                            input_perturbed={"shift_px": [float(v) for v in config.shift_px],
+                                             "scale": float(config.scale), "flip": bool(config.flip)})
