@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Mapping
 
@@ -23,9 +24,11 @@ _MARKER_FILES: BoundedCache[tuple, xr.Dataset] = BoundedCache(4)  # (path, size,
 class MarkerFileReader:
     """A folder of optical marker recordings (C3D, TRC), one sequence per file, as raw_markers (systems/uuo/marker_files.py).
 
-    ``up``: which axis of the files is up (``auto``, the default: found from the markers; ``z``; or ``y`` to turn
-    Y-up files onto Z up); ``labels``: ``ignore``
-    (unlabelled trajectories m000, m001, ...) or ``use``; ``frames``: ``[start, stop]``, the frames of each file
+    ``path``: the folder, or a list of folders (each inside data_roots), whose files matching ``pattern`` (a glob,
+    ``*.c3d`` by default; with several folders one glob for all or a list of one per folder) are the takes, each
+    named by its file's name without the extension: a name found twice is refused. ``up``: which axis of the files
+    is up (``auto``, the default: found from the markers; ``z``; or ``y`` to turn Y-up files onto Z up); ``labels``:
+    ``ignore`` (unlabelled trajectories m000, m001, ...) or ``use``; ``frames``: ``[start, stop]``, the frames of each file
     to keep (a short take of a long trial); ``takes``: per file (by its id) its own ``up`` and ``frames``;
     ``prior``: a folder (inside data_roots) of monocular prior files, ``<id>.npz`` or ``<id>.json``
     (systems/uuo/prior_files.py), read as ``prior_joints`` for the ``file_prior`` stage; ``max_coordinate_m``: the
@@ -37,15 +40,14 @@ class MarkerFileReader:
 
     @staticmethod
     def discover(catalog, dataset) -> list[SequenceInfo]:
-        folder = data_folder(catalog, dataset)
-        pattern = data_pattern(dataset, "*.c3d")
+        sources = _folders(catalog, dataset)
         takes = dataset.options.get("takes") or {}
         if not isinstance(takes, Mapping):
             raise CatalogError(f"{dataset.where}.takes: expected a mapping of file ids to {{up, frames}}, got {takes!r}")
         prior = catalog.resolve_data_path(str(dataset.options["prior"]), f"{dataset.where}.prior") \
             if dataset.options.get("prior") is not None else None
         out = []
-        for path in sorted(p for p in folder.glob(pattern) if p.is_file()):
+        for path in _marker_files(dataset, sources):
             settings = MarkerFileReader._settings(dataset, path.stem)
             if prior is not None:
                 settings["prior"] = str(prior_path(prior, path.stem))
@@ -53,12 +55,13 @@ class MarkerFileReader:
             files = [file_digest(path)] + ([file_digest(Path(settings["prior"]))] if prior is not None else [])
             out.append(SequenceInfo(path.stem, (), ds.sizes["frame"], digest([files, settings]),
                                     {"path": str(path), **settings}))
+        where = "; ".join(f"{pattern!r} in {folder}" for folder, pattern in sources)
         unknown = sorted(set(takes) - {s.id for s in out})
         if unknown:
-            raise CatalogError(f"{dataset.where}.takes: {unknown} name no file matching {pattern!r} in {folder}; "
+            raise CatalogError(f"{dataset.where}.takes: {unknown} name no file matching {where}; "
                                f"files: {[s.id for s in out]}")
         if not out:
-            raise InputError(f"{dataset.where}: no marker files match {pattern!r} in {folder}")
+            raise InputError(f"{dataset.where}: no marker files match {where}")
         return out
 
     @staticmethod
@@ -102,6 +105,45 @@ class MarkerFileReader:
     def read(dataset, seq: SequenceInfo, start: int, stop: int) -> xr.Dataset:
         settings = {k: seq.spec[k] for k in ("up", "labels", "frames", "prior") if k in seq.spec}
         return MarkerFileReader._load(dataset, Path(seq.spec["path"]), settings).isel(frame=slice(start, stop))
+
+
+def _folders(catalog, dataset) -> list[tuple[Path, str]]:
+    """The dataset's folders, each with its glob: ``path`` one folder or a list of folders (each checked as one
+    folder's path is: inside data_roots, an existing folder), ``pattern`` one glob for every folder or a list of one
+    glob per folder."""
+    paths, pattern = dataset.options.get("path"), dataset.options.get("pattern", "*.c3d")
+    if not isinstance(paths, (list, tuple)):
+        if isinstance(pattern, (list, tuple)):
+            raise CatalogError(f"{dataset.where}.pattern: a list of globs needs 'path' to be a list of as many folders, "
+                               f"got path {paths!r}; give one glob, e.g. '*.c3d'")
+        return [(data_folder(catalog, dataset), data_pattern(dataset, "*.c3d"))]
+    if not paths or not all(isinstance(p, str) and p for p in paths):
+        raise CatalogError(f"{dataset.where}.path: expected a folder or a non-empty list of folders, got {paths!r}")
+    patterns = list(pattern) if isinstance(pattern, (list, tuple)) else [pattern] * len(paths)
+    if len(patterns) != len(paths):
+        raise CatalogError(f"{dataset.where}.pattern: {len(patterns)} globs for the {len(paths)} folders of 'path'; "
+                           "give one glob for all of them or one per folder, in the order of 'path'")
+    out = []
+    for i, (path, glob) in enumerate(zip(paths, patterns)):
+        one = replace(dataset, options={**dataset.options, "path": path, "pattern": glob},
+                      where=f"{dataset.where}.path[{i}]")
+        out.append((data_folder(catalog, one), data_pattern(one, "*.c3d")))
+    if len({folder for folder, _ in out}) < len(out):
+        raise CatalogError(f"{dataset.where}.path: a folder is named twice in {paths!r}; name each folder once")
+    return out
+
+
+def _marker_files(dataset, sources: list[tuple[Path, str]]) -> list[Path]:
+    """The files matching each folder's glob, folder by folder in the order of ``path``, each folder's in name order;
+    two files with one id (the name without its extension) are refused, naming both."""
+    found: dict[str, Path] = {}
+    for folder, pattern in sources:
+        for path in sorted(p for p in folder.glob(pattern) if p.is_file()):
+            if path.stem in found:
+                raise CatalogError(f"{dataset.where}: take {path.stem!r} is both {found[path.stem]} and {path}; a take "
+                                   "is named by its file: rename one of them or narrow a pattern")
+            found[path.stem] = path
+    return list(found.values())
 
 
 def _max_coordinate(dataset) -> float:
