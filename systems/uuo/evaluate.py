@@ -37,8 +37,10 @@ def _mesh(phenotype: dict, quats: np.ndarray, root: np.ndarray):
 
 
 def _layout(markers) -> str:
+    """The take's marker layout: ``body40``, ``left_leg``, ... (the layout's count, seen or not)."""
     part = str(markers.attrs.get("marker_part", "body"))
-    count = len(np.unique(markers["gt_source"].values[markers["gt_source"].values >= 0]))
+    count = int(markers.attrs["marker_count"]) if "marker_count" in markers.attrs else \
+        len(np.unique(markers["gt_source"].values[markers["gt_source"].values >= 0]))
     return f"body{count}" if part == "body" else part
 
 

@@ -262,4 +262,5 @@ def marker_dataset(body: MeshBody, markers: MarkerLayout, captured: CapturedMark
                                     "bone": np.array(body.bone_names, dtype=object),
                                     "quat": np.array(["x", "y", "z", "w"], dtype=object)},
                       attrs={"fps": float(fps), "length_unit": "m", "up_axis": "Z", "marker_part": markers.part,
-                             "marker_offset_m": markers.offset_m, "phenotype": asdict(body.phenotype)})
+                             "marker_count": int(len(markers.faces)), "marker_offset_m": markers.offset_m,
+                             "phenotype": asdict(body.phenotype)})
