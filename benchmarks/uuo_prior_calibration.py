@@ -34,9 +34,6 @@ EXERCISES = ("walking_on_the_spot", "side_reaches", "jumping_jack", "classic_squ
 
 
 def main() -> None:
-    from scipy.spatial.transform import Rotation
-
-    from mocapflow.tasks.studio.synth import SequenceSpec, build_rig
     from mocapflow.tasks.uuo import prior
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -62,10 +59,7 @@ def main() -> None:
     t0 = time.perf_counter()
     for name in EXERCISES[:args.exercises]:
         for seed in range(args.seeds):
-            rig = build_rig(SequenceSpec(name, frames=args.frames, seed=500 + seed, body="mesh", views=1))
-            n = rig.n_frames
-            quats = Rotation.from_matrix(rig.take.rotations[:n].reshape(-1, 3, 3)).as_quat().reshape(n, -1, 4)
-            truth = rig.take.posed.heads[:n][:, rig.body.joint_bones()]
+            rig, n, quats, truth = calibration_take(name, seed, args.frames)
             if estimate is not None:
                 rows.append(estimate(rig, n, truth))
             else:
@@ -81,12 +75,22 @@ def main() -> None:
     print(f"{len(rows)} takes, form {args.form} {overrides or ''}, {time.perf_counter() - t0:.0f} s")
 
 
-def combined_calibration(args) -> None:
-    """``--draws 3``: per take three priors, each alone and the three combined by each rotation average; the error
-    after part matching's alignment (aligned_mpjpe) on the frames each prior keeps."""
+def calibration_take(name: str, seed: int, frames: int):
+    """One calibration take of a procedural exercise: (rig, frames, true world rotations as quaternions (frame,
+    bone, 4), the true template joints (frame, joint, 3))."""
     from scipy.spatial.transform import Rotation
 
     from mocapflow.tasks.studio.synth import SequenceSpec, build_rig
+
+    rig = build_rig(SequenceSpec(name, frames=frames, seed=500 + seed, body="mesh", views=1))
+    n = rig.n_frames
+    quats = Rotation.from_matrix(rig.take.rotations[:n].reshape(-1, 3, 3)).as_quat().reshape(n, -1, 4)
+    return rig, n, quats, rig.take.posed.heads[:n][:, rig.body.joint_bones()]
+
+
+def combined_calibration(args) -> None:
+    """``--draws 3``: per take three priors, each alone and the three combined by each rotation average; the error
+    after part matching's alignment (aligned_mpjpe) on the frames each prior keeps."""
     from mocapflow.tasks.uuo import combine, prior
 
     overrides = {}
@@ -103,10 +107,7 @@ def combined_calibration(args) -> None:
     t0 = time.perf_counter()
     for i, name in enumerate(EXERCISES[:args.exercises]):
         for seed in range(args.seeds):
-            rig = build_rig(SequenceSpec(name, frames=args.frames, seed=500 + seed, body="mesh", views=1))
-            n = rig.n_frames
-            quats = Rotation.from_matrix(rig.take.rotations[:n].reshape(-1, 3, 3)).as_quat().reshape(n, -1, 4)
-            truth = rig.take.posed.heads[:n][:, rig.body.joint_bones()]
+            rig, n, quats, truth = calibration_take(name, seed, args.frames)
             if draw_priors is not None:
                 draws = draw_priors(rig, n)
             else:
