@@ -65,7 +65,8 @@ from scipy.spatial.transform import Rotation
 
 from mocapflow.tasks.shared.kinematics import forward_kinematics, local_rotations, world_rotations
 from mocapflow.tasks.shared.mesh_body import Phenotype, mesh_body
-from mocapflow.tasks.uuo.prior import PRIOR_BONES, PriorError, prior_dataset
+from mocapflow.tasks.uuo.matching import yaw_matrix
+from mocapflow.tasks.uuo.prior import PRIOR_BONES, PriorError, nearest_kept, prior_dataset
 
 ROTATION_AVERAGES = ("cauchy", "median", "medoid", "mean")
 _QUAT = ["x", "y", "z", "w"]
@@ -98,11 +99,6 @@ class CombinePriorsConfig:
 
 
 # ---- kernels -------------------------------------------------------------------------------------------------
-
-def yaw_matrix(theta: float) -> np.ndarray:
-    c, s = np.cos(theta), np.sin(theta)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
 
 def align_yaw(source: np.ndarray, target: np.ndarray, keep: float = 0.8, rounds: int = 3) -> tuple[float, np.ndarray]:
     """The yaw (radians, about z) and translation taking ``source``'s joints onto ``target``'s over a take: the yaw
@@ -156,11 +152,6 @@ def robust_rotation(quats: np.ndarray, votes: np.ndarray, method: str = "cauchy"
             weight = wq / (1.0 + (np.linalg.norm(signed - x[None], axis=-1, keepdims=True) / chord) ** 2)
             x = (signed * weight).sum(0) / weight.sum(0)
     return x / np.linalg.norm(x, axis=-1, keepdims=True)
-
-
-def _nearest_kept(valid: np.ndarray) -> np.ndarray:
-    kept = np.flatnonzero(valid)
-    return kept[np.abs(np.arange(len(valid))[:, None] - kept[None]).argmin(axis=1)]
 
 
 # ---- the stage -----------------------------------------------------------------------------------------------
@@ -253,7 +244,7 @@ def combine_priors(prior0: xr.Dataset, prior1: xr.Dataset, prior2: xr.Dataset,
     voters = np.where(count[None] > 0, votes, True)  # a frame nobody kept: all hold something, all vote (then held)
     combined = robust_rotation(local, voters, config.rotation, config.iterations, config.cauchy_deg)
     root = np.nanmedian(np.where(voters[..., None], roots, np.nan), axis=0)
-    held = _nearest_kept(valid)
+    held = nearest_kept(valid)
     combined, root = combined[held], root[held]
 
     # how far apart the draws' articulations were, and how far each lay from the combination, on the frames it voted

@@ -23,6 +23,7 @@ import numpy as np
 
 from mocapflow.tasks.shared.mesh_body import MeshBody
 from mocapflow.tasks.shared.solver_body import BodyFit, SolverBody, posed_heads
+from mocapflow.tasks.uuo import metrics
 from mocapflow.tasks.uuo.matching import MatchConfig
 
 MIRROR = np.diag([-1.0, 1.0, 1.0])  # the rest body's left-right reflection (its sagittal plane is x = 0)
@@ -136,14 +137,6 @@ def hyperextension_deg(flexion: np.ndarray, tolerance_deg: float) -> float:
     return float(np.maximum(0.0, -flexion - tolerance_deg).sum(-1).mean())
 
 
-def facing(joints: np.ndarray, names) -> np.ndarray:
-    """Each frame's facing (the horizontal normal of the hips' left-right axis, Z up), radians.
-    joints (frame, joint, 3) in the order of ``names``"""
-    names = list(names)
-    across = joints[:, names.index("LeftHip"), :2] - joints[:, names.index("RightHip"), :2]
-    return np.arctan2(-across[:, 0], across[:, 1])  # forward = across x up: (across_y, -across_x)
-
-
 def backward_travel(joints: np.ndarray, names, travel_m: float = 1.0) -> float:
     """How clearly the body travels backward over the take: the hips' net horizontal displacement against its
     median facing, -cos of the angle (0 when forward or sideways), scaled by the distance up to ``travel_m``. People
@@ -155,6 +148,6 @@ def backward_travel(joints: np.ndarray, names, travel_m: float = 1.0) -> float:
     distance = float(np.linalg.norm(move))
     if distance < 1e-6:
         return 0.0
-    heading = facing(joints, names)
+    heading = metrics.facing(joints, names)
     ahead = np.array([np.cos(np.median(np.unwrap(heading))), np.sin(np.median(np.unwrap(heading)))])
     return float(max(0.0, -(move @ ahead) / distance) * min(1.0, distance / travel_m))

@@ -86,17 +86,19 @@ TURNED_DEG = 90.0  # a solve whose facing is off by more than this on the median
 MIRRORED_SHARE = 0.5  # a solve that puts more than this share of its sided labels on the other side is mirrored
 
 
+def facing(joints: np.ndarray, names) -> np.ndarray:
+    """Each frame's facing (the horizontal normal of the hips' left-right axis, Z up), radians.
+    joints (frame, joint, 3) in the order of ``names``"""
+    names = list(names)
+    across = joints[:, names.index("LeftHip"), :2] - joints[:, names.index("RightHip"), :2]
+    return np.arctan2(-across[:, 0], across[:, 1])  # forward = across x up: (across_y, -across_x)
+
+
 def facing_error_deg(joints: np.ndarray, truth: np.ndarray, names: list[str]) -> float:
     """Median over frames of the angle between the solved and the true facing, degrees: the horizontal direction
     normal to the hips' left-right axis (Z up). About 180 for a body solved turned around.
     joints, truth (frame, joint, 3) in the order of ``names`` (the template's JOINT_NAMES)"""
-    left, right = names.index("LeftHip"), names.index("RightHip")
-
-    def heading(j):
-        across = j[:, left, :2] - j[:, right, :2]  # left minus right, horizontal
-        return np.arctan2(across[:, 0], -across[:, 1])  # the facing: across turned by -90 degrees about Z
-
-    diff = np.angle(np.exp(1j * (heading(joints) - heading(truth))))
+    diff = np.angle(np.exp(1j * (facing(joints, names) - facing(truth, names))))
     return float(np.degrees(np.median(np.abs(diff))))
 
 

@@ -41,6 +41,13 @@ from mocapflow.tasks.shared.mesh_body import PHENOTYPE_NAMES, MeshBody, Phenotyp
     pose_mesh
 
 
+def nearest_kept(valid: np.ndarray) -> np.ndarray:
+    """Each frame's nearest kept frame (itself where kept): what a lost frame of a prior holds.  (frame,) bool ->
+    (frame,) frame indices"""
+    kept = np.flatnonzero(valid)
+    return kept[np.abs(np.arange(len(valid))[:, None] - kept[None]).argmin(axis=1)]
+
+
 class PriorError(ValueError):
     """A prior that cannot be made from the given take or settings."""
 
@@ -143,8 +150,7 @@ def degrade(body: MeshBody, rotations: np.ndarray, root: np.ndarray, fps: float,
     valid = rng.random(n) >= config.lost
     if not valid.any():
         valid[int(rng.integers(n))] = True
-    kept = np.flatnonzero(valid)
-    nearest = kept[np.abs(np.arange(n)[:, None] - kept[None]).argmin(axis=1)]  # lost frames hold the nearest kept
+    nearest = nearest_kept(valid)  # lost frames hold the nearest kept
     values = np.clip(np.array(list(asdict(body.phenotype).values()))
                      + rng.normal(0, config.phenotype_noise, 6), 0.0, 1.0)
     return {"rotations": world[nearest], "root": prior_root[nearest], "valid": valid, "scale": scale,
@@ -408,7 +414,7 @@ def joints_prior(frames: np.ndarray, joints: np.ndarray, fps: float, config: Fil
 
     valid = np.isfinite(joints).all(axis=(1, 2))
     kept = np.flatnonzero(valid)
-    nearest = np.abs(np.arange(len(valid))[:, None] - kept[None]).argmin(axis=1)  # lost frames hold the nearest kept
+    nearest = np.searchsorted(kept, nearest_kept(valid))  # lost frames hold the nearest kept (an index into kept)
     body, solver, fitted = fit_joints(joints[kept], config)
     out = posed_heads(solver, fitted)[nearest][:, body.joint_bones()]
     local, root = fitted.local[nearest], fitted.root[nearest]

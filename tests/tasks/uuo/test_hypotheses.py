@@ -11,7 +11,7 @@ from mocapflow.tasks.shared.body import JOINT_NAMES
 from mocapflow.tasks.shared.kinematics import world_rotations
 from mocapflow.tasks.shared.solver_body import BodyFit, SolverBody, posed_heads
 from mocapflow.tasks.studio.synth import SequenceSpec, build_rig
-from mocapflow.tasks.uuo import hypotheses as hyp
+from mocapflow.tasks.uuo import hypotheses as hyp, metrics
 
 
 @pytest.fixture(scope="module")
@@ -76,7 +76,7 @@ def test_a_body_walking_backward_is_told_from_one_walking_forward_or_standing():
     joints = np.zeros((frames, len(JOINT_NAMES), 3))
     joints[:, JOINT_NAMES.index("LeftHip")] = [-0.1, 0.0, 0.9]  # facing +y: left is -x
     joints[:, JOINT_NAMES.index("RightHip")] = [0.1, 0.0, 0.9]
-    assert np.degrees(hyp.facing(joints, JOINT_NAMES)[0]) == pytest.approx(90.0)
+    assert np.degrees(metrics.facing(joints, JOINT_NAMES)[0]) == pytest.approx(90.0)
     walk = joints.copy()
     walk[..., 1] += np.linspace(0.0, 2.0, frames)[:, None]
     assert hyp.backward_travel(walk, JOINT_NAMES) == 0.0
