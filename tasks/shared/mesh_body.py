@@ -157,11 +157,7 @@ def anny_model():
     0.8 GB; about a minute the first time), and compiles its skinning kernel once (``WARP_CACHE_PATH``).
     """
     def build():
-        import warp
-
-        warp.config.log_level = warp.LOG_ERROR  # Anny initializes warp on import; keep its banner off the console
-        with without_cuda_driver_warning():
-            warp.init()  # here, not in Anny's import: on a machine without a GPU its CUDA driver warning is dropped
+        warp_ready()  # here, not in Anny's import
         import anny
         import torch
 
@@ -172,11 +168,21 @@ def anny_model():
     return _MODELS.get_or_make("anny", build)
 
 
+def warp_ready() -> None:
+    """Warp initialized for the house (Anny's skinning, the studio's sight lines): its banner off the console and,
+    on a machine without a GPU, its CUDA driver warning dropped; nothing once it is."""
+    import warp
+
+    warp.config.log_level = warp.LOG_ERROR
+    with _without_cuda_driver_warning():
+        warp.init()
+
+
 CUDA_DRIVER_WARNING = "Could not find or load the NVIDIA CUDA driver"  # warp's native line on a machine without one
 
 
 @contextmanager
-def without_cuda_driver_warning():
+def _without_cuda_driver_warning():
     """Hold what native code writes to stderr (file descriptor 2) while the block runs, then write it back except
     warp's line saying no CUDA driver was found (expected on a CPU machine; Anny skins on the CPU there). Any other
     line, a real error among them, still reaches stderr."""

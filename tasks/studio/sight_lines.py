@@ -15,6 +15,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from mocapflow.tasks.shared.mesh_body import warp_ready
+
 _DEVICE = "cpu"
 
 
@@ -32,16 +34,6 @@ def _count_clear(mesh: wp.uint64, cameras: wp.array(dtype=wp.vec3), points: wp.a
         wp.atomic_add(seen, frame, m, 1)
 
 
-def _warp_ready() -> None:
-    """Warp initialized as the mesh body initializes it (its banner off, its CUDA driver warning dropped on a
-    machine without a GPU); nothing once it is."""
-    from mocapflow.tasks.shared.mesh_body import without_cuda_driver_warning
-
-    wp.config.log_level = wp.LOG_ERROR
-    with without_cuda_driver_warning():
-        wp.init()
-
-
 def cameras_seeing(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, cameras: np.ndarray,
                    tolerance_m: float = 2e-3) -> np.ndarray:
     """How many cameras see each point on each frame: the segment from the camera to the point meets the mesh
@@ -51,7 +43,7 @@ def cameras_seeing(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, 
     n_frames, n_points = points.shape[:2]
     if n_frames == 0 or n_points == 0 or len(cameras) == 0:
         return np.zeros((n_frames, n_points), np.int64)
-    _warp_ready()
+    warp_ready()
     with wp.ScopedDevice(_DEVICE):
         mesh = wp.Mesh(points=wp.array(np.asarray(vertices[0], np.float32), dtype=wp.vec3),
                        indices=wp.array(np.asarray(faces, np.int32).ravel(), dtype=wp.int32))
