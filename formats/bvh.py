@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocapflow.tasks.studio.bvh import parse_bvh
+from mocapflow.pipeline.errors import InputError
+from mocapflow.tasks.studio.bvh import BVHError, parse_bvh
 
 BVH_SCALE = 100.0  # metres -> centimetres
 Z_UP_TO_Y_UP = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])  # the subject faces +Z
@@ -57,8 +58,20 @@ def _numbers(v: np.ndarray) -> str:
 
 
 def read_bvh_joints(path: Path) -> tuple[np.ndarray, list[str], float]:
-    """World joint positions (frame, joint, 3) in metres, Z up, of a BVH file, its joint names (no End Sites), rate."""
-    bvh = parse_bvh(path.read_text())
+    """World joint positions (frame, joint, 3) in metres, Z up, of a BVH file, its joint names (no End Sites), rate.
+    A file that is not readable BVH text raises InputError naming it."""
+    path = Path(path)
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except OSError as exc:
+        raise InputError(f"cannot read {path}: {exc.strerror}; give the path of a BVH file") from exc
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not a BVH text file (byte {exc.start} is not UTF-8 text); the file is damaged or "
+                         "not a BVH file: export it again") from exc
+    try:
+        bvh = parse_bvh(text)
+    except BVHError as exc:
+        raise InputError(f"{path}: not a valid BVH file: {exc}") from exc
     _, pos = bvh.forward_kinematics()
     keep = [i for i, n in enumerate(bvh.names) if not n.endswith("_End")]
     return pos[:, keep] @ Z_UP_TO_Y_UP / BVH_SCALE, [bvh.names[i] for i in keep], bvh.fps  # row @ M = M^T p

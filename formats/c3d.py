@@ -9,6 +9,7 @@ byte (-1 when the point is missing).
 
 from __future__ import annotations
 
+import struct
 from pathlib import Path
 
 import ezc3d
@@ -74,20 +75,140 @@ def read_trajectories(path: Path) -> tuple[np.ndarray, float, list[str], str]:
     (``POINT:UNITS``, mm when absent). A file holding fewer frames than its header announces (cut short), or a
     present sample that is not a finite number (damaged bytes), is refused, naming the frame and marker."""
     try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"cannot read {path}: {exc.strerror}; give the path of a C3D file") from exc
+    check_layout(path, data)
+    try:
         c3d = ezc3d.c3d(str(path))
-    except (RuntimeError, ValueError, OSError) as exc:
-        raise InputError(f"{path}: not a readable C3D file ({exc})") from exc
-    point = c3d["parameters"]["POINT"]
-    points = np.asarray(c3d["data"]["points"][:3], np.float64).transpose(2, 1, 0)  # (frame, marker, 3)
-    residuals = np.asarray(c3d["data"]["meta_points"]["residuals"][0]).T  # (frame, marker)
+    except (RuntimeError, ValueError, OSError, IndexError, UnicodeDecodeError, OverflowError) as exc:
+        raise InputError(f"{path}: not a readable C3D file ({type(exc).__name__}: {exc}); copy or export it "
+                         "again") from exc
+    try:
+        point = c3d["parameters"]["POINT"]
+        points = np.asarray(c3d["data"]["points"][:3], np.float64).transpose(2, 1, 0)  # (frame, marker, 3)
+        residuals = np.asarray(c3d["data"]["meta_points"]["residuals"][0]).T  # (frame, marker)
+        labels = point["LABELS"]["value"] if point.get("LABELS") else []
+        units = point["UNITS"]["value"] if point.get("UNITS") else ["mm"]
+        rate = float(c3d["header"]["points"]["frame_rate"])
+    except (KeyError, IndexError, TypeError, ValueError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: the C3D file's POINT parameters or data are incomplete ({type(exc).__name__}: "
+                         f"{exc}); copy or export it again") from exc
     present = residuals >= 0
     points[~present] = np.nan
-    names = [str(n).strip() for n in point["LABELS"]["value"]][:points.shape[1]]
+    names = [str(n).strip() for n in labels][:points.shape[1]]
     names += [f"unlabelled{i}" for i in range(len(names), points.shape[1])]
     _check_frame_count(path, points.shape[0])
     _check_finite(path, points, present, names)
-    unit = str(point["UNITS"]["value"][0]).strip().lower() if point.get("UNITS") else "mm"
-    return points, float(c3d["header"]["points"]["frame_rate"]), names, unit
+    unit = str(units[0]).strip().lower() if len(units) else "mm"
+    return points, rate, names, unit
+
+
+C3D_KEY = 0x50  # a C3D file's second byte, and the parameter section's
+PROCESSORS = {84: "<", 85: "<", 86: ">"}  # Intel, DEC (little-endian words), MIPS (big-endian)
+PARAMETER_TYPES = (-1, 1, 2, 4)
+COUNTS = {("POINT", "USED"): 32767, ("ANALOG", "USED"): 32767, ("FORCE_PLATFORM", "USED"): 64}  # of a C3D's int16  # char, byte, int16, float: the element size is the absolute value
+
+
+def check_layout(path: Path, data: bytes) -> None:
+    """Refuse, before ezc3d reads it, a C3D file whose header or parameter section does not fit its bytes: not a
+    C3D file, a parameter section past the end, a parameter claiming more values than its section holds, records
+    that do not move forward, a data section claiming more frames than the file holds (cut short). What a header
+    claims is checked against the file's size here, before anything of that size is allocated."""
+    def refuse(what: str, fix: str = "the file is damaged or not a C3D file: copy or export it again"):
+        raise InputError(f"{path}: {what}; {fix}" if what.startswith("holds") else
+                         f"{path}: not a readable C3D file: {what}; {fix}")
+
+    if len(data) < 512:
+        refuse(f"{len(data)} bytes, shorter than a C3D header (512 bytes)")
+    if data[1] != C3D_KEY:
+        refuse(f"byte 2 is {data[1]:#04x}, a C3D file's is {C3D_KEY:#04x}")
+    block = data[0]
+    start = (block - 1) * 512
+    if block < 2 or start + 512 > len(data):
+        refuse(f"the header puts the parameter section at block {block}, outside the file's "
+               f"{len(data) // 512} blocks")
+    processor = data[start + 3]
+    if processor not in PROCESSORS:
+        refuse(f"the parameter section's processor type is {processor}, not 84 (Intel), 85 (DEC) or 86 (MIPS)")
+    order = PROCESSORS[processor]
+    end = start + data[start + 2] * 512
+    if end <= start or end > len(data):
+        refuse(f"the parameter section claims {data[start + 2]} blocks from block {block}, but the file has "
+               f"{len(data) // 512}")
+    params = _parameters(data, start + 4, end, order, refuse)
+    words = struct.unpack(order + "5H", data[2:12])
+    n_points, n_analog, first, last = words[0], words[1], words[2], words[3]
+    (scale,) = struct.unpack(order + "f", data[12:16]) if processor != 85 else (-1.0,)
+    (data_block,) = struct.unpack(order + "H", data[16:18])
+    offset = (data_block - 1) * 512
+    if data_block < 2 or offset > len(data):
+        refuse(f"the header puts the data at block {data_block}, outside the file's {len(data) // 512} blocks")
+    for key in COUNTS:
+        kind, value = params.get(key, (2, 0))
+        if kind not in (1, 2) or not 0 <= value <= COUNTS[key]:
+            refuse(f"parameter {':'.join(key)} is {value if kind in (1, 2) else 'not an integer'}, not a count from 0 "
+                   f"to {COUNTS[key]}")
+    n_points = max(n_points, params.get(("POINT", "USED"), (2, 0))[1])
+    frames = last - first + 1
+    bytes_per_frame = (4 * n_points + n_analog) * (4 if scale < 0 else 2)
+    if frames > 0 and bytes_per_frame > 0 and offset + frames * bytes_per_frame > len(data):
+        held = max(len(data) - offset, 0) // bytes_per_frame
+        refuse(f"holds {held} of the {frames} frames its header announces ({n_points} points and {n_analog} analog "
+               f"samples a frame, {frames * bytes_per_frame} bytes from byte {offset}; the file has {len(data)})",
+               "the file is cut short or damaged: copy or export it again")
+
+
+def _parameters(data: bytes, pos: int, end: int, order: str, refuse) -> dict:
+    """The first values of the integer parameters (POINT:USED ...), each record checked to lie within the section
+    [pos, end), before the next record (its name, dimensions, values and description), and to point forward."""
+    groups: dict[int, str] = {}
+    found: list[tuple[int, str, int, int]] = []  # (group id, name, type, first value)
+    while pos + 2 <= end:
+        length, group = struct.unpack("bb", data[pos:pos + 2])
+        if length == 0:
+            break
+        name_end = pos + 2 + abs(length)
+        if name_end + 2 > end:
+            refuse(f"a parameter record at byte {pos} runs past the parameter section (byte {end})")
+        name = data[pos + 2:name_end].decode("ascii", "replace").upper()
+        (step,) = struct.unpack(order + "h", data[name_end:name_end + 2])
+        if step != 0 and name_end + step <= pos + 2:
+            refuse(f"the parameter record {name!r} at byte {pos} points back to byte {name_end + step}, not on to "
+                   "the next record")
+        stop = min(end, name_end + step) if step > 0 else end  # the record's own bytes
+        body = name_end + 2
+        if group > 0:
+            if body + 2 > stop:
+                refuse(f"parameter {name!r} at byte {pos} runs past its record (byte {stop})")
+            kind, n_dims = struct.unpack("bB", data[body:body + 2])
+            if kind not in PARAMETER_TYPES:
+                refuse(f"parameter {name!r} at byte {pos} has type {kind}, not one of {list(PARAMETER_TYPES)}")
+            if body + 2 + n_dims > stop:
+                refuse(f"parameter {name!r} at byte {pos} has {n_dims} dimensions, more than its record holds (it "
+                       f"ends at byte {stop})")
+            dims = [int(d) for d in data[body + 2:body + 2 + n_dims]]
+            size = abs(kind)
+            for d in dims:
+                size *= d
+            body += 2 + n_dims
+            if body + size > stop:
+                refuse(f"parameter {name!r} at byte {pos} claims dimensions {dims[:8]}{'...' if n_dims > 8 else ''} "
+                       f"({size} bytes), more than its record holds (it ends at byte {stop})")
+            if kind in (1, 2) and size >= kind:
+                value = struct.unpack(order + ("h" if kind == 2 else "B"), data[body:body + kind])[0]
+                found.append((group, name, kind, value))
+            else:
+                found.append((group, name, kind, -1))
+            body += size
+        elif group < 0:
+            groups[-group] = name
+        if body + 1 > stop or body + 1 + data[body] > stop:
+            refuse(f"the description of {name!r} at byte {pos} runs past its record (byte {stop})")
+        if step == 0:
+            break
+        pos = name_end + step
+    return {(groups.get(g, "?"), name): (kind, value) for g, name, kind, value in found}
 
 
 def header_frames(data: bytes) -> int:

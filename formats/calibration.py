@@ -155,48 +155,39 @@ OPENCV_KEYS = {"K": ("camera_matrix", "K", "cameraMatrix"),
 
 
 def read_opencv(path: Path, *, unit: str | None = None, up: str = "z") -> Views:
-    """One camera from an OpenCV FileStorage file (YAML or XML, as ``cv2.FileStorage`` writes it): intrinsics
+    """One camera from an OpenCV FileStorage file (YAML or XML, as ``cv2.FileStorage`` writes it; read here, not by
+    OpenCV's parser, so that a damaged file is refused rather than crashing or hanging it): intrinsics
     ``camera_matrix`` (or ``K``), distortion ``distortion_coefficients`` (or ``dist``; 4 or 5 coefficients, more
     only if the extra ones are 0), the world-to-camera rotation ``R`` (3x3, or a Rodrigues vector; or ``rvec``) and
     translation ``T`` (or ``tvec``, in ``unit``), and ``image_width``, ``image_height``. The view is named by the
     file's stem. The file does not say its unit, so ``unit`` is required."""
-    import cv2
-
     if unit is None:
         raise InputError(f"{path}: an OpenCV calibration file does not say the unit of its translation T; pass the "
                          f"unit of the calibration target you measured (--unit mm or --unit m)")
     scale, rotation = _frame(path, unit, up)
-    _text(path)  # exists, readable, not empty (cv2.FileStorage fails on an empty file without saying why)
-    try:
-        storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-        opened = storage.isOpened()
-    except (cv2.error, SystemError) as exc:
-        raise InputError(f"{path}: not a readable OpenCV FileStorage file (YAML or XML, as cv2.FileStorage "
-                         f"writes it): {exc}") from exc
-    if not opened:
-        raise InputError(f"{path}: cv2.FileStorage cannot open it; write it with cv2.FileStorage (YAML or XML)")
-    try:
-        name = path.name.split(".")[0]
-        where = f"{path} (camera {name!r})"
-        nodes = {what: _fs_node(storage, keys, path) for what, keys in OPENCV_KEYS.items()}
-        K = _array(_fs_value(nodes["K"], path), (3, 3), str(path), nodes["K"][0],
-                   "a 3x3 intrinsic matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]")
-        R = np.asarray(_fs_value(nodes["R"], path), dtype=np.float64)
-        if R.size == 3:
-            R = R.reshape(3)
-        elif R.shape != (3, 3):
-            raise InputError(f"{path}: {nodes['R'][0]!r} must be a 3x3 world-to-camera rotation or a Rodrigues vector "
-                             f"(3 numbers), got shape {R.shape}")
-        if R.shape == (3, 3):
-            _check_rotation(R, str(path), nodes["R"][0])
-        T = _array(np.asarray(_fs_value(nodes["T"], path), dtype=np.float64).reshape(-1), (3,), str(path),
-                   nodes["T"][0], "a world-to-camera translation (3 numbers)")
-        values = dict(**_intrinsics(K, str(path), nodes["K"][0]),
-                      dist=_distortion(_fs_value(nodes["dist"], path), str(path), nodes["dist"][0]),
-                      cam_to_world=reframed(pose_from_extrinsics(R, T * scale), rotation),
-                      width=_fs_value(nodes["width"], path), height=_fs_value(nodes["height"], path))
-    finally:
-        storage.release()
+    storage = _filestorage(path, _text(path))
+    name = path.name.split(".")[0]
+    where = f"{path} (camera {name!r})"
+    nodes = {what: _fs_node(storage, keys, path) for what, keys in OPENCV_KEYS.items()}
+    K = _array(_fs_value(nodes["K"], path), (3, 3), str(path), nodes["K"][0],
+               "a 3x3 intrinsic matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]")
+    R = np.asarray(_fs_value(nodes["R"], path), dtype=np.float64)
+    if R.size == 3:
+        R = R.reshape(3)
+    elif R.shape != (3, 3):
+        raise InputError(f"{path}: {nodes['R'][0]!r} must be a 3x3 world-to-camera rotation or a Rodrigues vector "
+                         f"(3 numbers), got shape {R.shape}")
+    if R.shape == (3, 3):
+        _check_rotation(_array(R, (3, 3), str(path), nodes["R"][0], "a 3x3 world-to-camera rotation"), str(path),
+                        nodes["R"][0])
+    else:
+        _array(R, (3,), str(path), nodes["R"][0], "a world-to-camera Rodrigues vector (3 numbers)")
+    T = _array(np.asarray(_fs_value(nodes["T"], path), dtype=np.float64).reshape(-1), (3,), str(path),
+               nodes["T"][0], "a world-to-camera translation (3 numbers)")
+    values = dict(**_intrinsics(K, str(path), nodes["K"][0]),
+                  dist=_distortion(_fs_value(nodes["dist"], path), str(path), nodes["dist"][0]),
+                  cam_to_world=reframed(pose_from_extrinsics(R, T * scale), rotation),
+                  width=_fs_value(nodes["width"], path), height=_fs_value(nodes["height"], path))
     views: Views = {}
     _add(views, name, values, path, where)
     return _checked(views, path, unit)
@@ -356,29 +347,106 @@ def _qca_number(element: ET.Element, key: str, where: str, default: float | None
 
 
 # ---- OpenCV FileStorage --------------------------------------------------------------------------
-def _fs_node(storage, keys: tuple[str, ...], path: Path):
+MAX_OPENCV_BYTES = 1 << 20  # one camera's calibration is a few hundred bytes
+_MATRIX_TAG = re.compile(r"!!opencv-(?:nd-)?matrix")
+
+
+def _filestorage(path: Path, text: str) -> dict[str, Any]:
+    """The top-level values of an OpenCV FileStorage file, YAML or XML: numbers, strings, lists, and each
+    ``opencv-matrix`` as a float array of its rows and columns."""
+    if len(text) > MAX_OPENCV_BYTES:
+        raise InputError(f"{path}: {len(text)} characters, over the {MAX_OPENCV_BYTES} of an OpenCV calibration file; "
+                         "give the file of one camera")
+    if text.lstrip().startswith("<"):
+        return _filestorage_xml(path, text)
+    body = "\n".join(line for line in text.splitlines() if not line.startswith("%"))  # the %YAML directive
+    body = _MATRIX_TAG.sub("", body)
+    try:
+        if any(isinstance(event, yaml.AliasEvent) for event in yaml.parse(body, Loader=yaml.SafeLoader)):
+            raise InputError(f"{path}: uses YAML aliases (*name), which an OpenCV calibration file has none of; write "
+                             "the values out")
+        doc = yaml.safe_load(body)
+    except yaml.YAMLError as exc:
+        raise InputError(f"{path}: not a readable OpenCV FileStorage file (YAML or XML, as cv2.FileStorage writes "
+                         f"it): {exc}") from exc
+    if not isinstance(doc, dict):
+        raise InputError(f"{path}: not an OpenCV FileStorage file: expected a mapping of keys (camera_matrix, ...), "
+                         f"got {type(doc).__name__}")
+    return {str(key): _fs_matrix(path, str(key), value) for key, value in doc.items()}
+
+
+def _filestorage_xml(path: Path, text: str) -> dict[str, Any]:
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as exc:
+        raise InputError(f"{path}: not a readable OpenCV FileStorage file (XML, as cv2.FileStorage writes it): "
+                         f"{exc}") from exc
+    if root.tag != "opencv_storage":
+        raise InputError(f"{path}: the XML's root is <{root.tag}>, an OpenCV FileStorage file's is <opencv_storage>")
+    out: dict[str, Any] = {}
+    for node in root:
+        if node.get("type_id") in ("opencv-matrix", "opencv-nd-matrix"):
+            fields = {child.tag: (child.text or "").strip() for child in node}
+            out[node.tag] = _fs_matrix(path, node.tag, {k: _xml_scalar(v) if k != "data" else v.split()
+                                                        for k, v in fields.items()})
+        elif len(node):
+            out[node.tag] = [_xml_scalar((child.text or "").strip()) for child in node]
+        else:
+            words = (node.text or "").split()
+            out[node.tag] = _xml_scalar(words[0]) if len(words) == 1 else [_xml_scalar(w) for w in words] \
+                if words else ""
+    return out
+
+
+def _xml_scalar(text: str):
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text.strip('"')
+
+
+def _fs_matrix(path: Path, key: str, value):
+    """An ``opencv-matrix`` mapping (rows, cols, dt, data) as a float array (rows, cols); other values as they are."""
+    if not (isinstance(value, dict) and {"rows", "cols", "data"} <= set(value)):
+        return value
+    rows, cols, data = value["rows"], value["cols"], value["data"]
+    if isinstance(data, str):
+        data = data.split()
+    if not (isinstance(rows, int) and isinstance(cols, int) and rows >= 0 and cols >= 0 and isinstance(data, list)):
+        raise InputError(f"{path}: {key!r} is an opencv-matrix whose rows {rows!r}, cols {cols!r} are not counts or "
+                         "whose data is not a list; write the matrix with cv2.FileStorage")
+    try:
+        numbers = np.array([float(v) for v in data], dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{path}: {key!r} has data that are not all numbers ({exc}); fix the value") from exc
+    if rows * cols == 0 or len(numbers) % (rows * cols):
+        raise InputError(f"{path}: {key!r} is a {rows}x{cols} opencv-matrix but holds {len(numbers)} numbers; fix "
+                         "its rows, cols or data")
+    channels = len(numbers) // (rows * cols)
+    return numbers.reshape(rows, cols * channels)
+
+
+def _fs_node(storage: dict, keys: tuple[str, ...], path: Path):
     for key in keys:
-        node = storage.getNode(key)
-        if not node.isNone():
-            return key, node
-    found = ", ".join(storage.root().keys()) or "none"
+        if key in storage:
+            return key, storage[key]
+    found = ", ".join(storage) or "none"
     raise InputError(f"{path}: has no {' or '.join(repr(k) for k in keys)}; an OpenCV camera file needs "
                      f"camera_matrix, distortion_coefficients, R (or rvec), T (or tvec), image_width and "
                      f"image_height (keys found: {found})")
 
 
 def _fs_value(keyed, path: Path):
-    """A FileStorage node's number, or its numbers as an array (a matrix, or a sequence of numbers)."""
-    key, node = keyed
-    if node.isInt() or node.isReal():
-        return node.real()
-    if node.isMap():
-        mat = node.mat()
-        if mat is not None:
-            return np.asarray(mat, dtype=np.float64)
-    elif node.isSeq():
-        items = [node.at(i) for i in range(node.size())]
-        if all(item.isInt() or item.isReal() for item in items):
-            return np.array([item.real() for item in items])
-    shown = node.string() if node.isString() else f"a node of type {node.type()}"
+    """A FileStorage value's number, or its numbers as an array (a matrix, or a sequence of numbers)."""
+    key, value = keyed
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)
+    if isinstance(value, np.ndarray):
+        return value
+    if isinstance(value, list) and value and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                 for v in value):
+        return np.array(value, dtype=np.float64)
+    shown = value if isinstance(value, str) else f"a value of type {type(value).__name__}"
     raise InputError(f"{path}: {key!r} must be a number or a matrix of numbers, got {shown!r}; fix the value")

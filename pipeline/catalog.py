@@ -127,9 +127,13 @@ def load_catalog(path: str | os.PathLike, overrides: tuple[str, ...] = ()) -> Ca
     """Parse, override (``dotted.key=value``) and validate a catalog file."""
     path = Path(path).resolve()
     try:
-        text = path.read_text()
+        text = path.read_bytes().decode("utf-8")
     except OSError as exc:
         raise CatalogError(f"cannot read catalog {path}: {exc.strerror}; pass --catalog PATH") from exc
+    except UnicodeDecodeError as exc:
+        line = path.read_bytes()[:exc.start].count(b"\n") + 1
+        raise CatalogError(f"{path} (line {line}): byte {exc.start} is not UTF-8 text; a catalog is UTF-8 YAML: fix or "
+                           "remove the damaged characters") from exc
     try:
         check_document(text, path)
         data = yaml.safe_load(text) or {}
@@ -374,6 +378,11 @@ class _Validator:
             except CatalogError as exc:
                 raise CatalogError(f"{self.where('stages', name, 'task')}: {exc}") from None
             self.check_schemas(name, spec)
+            unnamed = [key for key in self.mapping(body.get("params"), "stages", name, "params")
+                       if not isinstance(key, str)]
+            if unnamed:
+                raise CatalogError(f"{self.where('stages', name, 'params', unnamed[0])}: parameter name {unnamed[0]!r} is "
+                                   "not a name; parameters are named by words (quote it if it must be a number)")
             params = registry.build_params(spec, self.mapping(body.get("params"), "stages", name, "params"),
                                            lambda key, name=name: self.where("stages", name, "params", key))
             inputs = self.inputs(name, spec, body.get("inputs"))

@@ -21,6 +21,8 @@ An ``.npz`` is read with ``allow_pickle=False``: object arrays (pickles) are ref
 from __future__ import annotations
 
 import json
+import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -93,19 +95,53 @@ def read_prior(path: Path, *, frames: int, fps: float) -> np.ndarray:
 
 def _npz(path: Path) -> dict:
     try:
+        _check_npz_sizes(path)
         with np.load(path, allow_pickle=False) as npz:
             return {key: npz[key] for key in npz.files}
-    except ValueError as exc:  # an object array: it would need unpickling
+    except ValueError as exc:  # an object array (it would need unpickling), or a damaged array
+        if "allow_pickle" not in str(exc):
+            raise InputError(f"{path}: not a readable .npz file ({exc}); {FORMAT_HELP}") from exc
         raise InputError(f"{path}: holds a pickled (object) array, which is not read ({exc}); save plain numeric "
                          "and string arrays (np.savez with float joints and str joint_names)") from exc
-    except (OSError, EOFError) as exc:
-        raise InputError(f"{path}: not a readable .npz file ({exc}); {FORMAT_HELP}") from exc
+    except (OSError, EOFError, zipfile.BadZipFile, zlib.error, KeyError, NotImplementedError, UnicodeDecodeError) \
+            as exc:
+        raise InputError(f"{path}: not a readable .npz file ({type(exc).__name__}: {exc}); the file is damaged: "
+                         f"save it again ({FORMAT_HELP})") from exc
+
+
+MAX_NPZ_BYTES = 1 << 30  # a prior of a million frames is 480 MB
+MAX_DEFLATE_RATIO = 1100  # deflate packs at most ~1032:1
+
+
+def _check_npz_sizes(path: Path) -> None:
+    """Refuse, before anything is allocated, an .npz whose members claim more bytes than the archive can hold:
+    each array's header (its shape and type) against its member's size, each member's size against what its
+    compressed bytes can unpack to."""
+    with zipfile.ZipFile(path) as archive:
+        for info in archive.infolist():
+            if info.file_size > min(MAX_NPZ_BYTES, MAX_DEFLATE_RATIO * max(info.compress_size, 1)):
+                raise InputError(f"{path}: member {info.filename!r} claims {info.file_size} bytes from "
+                                 f"{info.compress_size} stored; the file is damaged or not a prior: save it again")
+            with archive.open(info) as member:
+                try:
+                    version = np.lib.format.read_magic(member)
+                    read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else \
+                        np.lib.format.read_array_header_2_0
+                    shape, _, dtype = read_header(member)
+                except ValueError:
+                    continue  # not an array np.load reads; it says so itself
+            claimed = dtype.itemsize
+            for n in shape:
+                claimed *= n
+            if claimed > info.file_size:
+                raise InputError(f"{path}: array {info.filename!r} claims shape {shape} of {dtype} ({claimed} bytes), "
+                                 f"more than its {info.file_size} bytes hold; the file is damaged: save it again")
 
 
 def _json(path: Path) -> dict:
     try:
         data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
         raise InputError(f"{path}: not a readable JSON file ({exc}); {FORMAT_HELP}") from exc
     if not isinstance(data, dict):
         raise InputError(f"{path}: the JSON must be an object; {FORMAT_HELP}")

@@ -151,14 +151,24 @@ def parse_bvh(text: str) -> BVH:
         except ValueError:
             raise BVHError(f"line {line}: expected a number, found {tok!r}") from None
 
+    def count(tok, line, what):
+        """A whole number of ``what`` (a CHANNELS count, Frames), at most the tokens the text holds."""
+        value = number(tok, line)
+        if not (np.isfinite(value) and value >= 0 and value == int(value)):
+            raise BVHError(f"line {line}: the number of {what} must be a whole number, found {tok!r}")
+        value = int(value)
+        if value > len(tokens):
+            raise BVHError(f"line {line}: {value} {what}, more than the file holds ({len(tokens)} values in all)")
+        return value
+
     take("HIERARCHY")
     tok, line = take()
     while tok in ("ROOT", "JOINT", "End"):
         name = take()[0]
-        if tok == "End":
-            name = f"{names[stack[-1]]}_End"
         if tok != "ROOT" and not stack:
             raise BVHError(f"line {line}: {tok} outside any joint")
+        if tok == "End":
+            name = f"{names[stack[-1]]}_End"
         names.append(name)
         parents.append(stack[-1] if stack else -1)
         take("{")
@@ -168,7 +178,7 @@ def parse_bvh(text: str) -> BVH:
         if tok != "End":
             take("CHANNELS")
             count_tok, count_line = take()
-            chans = tuple(take()[0] for _ in range(int(number(count_tok, count_line))))
+            chans = tuple(take()[0] for _ in range(count(count_tok, count_line, "channels")))
             bad = [c for c in chans if c not in {f"{a}{k}" for a in "XYZ" for k in ("position", "rotation")}]
             if bad:
                 raise BVHError(f"line {count_line}: unknown channel(s) {bad}")
@@ -188,15 +198,18 @@ def parse_bvh(text: str) -> BVH:
     if tok != "MOTION":
         raise BVHError(f"line {line}: expected 'MOTION', found {tok!r}")
     take("Frames:")
-    n_frames = int(number(*take()))
+    n_frames = count(*take(), "frames")
     take("Frame")
     take("Time:")
     frame_time = number(*take())
     rest = list(it)
     values = np.array([number(tok, ln) for tok, ln in rest])
     width = sum(len(c) for c in channels)
-    if not (n_frames > 0 and frame_time > 0 and np.isfinite(frame_time)):
-        raise BVHError(f"Frames ({n_frames}) and Frame Time ({frame_time}) must be positive")
+    if not (n_frames > 0 and MIN_FRAME_TIME_S <= frame_time <= MAX_FRAME_TIME_S):
+        raise BVHError(f"Frames ({n_frames}) must be positive and Frame Time ({frame_time}) a time in seconds from "
+                       f"{MIN_FRAME_TIME_S:g} to {MAX_FRAME_TIME_S:g}")
+    if not width:
+        raise BVHError("no joint has CHANNELS: the clip has no motion; export it with its channels")
     if values.size != n_frames * width:
         raise BVHError(f"MOTION holds {values.size} numbers, expected Frames {n_frames} x {width} channels")
     clip = BVH(tuple(names), np.array(parents), np.array(offsets, float), tuple(channels), frame_time,
@@ -205,6 +218,7 @@ def parse_bvh(text: str) -> BVH:
     return clip
 
 
+MIN_FRAME_TIME_S, MAX_FRAME_TIME_S = 1e-6, 3600.0  # a Frame Time outside these is no sampling rate (a broken file)
 # A translation farther than this many times the skeleton's own size from the origin is no motion capture (a body
 # of 1.7 m: 1.7 km); unit-free, so inches, centimetres and millimetres alike. Rotations beyond MAX_ANGLE_DEG (278
 # turns) are a broken export, not unwrapped Euler angles.
