@@ -26,25 +26,30 @@ def test_suit_takes_are_labelled_triangulated_and_scored_through_the_engine(requ
         np.testing.assert_allclose(xy[seen], images["gt_corners2d"][v, 1][seen], atol=1e-3)
     ok = np.isfinite(points["position"]).all(axis=-1)
     error = np.linalg.norm(points["position"][ok] - images["gt_corners"][ok], axis=-1)
-    assert ok.sum() > 500 and np.median(error) < 0.004  # 0.2 px noise at ~0.25 px per mm
+    # 0.2 px noise at ~0.25 px per mm: measured a median of 1.20 mm
+    assert ok.sum() > 500 and np.median(error) < 0.0016, np.median(error)
     hidden = stored["hidden/sq"]["hidden"]
     assert hidden.any() and not np.isfinite(stored["hidden/sq"]["position"][hidden]).any()
-    assert 0.2 <= hidden.sum() / ok.sum() < 0.4  # patches added until a fifth of the observations is hidden
+    # patches added until a fifth of the observations is hidden: measured 0.207, the last patch a little over
+    assert 0.2 <= hidden.sum() / ok.sum() < 0.25, hidden.sum() / ok.sum()
     filled = stored["filled/sq"]
     seen = np.isfinite(stored["hidden/sq"]["position"]).all(axis=-1)
     np.testing.assert_array_equal(filled["observed"], seen)
     np.testing.assert_array_equal(filled["position"][seen], stored["hidden/sq"]["position"][seen])
     assert np.isfinite(filled["position"]).all()  # every corner of every frame
     scores = last_json(mocapflow("evaluate", "--json", cwd=project))  # cached: scores only
-    assert scores["suit_fill_occluded_median_mm"] < 5.0 and "suit_fill_err_median_mm" not in scores  # patches
-    assert scores["suit_wrong_labels"] > 0 and 0.9 < scores["suit_detect_rate"] < 1.0  # 2 % planted misreads
+    # patches (measured a median of 2.43 mm over the hidden corners)
+    assert scores["suit_fill_occluded_median_mm"] < 3.2 and "suit_fill_err_median_mm" not in scores, scores
+    # 2 % planted misreads (78 measured): the detect rate measured 0.981
+    assert scores["suit_wrong_labels"] > 0 and 0.96 < scores["suit_detect_rate"] < 1.0, scores
     assert scores["suit_visible_rate"] < scores["suit_detect_rate"]  # visible corners include unreadable ones
     # of about 80 planted misreads, the outlier rule lets 1 through on this 4-camera take (measured): it is the one
     # corner put more than 5 mm off
     assert scores["suit_err3d_over_5mm"] <= scores["suit_wrong_labels_in_3d"] <= 2
     assert abs(scores["suit_err3d_median_mm"] - np.median(1000 * error)) < 1e-3
     # a quarter-pixel calibration error costs more than the labels' 0.2 px of noise alone, but stays millimetric
-    assert scores["suit_err3d_median_mm"] < scores["suit_err3d_perturbed_median_mm"] < 5.0
+    # (measured 1.20 and 1.83 mm)
+    assert scores["suit_err3d_median_mm"] < scores["suit_err3d_perturbed_median_mm"] < 2.5, scores
     again = last_json(mocapflow("run", "--json", cwd=project))
     assert again["executed"] == []
     _check_exports(project, filled, images)
@@ -112,12 +117,14 @@ def test_the_2d_chain_labels_corners_with_the_shipped_networks(tmp_path):
     and a changed reading threshold recomputes the codes and what follows them only."""
     (tmp_path / "catalog.yaml").write_text(CHAIN)
     scores = last_json(mocapflow("evaluate", "--json", cwd=tmp_path))
-    assert scores["suit_detect_rate"] > 0.5  # measured 0.63 on this take (the sewn suit; 0.49 on the UV-chart print)
+    # measured 0.622 on this take (the sewn suit; 0.49 on the UV-chart print): 0.57 fails a loss of a twelfth of the
+    # detections, well before the print's level
+    assert scores["suit_detect_rate"] > 0.57, scores
     assert scores["suit_visible_rate"] < scores["suit_detect_rate"]
-    assert scores["suit_wrong_label_rate"] < 0.005  # measured 5 of 2,083 labels
+    assert scores["suit_wrong_label_rate"] < 0.005, scores  # measured 6 of 2,071 labels (0.0029)
     assert scores["suit_err3d_over_5mm"] == 0
-    assert scores["suit_loc_err_px"] < 0.25
-    assert scores["suit_err3d_median_mm"] < 1.0
+    assert scores["suit_loc_err_px"] < 0.16, scores  # measured 0.126 px
+    assert scores["suit_err3d_median_mm"] < 0.3, scores  # measured 0.198 mm
     stored = {pid: arrays for (pid, _), arrays in read_artifacts(tmp_path / "storage").items()}
     labels, images = stored["labels/lunge/cam00"], stored["images/lunge"]
     hit = np.isfinite(labels["x"][0])

@@ -51,7 +51,10 @@ def test_a_filmed_take_gets_a_monocular_prior_and_its_error_measured(tmp_path):
     assert set(figures) == {"prior_aligned_mpjpe_mm", "prior_registered_mpjpe_mm", "prior_pa_mpjpe_mm"}
     assert figures["prior_aligned_mpjpe_mm"] == 1000.0 * aligned_mpjpe(prior["joints"].astype(float),
                                                                        markers["gt_joints"].astype(float))
-    assert 20.0 < figures["prior_aligned_mpjpe_mm"] < 200.0  # a real estimate: neither the truth nor lost
+    # a real estimate: neither the truth nor lost. Measured 80.2 mm (registered 65.8, PA 65.3) on this 480x360 take;
+    # 100: a quarter more (BlazePose's own error, a mis-scaled or mis-ordered joint map goes far past it); 40: well
+    # above a prior that leaked the truth (0 mm)
+    assert 40.0 < figures["prior_aligned_mpjpe_mm"] < 100.0, figures
     # run again: both stages are reused (the networks' digests are part of the prior's key)
     again = last_json(mocapflow("run", "--json", cwd=tmp_path))
     assert again["executed"] == []

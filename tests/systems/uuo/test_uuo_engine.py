@@ -20,13 +20,21 @@ def test_unlabelled_markers_are_solved_through_the_engine_and_one_hypothesis_rer
     markers, solved = stored["markers/reach"], stored["solve/reach"]
     assert solved["joints"].shape == (24, 20, 3) and solved["bone_rotation"].shape == (24, 104, 4)
     error = np.linalg.norm(solved["joints"] - markers["gt_joints"], axis=-1).mean()
-    assert error < 0.12, error  # 24 frames, light settings: placed and posed (a wrong half turn: 30 cm and more)
+    # The prior is the exact truth (its aligned error is 0.00002 mm), so the placement alone lands at 19.4 mm and the
+    # light solve ends at 58.9 mm (measured; pose fit 28.2, IK 45.9, refined 58.9: the stages add error to an exact
+    # prior). 70 mm: a fifth more than today. Choosing another of the four screened hypotheses gives 99 mm or more
+    # (h2 99, h3 114, h1 431 measured), a wrong half turn 30 cm and more.
+    assert error < 0.070, error
+    placed = np.linalg.norm(solved["stage_joints"][0] - markers["gt_joints"], axis=-1).mean()
+    assert placed < 0.025, placed  # the exact prior placed by part matching: 19.4 mm measured
     real = markers["gt_source"] >= 0
-    assert (solved["vertex"][real] >= 0).mean() > 0.8  # most markers labelled with a body vertex
+    assert (solved["vertex"][real] >= 0).mean() > 0.9  # measured 30 of 30 markers labelled; 0.9 lets 3 go
     scores = last_json(mocapflow("evaluate", "--json", cwd=project))  # everything cached: scores only
     assert scores["uuo_stage"] == "solve" and scores["uuo_mpjpe_mm"] == pytest.approx(1000 * error, rel=1e-5)
     assert scores["uuo_body30_mpjpe_mm"] == scores["uuo_mpjpe_mm"]  # the one layout: 30 markers on the body
-    assert 5 < scores["uuo_m2s_mm"] < 60 and scores["uuo_v2v_mm"] > 0 and scores["uuo_mpjve_mm"] > 0
+    # measured: markers 8.5 mm from the solved skin, vertices 61.8 mm off, joint velocity 4.7 mm/frame off; the
+    # bounds a fifth to a half above (a marker-to-skin of 5 mm or less would mean the markers were fitted exactly)
+    assert 5 < scores["uuo_m2s_mm"] < 12 and 0 < scores["uuo_v2v_mm"] < 75 and 0 < scores["uuo_mpjve_mm"] < 7, scores
     assert scores["uuo_body30_mpjpe_p90_mm"] == scores["uuo_body30_mpjpe_mm"]  # one take: its median and p90
     assert scores["uuo_prior_aligned_mpjpe_mm"] < 1.0  # the catalog's exact prior (form: mild, no error)
     assert scores["uuo_ghost_label_rate"] == (solved["vertex"][~real] >= 0).mean()  # a labelled ghost: a false label

@@ -47,5 +47,8 @@ def test_the_report_of_a_uuo_catalog_shows_the_solved_body(request, tmp_path):
     assert seq["joints"] == list(JOINT_NAMES) and seq["parents"] == [int(p) for p in PARENTS]
     solved, truth = np.array(seq["joint_xyz"], float), np.array(seq["gt_joint_xyz"], float)  # mm
     assert solved.shape == truth.shape == (24, 20, 3)
-    assert np.linalg.norm(solved - truth, axis=-1).mean() < 120  # the solve's joints near the truth's (mm)
+    # the solve's joints near the truth's (mm): the catalog's prior is the exact truth and the solve ends 58.8 mm off
+    # (measured; the engine's test breaks the figure down); 70: a fifth more, under the 99 mm of the next hypothesis
+    error = np.linalg.norm(solved - truth, axis=-1).mean()
+    assert error < 70, error
     assert "UUO joint error (MPJPE)" in page  # the evaluation's headline named on the page

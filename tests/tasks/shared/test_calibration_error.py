@@ -1,5 +1,5 @@
 """A real calibration's error: each camera off so that the volume reprojects the asked RMS from its true pixels,
-seeded, and triangulation through such cameras errs by about a millimetre, not more."""
+seeded, and triangulation through such cameras errs by a fraction of a millimetre, not more."""
 
 from __future__ import annotations
 
@@ -49,7 +49,7 @@ def test_the_same_seed_draws_the_same_error_and_zero_draws_none():
     assert ce.perturbed(cams, 0.0, np.random.default_rng(7)) == tuple(cams)
 
 
-def test_points_triangulated_through_a_quarter_pixel_calibration_err_by_about_a_millimetre():
+def test_points_triangulated_through_a_quarter_pixel_calibration_err_by_a_quarter_millimetre():
     cams = ring()
     rng = np.random.default_rng(1)
     points = rng.uniform(-0.4, 0.4, (400, 3)) + (0.0, 0.0, 1.0)
@@ -58,7 +58,9 @@ def test_points_triangulated_through_a_quarter_pixel_calibration_err_by_about_a_
     solved = triangulate_linear(undistort_pixels(xy, moved), projection_matrices(moved),
                                 np.ones(xy.shape[:2], bool))
     err_mm = 1000 * np.linalg.norm(solved - points, axis=1)
-    assert 0.05 < np.median(err_mm) < 2.0
+    # measured 0.231 mm; the error grows with the calibration's (0.092 mm at 0.1 px, 0.46 mm at 0.5 px, 0.92 mm at
+    # 1 px, same seeds): the band tells a quarter pixel from half or a tenth of that, or a broken triangulation
+    assert 0.15 < np.median(err_mm) < 0.35, np.median(err_mm)
 
 
 def test_an_impossible_error_is_refused():

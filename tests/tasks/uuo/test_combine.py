@@ -75,7 +75,8 @@ def test_three_draws_combined_are_nearer_the_truth_than_the_median_draw(take):
     assert combined < 0.8 * np.median(single), (combined, single)  # measured 127.7 mm against 149.8-201.2
     assert out.attrs["source"] == "combined" and out.attrs["sources"] == ["simulated"] * 3
     assert "aligned_mpjpe_mm" not in out.attrs  # a draw's own figure does not describe the combination
-    assert 5 < out.attrs["spread_deg"] < out.attrs["spread_p90_deg"] < 90  # realistic draws disagree
+    # realistic draws disagree: measured a spread of 14.6 degrees, 33.7 at the 90th percentile
+    assert 10 < out.attrs["spread_deg"] < out.attrs["spread_p90_deg"] < 45, out.attrs["spread_deg"]
     assert out.attrs["aligned_yaw_deg"][0] == 0.0 and len(out.attrs["aligned_translation_m"]) == 3
     for key, value in out.attrs["phenotype"].items():  # the shape: each parameter the draws' median
         assert value == pytest.approx(np.median([d.attrs["phenotype"][key] for d in draws]))

@@ -179,13 +179,13 @@ def test_a_moved_or_mirrored_video_changes_the_estimate_a_little(filmed):
     moved = template_joints(estimator.track(perturb_frames(video, (9.0, 6.0)))[0])
     seen = estimator.track(perturb_frames(video, flip=True))[0]
     mirrored = template_joints(unmirror_landmarks(seen))
-    assert 0.001 < gap(moved, first) < 0.03  # measured 5.9 mm
-    assert gap(mirrored, first) < 0.06  # measured 36.8 mm
+    assert 0.001 < gap(moved, first) < 0.012, gap(moved, first)  # measured 5.9 mm; twice that: unstable
+    assert gap(mirrored, first) < 0.05, gap(mirrored, first)  # measured 36.8 mm
     wrong = seen.copy()
     wrong[..., 0] *= -1.0  # mirrored back without the sides swapped: a body of the other handedness
     assert gap(template_joints(wrong), first) > 0.2  # measured 305 mm
-    for joints in (moved, mirrored):
-        assert aligned_mpjpe(joints, truth) < 0.16
+    for joints in (moved, mirrored):  # measured 97 and 102 mm
+        assert aligned_mpjpe(joints, truth) < 0.13, aligned_mpjpe(joints, truth)
     n = len(video)
     markers = xr.Dataset({"position": (("frame", "marker", "xyz"), np.zeros((n, 1, 3), np.float32)),
                           "video": (("frame", "y", "x", "rgb"), video)}, coords={"frame": np.arange(n)},

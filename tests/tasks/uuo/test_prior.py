@@ -36,8 +36,11 @@ def test_the_default_prior_errs_like_a_monocular_estimate(take):
     assert out.attrs["form"] == "realistic"
     seeds = [out.attrs] + [prior.simulated_prior(take, prior.SimulatedPriorConfig(seed=s)).attrs for s in (5, 6)]
     aligned = [a["aligned_mpjpe_mm"] for a in seeds]
-    assert 100 < np.median(aligned) < 200, aligned  # after part matching's own alignment: HMR2.0+RR 132-150 mm
-    assert 60 < np.median([a["pa_mpjpe_mm"] for a in seeds]) < np.median(aligned)  # articulated: a part of it
+    # after part matching's own alignment (HMR2.0+RR: 132-150 mm): measured 177, 150 and 201 mm for seeds 4-6, a
+    # median of 177; 150 keeps out the mild form's error (121 mm on seed 4), 200 a prior much worse than published
+    assert 150 < np.median(aligned) < 200, aligned
+    pa = [a["pa_mpjpe_mm"] for a in seeds]  # articulated: a part of it; measured 153, 140, 125 mm (median 140)
+    assert 110 < np.median(pa) < np.median(aligned), (pa, aligned)
     raw = np.linalg.norm(out.joints.values - take.gt_joints.values, axis=2).mean()
     assert raw > 0.3  # unregistered: off by the unknown position, size and yaw
     # one yaw for the take: the root turns by the same angle about the vertical in every frame

@@ -170,25 +170,32 @@ def test_a_take_with_a_turned_mirrored_prior_is_solved_back_from_the_screened_pl
 
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError,  # the MPJPE assertion: any other error is a failure
-                   reason="measured shortfall: from the realistic prior this 24-frame take solves to "
-                   "230 mm MPJPE with one hypothesis and the fast settings (goal: under 60 mm); the solver does not "
-                   "yet undo held depth flips and the lean (docs/uuo.md, What is left)")
+class GoalShortfall(Exception):
+    """The realistic-prior solve misses one of its goals (the xfail below expects this and nothing else)."""
+
+
+@pytest.mark.xfail(strict=True, raises=GoalShortfall,  # only the goals' check raises it: any assertion is a failure
+                   reason="measured shortfall: from the realistic prior this 24-frame take solves to 235 mm MPJPE "
+                   "(placed: 288 mm) with one hypothesis and the fast settings (goal: under 60 mm and half the "
+                   "placement's), labels 70 % of the markers (goal: 85 %) and puts 2 markers on the wrong side (goal: "
+                   "none); the solver does not yet undo held depth flips and the lean (docs/uuo.md, What is left)")
 def test_a_take_with_the_realistic_prior_is_solved_far_closer_than_the_prior_placed(take):
-    """The default prior (flips held, a lean, every bone off; about 140 mm after part matching's alignment),
-    turned by at most 30 degrees, so one hypothesis suffices (choosing among four: the test above)."""
+    """The default prior (flips held, a lean, every bone off; 165 mm measured after part matching's alignment),
+    turned by at most 30 degrees, so one hypothesis suffices (choosing among four: the test above).
+
+    The checks that hold today are plain assertions (they fail the test, not its xfail), at bounds from the values
+    measured: a regression breaks them. The goals are checked together last, all of them evaluated, and raise
+    GoalShortfall naming every one missed; when all are met the strict xfail fails: make this a plain test."""
     realistic = prior.simulated_prior(take, prior.SimulatedPriorConfig(seed=3, yaw_deg=30.0))
-    assert realistic.attrs["aligned_mpjpe_mm"] > 90
+    assert realistic.attrs["aligned_mpjpe_mm"] > 90  # measured 165 mm: a realistic prior, not a mild one
     segments = segmentation.rigid_segments(take, segmentation.SegmentConfig())
     best = solve.single_hypothesis(take, solve.solve_hypothesis(take, segments, realistic, FAST),
                                    solve.RefineConfig())
     truth = take["gt_joints"].values
     mpjpe = 1000 * np.linalg.norm(best["joints"].values - truth, axis=-1).mean()
     placed = 1000 * np.linalg.norm(best["stage_joints"].sel(stage="matching").values - truth, axis=-1).mean()
-    assert mpjpe < 60, mpjpe  # the markers pull the wrong limbs back: a fraction of the prior's error
-    assert mpjpe < 0.5 * placed, (mpjpe, placed)
     real = take["gt_source"].values >= 0
-    assert (best["vertex"].values[real] >= 0).mean() > 0.85
+    labelled = (best["vertex"].values[real] >= 0).mean()
     true_body = mb.mesh_body(mb.Phenotype(**take.attrs["phenotype"]))
     true_part = np.array([mb.part_of_bone(true_body.bone_names[true_body.vertex_bone[true_body.faces[f, 0]]])
                           for f in take["gt_face"].values[real]])
@@ -196,7 +203,22 @@ def test_a_take_with_the_realistic_prior_is_solved_far_closer_than_the_prior_pla
     sided = np.array([("left" in t or "right" in t) and g != "" for t, g in zip(true_part, got)])
     swapped = np.array([("left" in t and "right" in g) or ("right" in t and "left" in g)
                         for t, g in zip(true_part, got)])
-    assert sided.sum() > 10 and swapped.sum() == 0  # not mirrored: no marker of one side on the other
+
+    # what holds today (measured: 235 mm solved from 288 mm placed, 28 of 40 markers labelled, 13 markers on
+    # sided parts labelled of which 2 on the other side): the solve improves on the placement and most markers
+    # keep a side; a bound a regression breaks, not the goal
+    assert mpjpe < 0.9 * placed and mpjpe < 270, (mpjpe, placed)  # the solve still improves on the placement
+    assert labelled >= 0.6, labelled  # 24 of 40 or more
+    assert sided.sum() > 10 and swapped.sum() <= 3, (sided.sum(), swapped.sum())  # the mirroring check
+
+    goals = {"MPJPE under 60 mm": mpjpe < 60,  # the markers pull the wrong limbs back: a fraction of the error
+             "MPJPE under half the placement's": mpjpe < 0.5 * placed,
+             "85 % of the markers labelled": labelled > 0.85,
+             "no marker of one side on the other (not mirrored)": swapped.sum() == 0}
+    missed = [goal for goal, met in goals.items() if not met]
+    if missed:
+        raise GoalShortfall(f"missed: {missed}; MPJPE {mpjpe:.0f} mm (placed {placed:.0f} mm), "
+                            f"{labelled:.0%} labelled, {swapped.sum()} of {sided.sum()} sided markers swapped")
 
 
 def test_close_hypotheses_are_told_apart_by_the_priors_pose_and_one_side_per_rigid_group(body):
