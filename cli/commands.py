@@ -372,7 +372,7 @@ def import_calibration(files, fmt, unit, up, fps, out, force):
 @set_option
 @sequences_option
 @click.option("--stage", default=None, help="the training stage [the catalog's one stage run per dataset]")
-@click.option("--out", default="models/deepmocap_fcn.pt", show_default=True, type=click.Path(dir_okay=False),
+@click.option("--out", default="models/deepmocap_fcn_capsule.pt", show_default=True, type=click.Path(dir_okay=False),
               help="weights file to write")
 @workers_option
 @threads_option

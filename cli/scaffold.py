@@ -32,15 +32,18 @@ stages:
   skeleton:          # the template calibrated to each sequence
     task: calibrate_skeleton
     inputs: {markers: smoothed}
-  poses:             # joint rotations and positions per frame
+  template:          # the template's joint rotations and positions per frame (what the checks read)
     task: solve_poses
     inputs: {skeleton: skeleton, markers: smoothed, views: markers3d}
-  checked:           # implausible markers removed: outside the capture volume or off the solved body
+  checked:           # implausible markers removed: outside the capture volume or off the solved template
     task: check_plausibility
-    inputs: {markers: smoothed, poses: poses, skeleton: skeleton, frames: frames}
-  reflectors2d_refined:  # each view's 2D labels made consistent with the poses
+    inputs: {markers: smoothed, poses: template, skeleton: skeleton, frames: frames}
+  poses:             # Anny fitted to the checked reflectors: the joints scored, compared and reported
+    task: fit_body_poses
+    inputs: {markers: checked}
+  reflectors2d_refined:  # each view's 2D labels made consistent with the template's poses
     task: refine_reflectors
-    inputs: {reflectors: reflectors2d, poses: poses, skeleton: skeleton, masks: masks, frames: frames}
+    inputs: {reflectors: reflectors2d, poses: template, skeleton: skeleton, masks: masks, frames: frames}
 """
 
 

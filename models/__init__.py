@@ -1,11 +1,11 @@
 """Trained weights shipped with mocapflow.
 
-``deepmocap_fcn.pt``: the two-stream FCN of the `heatmaps` stage (plain tensors, read with
-``torch.load(..., weights_only=True)``), trained on studio data by ``mocapflow train`` from
-``training/catalog.yaml``; a stage whose ``weights`` parameter is empty uses it.
-``deepmocap_fcn_mesh_large.pt``: the same network fine-tuned on the mesh body with real-sized reflector regions
-(``training/catalog_mesh_tune.yaml``); not the default (docs/deepmocap.md, "A network for the realistic studio"):
-``heatmaps: {params: {weights: .../deepmocap_fcn_mesh_large.pt}}``.
+``deepmocap_fcn.pt``: the default two-stream FCN of the `heatmaps` stage (plain tensors, read with
+``torch.load(..., weights_only=True)``), chosen by the rule of docs/deepmocap.md on the realistic validation split:
+trained on the mesh body with real-sized reflector regions (``training/catalog_mesh_tune.yaml``, continued by
+``training/catalog_mesh_long.yaml``); a stage whose ``weights`` parameter is empty uses it.
+``deepmocap_fcn_capsule.pt``: the first network, trained on the capsule body with small regions
+(``training/catalog.yaml``), kept as a named option: ``heatmaps: {params: {weights: .../deepmocap_fcn_capsule.pt}}``.
 """
 
 from importlib import resources

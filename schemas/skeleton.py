@@ -1,4 +1,5 @@
-"""Schemas of the motion capture stage (DeepMoCap §3.5): the calibrated template and the solved poses."""
+"""Schemas of the motion capture stage (DeepMoCap §3.5): the calibrated template, the solved poses, and the body
+fitted to the reflectors (the default poses)."""
 
 from __future__ import annotations
 
@@ -40,4 +41,29 @@ POSES = register_schema(ArtifactSchema(
     required_attrs={"length_unit": str, "up_axis": str, "fps": float},
     frame_chunk=64,
     description="articulated poses solved per frame on the calibrated template (40 DoF)",
+))
+
+BODY_POSES = register_schema(ArtifactSchema(
+    name="body_poses",
+    version=1,
+    coords={"frame": VarSpec(("frame",), "int64"), "joint": VarSpec(("joint",), "str"),
+            "bone": VarSpec(("bone",), "str"), "reflector": VarSpec(("reflector",), "str"),
+            "xyz": VarSpec(("xyz",), "str"), "quat": VarSpec(("quat",), "str"),
+            "phenotype": VarSpec(("phenotype",), "str")},
+    variables={
+        "position": VarSpec(("frame", "joint", "xyz"), "float32", "m",
+                            description="the 20 template joints read from the fitted body (the bones' heads there)"),
+        "bone_rotation": VarSpec(("frame", "bone", "quat"), "float64", "",
+                                 description="every Anny bone's world rotation from its rest orientation, x y z w"),
+        "root": VarSpec(("frame", "xyz"), "float64", "m", description="the root bone's head"),
+        "reflector_position": VarSpec(("frame", "reflector", "xyz"), "float32", "m",
+                                      description="where the fitted body puts each reflector"),
+        "rms_error": VarSpec(("frame",), "float32", "m", description="RMS distance of the fitted to the seen reflectors"),
+        "reflectors": VarSpec(("frame",), "int16", description="reflectors the frame was fitted with"),
+        "fitted": VarSpec(("frame",), "bool", description="fitted to its own reflectors (False: its neighbours' pose)"),
+        "shape": VarSpec(("phenotype",), "float64", description="Anny's phenotype fitted to the take"),
+    },
+    required_attrs={"length_unit": str, "up_axis": str, "fps": float},
+    frame_chunk=64,
+    description="Anny fitted to the labelled reflectors, the shape calibrated per take; joints read from the body",
 ))

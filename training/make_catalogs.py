@@ -98,10 +98,11 @@ VALIDATION_STAGES = """  heatmaps: {task: fcn_heatmaps, inputs: {masks: masks, f
   markers3d: {task: fuse_views, inputs: {reflectors: reflectors2d, masks: masks, frames: frames}}
   smoothed: {task: kalman, inputs: {markers: markers3d}}
   skeleton: {task: calibrate_skeleton, inputs: {markers: smoothed}}
-  poses: {task: solve_poses, inputs: {skeleton: skeleton, markers: smoothed, views: markers3d}}
-  reflectors2d_refined:         # each view's labels made consistent with the poses (not a stage of the paper)
+  template: {task: solve_poses, inputs: {skeleton: skeleton, markers: smoothed, views: markers3d}}
+  poses: {task: fit_body_poses, inputs: {markers: smoothed}}  # Anny fitted to the reflectors: the poses scored
+  reflectors2d_refined:         # each view's labels made consistent with the template's poses (not a stage of the paper)
     task: refine_reflectors
-    inputs: {reflectors: reflectors2d, poses: poses, skeleton: skeleton, masks: masks, frames: frames}
+    inputs: {reflectors: reflectors2d, poses: template, skeleton: skeleton, masks: masks, frames: frames}
 
 evaluation:
   sequences: "*"
@@ -114,7 +115,7 @@ def main() -> None:
     varied = np.random.default_rng(2026)  # its own stream: the sequences above and validation stay as they were
     shipped += "\n".join(sequences(TRAIN_EXERCISES, 64, 164, varied, variation=(0.5, 1.0))) + "\n"
     train = HEADER.format(root="training", extra="", title="Training set of the two-stream FCN", name="train", frames=32,
-                          usage="mocapflow train   (writes models/deepmocap_fcn.pt)")
+                          usage="mocapflow train   (writes models/deepmocap_fcn_capsule.pt)")
     (HERE / "catalog.yaml").write_text(train + shipped + STAGES.format(name="train") + TRAIN_STAGES)
     athletic = np.random.default_rng(2036)  # their own streams: the groups above stay as they were
     broad = "\n".join(sequences(tuple(ATHLETIC), 56, 300, athletic, speed=(0.8, 1.2), amplitude=(0.85, 1.05),
@@ -143,10 +144,10 @@ def main() -> None:
     beyond += "\n".join(sequences(tuple(ATHLETIC), 7, 520, np.random.default_rng(2047), speed=(0.8, 1.2),
                                    amplitude=(0.85, 1.05), roll_deg=ROLL_DEG, bloom_px=BLOOM_PX)) + "\n"
     (HERE / "validation_athletic.yaml").write_text(beyond + STAGES.format(name="validation") + VALIDATION_STAGES)
-    mesh_catalogs(shipped)
+    mesh_catalogs(shipped, broad)
 
 
-def mesh_catalogs(shipped: str) -> None:
+def mesh_catalogs(shipped: str, athletic: str) -> None:
     """The realistic set: the mesh body with its reflectors on the skin, real-sized reflector regions, rolled rings,
     the exercises (textbook and varied) and the athletic motions; subjects of their own (seeds 1000+, validation
     540+), so that no subject is shared with the capsule sets or the benchmarks. The fine-tuning set
@@ -165,20 +166,22 @@ def mesh_catalogs(shipped: str) -> None:
     (HERE / "catalog_mesh.yaml").write_text(train + "\n".join(lines) + "\n" + STAGES.format(name="train")
                                             + TRAIN_STAGES)
     capsules = "".join(line[:-1] + ", body: capsule}\n" for line in shipped.splitlines())
+    athletic_capsules = "".join(line[:-1] + ", body: capsule}\n" for line in athletic.splitlines())
     beside = "\n".join(lines) + "\n" + capsules + STAGES.format(name="train")
     _write_from_shipped(
         "catalog_mesh_tune.yaml", beside,
         "Fine-tuning set of the two-stream FCN: the mesh body's training set (catalog_mesh.yaml) and the\n"
         "# shipped network's capsule sequences (catalog.yaml), starting from the shipped weights",
         "the shipped network fine-tuned; `mocapflow train` writes it to --out",
-        "{init: ../models/deepmocap_fcn.pt, iterations: 800, learning_rate: 1.0e-3, batch: 16, seed: 0}")
+        "{init: ../models/deepmocap_fcn_capsule.pt, iterations: 800, learning_rate: 1.0e-3, batch: 16, seed: 0}")
     _write_from_shipped(
         "catalog_mesh_small.yaml", beside,
         "Distillation set of the small two-stream FCN (0.19 GMAC a crop): the fine-tuning set, its targets\n"
         "# blended with the maps of the fine-tuned large network",
         "a small network taught by the fine-tuned large one and by the truth",
-        "{stream_width: 16, fused_width: 32, stage_width: 28, teacher: ../models/deepmocap_fcn_mesh_large.pt,\n"
+        "{stream_width: 16, fused_width: 32, stage_width: 28, teacher: ../models/deepmocap_fcn.pt,\n"
         "             distill: 0.5, iterations: 1500, batch: 16, seed: 0}")
+    long_catalog(lines, capsules, athletic_capsules)
     rng = np.random.default_rng(2051)
     lines = (sequences(VALIDATION_EXERCISES, 8, 540, rng, variation=(0.0, 1.0), **both)
              + sequences(tuple(ATHLETIC), 7, 548, rng, speed=(0.8, 1.2), amplitude=(0.85, 1.05), **both))
@@ -188,6 +191,21 @@ def mesh_catalogs(shipped: str) -> None:
                                usage="mocapflow evaluate --catalog training/validation_mesh.yaml")
     (HERE / "validation_mesh.yaml").write_text(validation + "\n".join(lines) + "\n" + STAGES.format(name="validation")
                                                + VALIDATION_STAGES)
+
+
+def long_catalog(mesh_lines: list[str], capsules: str, athletic_capsules: str) -> None:
+    """The long training of the default network, continued in runs: the whole mesh set with a share of the
+    capsule sequences and of the athletic ones on the capsule body (seeds ending in 0, 2, 5 or 7), starting from
+    the default weights. Each run is a whole schedule from the default of its day; its result replaces the default
+    only by the rule of docs/deepmocap.md, and the next run starts from that."""
+    share = "".join(line + "\n" for line in (capsules + athletic_capsules).splitlines()
+                    if line.split(":")[0].strip()[-1] in "0257")
+    _write_from_shipped(
+        "catalog_mesh_long.yaml", "\n".join(mesh_lines) + "\n" + share + STAGES.format(name="train"),
+        "Long training of the default two-stream FCN: the whole mesh set with a share of the capsule and\n"
+        "# athletic sequences, continued from the default weights (models/deepmocap_fcn.pt) run after run",
+        "the default network trained on; `mocapflow train` writes it to --out",
+        "{init: ../models/deepmocap_fcn.pt, iterations: 1200, learning_rate: 5.0e-4, batch: 16, seed: 1}")
 
 
 def _write_from_shipped(name: str, sequences_and_stages: str, title: str, comment: str, params: str) -> None:

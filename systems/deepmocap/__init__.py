@@ -1,5 +1,5 @@
 """DeepMoCap (Chatzitofis et al., Sensors 2019): IR-depth sensors -> reflector masks and 3D flow -> two-stream FCN
-heatmaps -> labelled 2D reflectors -> fused 3D markers -> tracks -> skeleton and poses.
+heatmaps -> labelled 2D reflectors -> fused 3D markers -> tracks -> the body fitted to them (or a template skeleton).
 
 Everything the system adds to the engine, declared in one place: its task specs (tasks.py), dataset kinds
 (readers.py: zarr, images, dmc), schemas, evaluator (evaluate.py), exporters (export.py: c3d, trc, bvh), report
@@ -18,7 +18,8 @@ SYSTEM = System(
     tasks=tasks.TASKS,
     dataset_kinds={"zarr": readers.ZarrReader, "images": readers.ImageFolderReader, "dmc": readers.DeepMoCapReader},
     schemas=(raw.RAW_SEQUENCE, stages.REFLECTOR_MASKS, stages.SCENE_FLOW, fcn.FCN_SAMPLES, fcn.FCN_WEIGHTS,
-             fcn.HEATMAPS, fcn.REFLECTORS2D, markers.MARKERS3D, markers.SMOOTHED, skeleton.SKELETON, skeleton.POSES),
+             fcn.HEATMAPS, fcn.REFLECTORS2D, markers.MARKERS3D, markers.SMOOTHED, skeleton.SKELETON, skeleton.POSES,
+             skeleton.BODY_POSES),
     evaluators=(evaluate.EVALUATOR,),
     exporters=export.EXPORTERS,
     report=(report.SECTION,),

@@ -10,8 +10,12 @@ from mocapflow.tasks.shared.body import JOINT_NAMES
 
 
 def compared_stage(catalog, stages: list[str]) -> str | None:
-    """The last of ``stages`` writing poses."""
-    return next((s for s in reversed(stages) if catalog.stages[s].spec.output == "poses"), None)
+    """The last of ``stages`` writing the body fitted to the reflectors, else the last writing template poses."""
+    for schema in ("body_poses", "poses"):
+        found = next((s for s in reversed(stages) if catalog.stages[s].spec.output == schema), None)
+        if found is not None:
+            return found
+    return None
 
 
 def source_stage(catalog, stage: str) -> str:

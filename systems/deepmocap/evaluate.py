@@ -31,17 +31,23 @@ MARKER_PREFIX = {"fused": ("marker_fused_", "markers3d_"), "smoothed": ("marker_
                  "checked": ("marker_checked_", "checked_")}
 
 
+def poses_stage(catalog) -> str | None:
+    """The stage whose joints are the take's poses: the body fitted to the reflectors where the catalog has one,
+    else the template skeleton's poses."""
+    return stage_writing(catalog, "body_poses") or stage_writing(catalog, "poses")
+
+
 def applies(catalog) -> bool:
     """Whether the catalog has a stage this evaluator scores: the scene flow, 2D reflectors, 3D markers or poses."""
     return "flow" in catalog.stages or any(stage_writing(catalog, schema) for schema in
-                                           ("reflectors2d", "markers3d", "smoothed_markers", "poses"))
+                                           ("reflectors2d", "markers3d", "smoothed_markers", "poses", "body_poses"))
 
 
 def evaluate_deepmocap(catalog, plan: Plan, store: Store, per_sequence: dict, thorough: bool = True) -> dict:
     """Figures per sequence (into ``per_sequence``) and overall for every DeepMoCap stage the catalog has
     (``thorough`` False: all but the scene flow, the slowest to score and no figure of the capture itself)."""
     stage_2d = stage_writing(catalog, "reflectors2d")
-    stage_poses = stage_writing(catalog, "poses")
+    stage_poses = poses_stage(catalog)
     raws = {}
     for seq in plan.sequences:
         raw = plan.open(store, "frames", seq.id)

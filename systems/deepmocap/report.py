@@ -13,6 +13,7 @@ import xarray as xr
 
 from mocapflow.pipeline.catalog import final_stage, stage_writing
 from mocapflow.pipeline.registry import ReportSection
+from mocapflow.systems.deepmocap.evaluate import poses_stage
 from mocapflow.pipeline.report import (FONT, SOLVED, TRUTH, WHITE, Take, bar_chart, base_takes, colour, line_plot,
                                        write_png)
 from mocapflow.tasks.shared.body import JOINT_NAMES, PARENTS
@@ -31,7 +32,7 @@ def takes(catalog, plan, store) -> list[Take]:
     stage = next((s for s in map(lambda schema: final_stage(catalog, schema), MARKER_SCHEMAS) if s), None)
     if stage is None:
         return []
-    fused, poses = stage_writing(catalog, "markers3d"), stage_writing(catalog, "poses")
+    fused, poses = stage_writing(catalog, "markers3d"), poses_stage(catalog)
     source = next((s.name for s in catalog.stages.values() if s.spec.source), None)
     out = base_takes(catalog, plan, store, stage)
     for take in out:
@@ -137,7 +138,7 @@ def accuracy_figures(folder: Path, catalog, plan, store, result: dict) -> list[P
     """The DeepMoCap figures (2D estimates over IR, skeletons, PCK, per-joint error) of the first sequence, where
     the catalog has 2D reflectors and poses and the data ground truth; without ground truth (a recording), the
     labels over each view of every sequence's middle frame."""
-    stage_2d, poses = stage_writing(catalog, "reflectors2d"), stage_writing(catalog, "poses")
+    stage_2d, poses = stage_writing(catalog, "reflectors2d"), poses_stage(catalog)
     source = stage_writing(catalog, "raw_sequence")
     if stage_2d is None or source is None:
         return []

@@ -4,8 +4,8 @@ tasks/deepmocap (see registry.TaskSpec)."""
 from __future__ import annotations
 
 from mocapflow.pipeline.registry import Lazy, NoParams, TaskSpec
-from mocapflow.tasks.deepmocap import (flow, markers3d, masks, plausibility, poses, refine2d, reflectors2d, skeleton,
-                                       smoothing, training)
+from mocapflow.tasks.deepmocap import (body_poses, flow, markers3d, masks, plausibility, poses, refine2d, reflectors2d,
+                                       skeleton, smoothing, training)
 from mocapflow.tasks.deepmocap.heatmaps import HeatmapConfig
 from mocapflow.tasks.shared.cameras import CALIBRATION_VARIABLES as CALIBRATION
 
@@ -105,6 +105,15 @@ TASKS = (
         reads={"views": ("view_position", "view_confidence")}, whole_sequence=True,
         description="40-DoF least squares per frame against the calibrated reflector offsets, warm-started from an "
                     "anchor frame; wrong labels gated out, lost limbs taken back, outvoted single views used",
+    ),
+
+    # Beyond the paper: poses as bodies, Anny fitted to the reflectors (tasks/deepmocap/body_poses.py).
+    TaskSpec(
+        name="fit_body_poses", fn=body_poses.fit_body_poses, version="1", params=body_poses.BodyPoseConfig,
+        output="body_poses", partition="sequence", inputs={"markers": "smoothed_markers"},
+        reads={"markers": ("position", "confidence")}, whole_sequence=True,
+        description="Anny fitted to the labelled 3D reflectors (shared Levenberg-Marquardt body fit), the shape and "
+                    "the reflectors' places calibrated per take; joints read from the fitted body",
     ),
 
     # Beyond the paper: no gross error written as data (tasks/deepmocap/plausibility.py).

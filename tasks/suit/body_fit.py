@@ -1,32 +1,15 @@
 """The body model under the suit's corners (Chen, Park, Macit, Kavan 2021, §5): a skinned body fitted to the
 observed corners, for hole filling (tasks/suit/fill) to unpose them into the rest pose and repose the filled ones.
 
-The paper fits STAR, refined per actor; here the body is Anny, fitted by the house's Levenberg-Marquardt body fitter
-(tasks/shared/body_fit) as UUO's inverse kinematics fits markers with known vertices (Milef et al. 2024, Eq. 7-8,
-zero marker offset): every corner's place on the rest body is known, a point (face, barycentric) of
-``MeshBody.faces``, so its posed position is a function of the pose and the phenotype, and the fit minimises
+The paper fits STAR, refined per actor; here the body is Anny, fitted as every system fits it (tasks/shared/place_fit:
+key frames, the phenotype once per take, then every frame, on the house's Levenberg-Marquardt fitter): every
+corner's place on the rest body is known, a point (face, barycentric) of ``MeshBody.faces``. A corner is skinned as
+one point with its own weights, the barycentric blend of its face's vertices' Anny weights, so that
+``fill.skinning_transforms`` / ``unpose`` / ``repose`` apply to it unchanged; this differs from blending the three
+skinned vertices by a second-order term (well under a millimetre; the non-articulated displacements absorb it).
 
-    sum_observed ||LBS(corner) - p||^2 / sigma_p^2  +  sum_bones |log(A_b^T L_b)|^2 / sigma_theta^2
-                                                    +  ||phenotype - start||^2 / sigma_beta^2
-
-(the second term UUO's E_Theta, each bone's rotation from an anchor pose A_b, holding bones no corner sees, the
-root's rotation free; the third E_beta). A corner is skinned as one point with its own weights, the barycentric
-blend of its face's vertices' Anny weights, so that ``fill.skinning_transforms`` / ``unpose`` / ``repose`` apply to
-it unchanged; this differs from blending the three skinned vertices by a second-order term (well under a
-millimetre; the non-articulated displacements absorb it). Three stages:
-
-1. key frames (every ``key_stride``-th fitted frame), each from the rest pose placed rigidly on its observed trunk
-   corners (Kabsch), at the start phenotype, E_Theta toward the rest pose; roughly;
-2. the phenotype, once per take, jointly with the poses of up to ``shape_frames`` key frames;
-3. every fitted frame with the phenotype fixed, ``chunk`` frames at a time, from its key frames' poses
-   interpolated, E_Theta now toward that interpolation (a limb no corner sees in a frame follows its key frames
-   rather than the rest pose).
-
-A frame with fewer than ``min_corners`` observed corners is not fitted (its pose is ill-posed): it borrows its
-neighbours' pose, each bone's rotation interpolated (slerp) and the root's position linearly between the nearest
-fitted frames before and after it (the nearest one at the take's ends). The result is in the rest body's own frame
-(feet at z = 0, as ``mesh_body``'s): rest corners and, per frame, each bone's rest -> posed 4x4 transform
-[M_k | h_k - M_k r_k].
+The result is in the rest body's own frame (feet at z = 0, as ``mesh_body``'s): rest corners and, per frame, each
+bone's rest -> posed 4x4 transform [M_k | h_k - M_k r_k].
 """
 
 from __future__ import annotations
@@ -34,15 +17,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from mocapflow.tasks.shared import body_fit as lm
-from mocapflow.tasks.shared.kinematics import rigid_fit
-from mocapflow.tasks.shared.mesh_body import PHENOTYPE_NAMES, Phenotype, part_of_bone
+from mocapflow.tasks.shared.mesh_body import Phenotype
+from mocapflow.tasks.shared.place_fit import PlaceFitConfig, PlaceFitError, fit_places
 from mocapflow.tasks.shared.solver_body import BodyFit, SolverBody
-
-CONVERGED = 1e-3  # relative energy decrease at which an iteration stops the solve
-ROUGH = 1e-2  # the same for the key frames' first poses, at the start phenotype (the shape's fit refines them)
 
 
 class BodyFitError(ValueError):
@@ -103,92 +82,6 @@ def corner_weights(body: SolverBody, face: np.ndarray, barycentric: np.ndarray) 
     return lm.place_weights(body, lm.Places.of_faces(body.body, face, barycentric))
 
 
-def _phenotype(p: Phenotype) -> np.ndarray:
-    return np.array([getattr(p, name) for name in PHENOTYPE_NAMES], np.float64)
-
-
-def _terms(points: np.ndarray, anchor: np.ndarray, config: BodyFitConfig) -> lm.Terms:
-    """The module's energy for ``points`` (frame, corner, 3), E_Theta toward ``anchor`` (frame, bone, 3, 3)."""
-    seen = np.isfinite(points).all(-1)
-    data = lm.Points(np.arange(points.shape[1]), np.where(seen[..., None], points, 0.0),
-                     seen / config.point_sigma_m ** 2)  # Eq. (8), Milef et al. 2024, zero marker offset
-    prior = lm.PosePrior(anchor, np.full(len(points), 1.0 / config.pose_sigma_rad ** 2))  # E_Theta, Eq. (5)
-    return lm.Terms(data, prior, shape_anchor=_phenotype(config.start),
-                    shape_weight=1.0 / config.shape_sigma ** 2)  # E_beta, Eq. (2)
-
-
-# --- the take --------------------------------------------------------------------------------------------------------
-
-
-def placed_rest_pose(points: np.ndarray, rest: np.ndarray, rest_root: np.ndarray,
-                     trunk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each frame's start: the rest body turned and moved onto its observed corners (Kabsch on the trunk's, or on
-    all when fewer than 3 trunk corners are seen).  points (frame, corner, 3), rest (corner, 3), rest_root (3,)
-    the root's rest head, trunk (corner,) bool -> root rotation (frame, 3, 3), root head (frame, 3)"""
-    rotation = np.zeros((len(points), 3, 3))
-    root = np.zeros((len(points), 3))
-    seen = np.isfinite(points).all(-1)
-    for f in range(len(points)):
-        use = seen[f] & trunk if (seen[f] & trunk).sum() >= 3 else seen[f]
-        rotation[f], t = rigid_fit(rest[use], points[f, use])  # p = R x + t (Kabsch)
-        root[f] = rotation[f] @ rest_root + t  # where the rigidly moved rest body puts the root's head
-    return rotation, root
-
-
-def _start(body: SolverBody, points: np.ndarray, rest: lm.Rest, trunk: np.ndarray, phenotype: np.ndarray) -> BodyFit:
-    """Each frame's rest pose placed on its observed corners (``placed_rest_pose``)."""
-    rotation, root = placed_rest_pose(points, rest.points[0].numpy(), rest.heads[0].numpy(), trunk)
-    local = np.tile(np.eye(3), (len(points), body.n_bones, 1, 1))
-    local[:, 0] = rotation
-    return BodyFit(local, root, phenotype)
-
-
-def borrow_poses(fit: BodyFit, fitted: np.ndarray) -> BodyFit:
-    """Frames not fitted take their neighbours' pose: per bone slerp and the root lerp between the nearest fitted
-    frames before and after (the nearest one past the ends).  fitted (frame,) bool -> BodyFit"""
-    frames = np.arange(len(fitted))
-    good = np.flatnonzero(fitted)
-    after = np.clip(np.searchsorted(good, frames), 0, len(good) - 1)
-    before = np.clip(after - (good[after] > frames), 0, len(good) - 1)
-    lo, hi = good[before], good[after]
-    alpha = np.where(hi > lo, (frames - lo) / np.maximum(hi - lo, 1), 0.0)  # (frame,)
-    r_lo = Rotation.from_matrix(fit.local[lo].reshape(-1, 3, 3))
-    r_hi = Rotation.from_matrix(fit.local[hi].reshape(-1, 3, 3))
-    step = (r_lo.inv() * r_hi).as_rotvec() * np.repeat(alpha, fit.local.shape[1])[:, None]
-    local = (r_lo * Rotation.from_rotvec(step)).as_matrix().reshape(fit.local.shape)
-    root = fit.root[lo] + alpha[:, None] * (fit.root[hi] - fit.root[lo])
-    local[good], root[good] = fit.local[good], fit.root[good]
-    return BodyFit(local, root, fit.phenotype)
-
-
-def _evenly(frames: np.ndarray, count: int) -> np.ndarray:
-    return frames[np.unique(np.linspace(0, len(frames) - 1, min(count, len(frames))).round().astype(int))]
-
-
-def _trunk(body: SolverBody, places: lm.Places, parts: tuple[str, ...]) -> np.ndarray:
-    part = np.array([part_of_bone(n) for n in body.body.bone_names])
-    return np.isin(part[body.body.vertex_bone[places.vertices[:, 0]]], parts)
-
-
-def _key_frames(body: SolverBody, points: np.ndarray, places: lm.Places, skin: lm.Skin,
-                config: BodyFitConfig) -> BodyFit:
-    """The key frames posed from the rest pose at the start phenotype (roughly), then the phenotype fitted with the
-    poses of up to ``shape_frames`` of them.  points (key frame, corner, 3)"""
-    phenotype = _phenotype(config.start)
-    rest = lm.rest_of(body, phenotype, (places,))
-    start = _start(body, points, rest, _trunk(body, places, config.trunk), phenotype)
-    rest_pose = np.tile(np.eye(3), start.local.shape[:2] + (1, 1))  # E_Theta toward the rest pose
-    keyed = lm.solve_poses(body, places, _terms(points, rest_pose, config), lm.State.of(start), config.iterations,
-                           ROUGH, config.chunk, skin)
-    shaped = _evenly(np.arange(len(points)), config.shape_frames)
-    state = lm.solve_take(body, places, _terms(points[shaped], rest_pose[shaped], config),
-                          lm.State(keyed.local[shaped], keyed.root[shaped], phenotype), config.iterations, CONVERGED,
-                          skin)
-    local, root = keyed.local.numpy().copy(), keyed.root.numpy().copy()
-    local[shaped], root[shaped] = state.local.numpy(), state.root.numpy()
-    return BodyFit(local, root, state.phenotype)
-
-
 def fit_body(body: SolverBody, points: np.ndarray, face: np.ndarray, barycentric: np.ndarray,
              config: BodyFitConfig = BodyFitConfig()) -> SuitBody:
     """Fit Anny to a take's corners (§5, Chen et al. 2021; see the module's text).
@@ -199,33 +92,18 @@ def fit_body(body: SolverBody, points: np.ndarray, face: np.ndarray, barycentric
     points = np.asarray(points, np.float64)
     face, barycentric = np.asarray(face), np.asarray(barycentric, np.float64)
     _check_places(body, points, face, barycentric)
-    counts = np.isfinite(points).all(-1).sum(1)
-    fitted = counts >= config.min_corners  # (frame,)
-    if not fitted.any():
-        raise BodyFitError(f"no frame has {config.min_corners} observed corners (most: {counts.max()}); the body "
-                           "cannot be fitted (lower min_corners or check the triangulation)")
     places = lm.Places.of_faces(body.body, face, barycentric)
-    weights = lm.place_weights(body, places)
-    skin, good = lm.skin_of(body, weights), np.flatnonzero(fitted)
-    keys = np.union1d(good[::config.key_stride], good[-1:])
-    keyed = _key_frames(body, points[keys], places, skin, config)
-    start = _spread(keyed, keys, len(points), np.isin(np.arange(len(points)), keys))
-    between = BodyFit(start.local[good], start.root[good], keyed.phenotype)  # E_Theta toward the key frames' poses
-    solved = lm.solve_poses(body, places, _terms(points[good], between.local, config), lm.State.of(between),
-                            config.iterations, CONVERGED, config.chunk, skin)
-    local, root = start.local, start.root
-    local[good], root[good] = solved.local.numpy(), solved.root.numpy()
-    fit = borrow_poses(BodyFit(local, root, keyed.phenotype), fitted)
-    transforms, rest_corners = _rest_frame(body, fit, lm.rest_of(body, keyed.phenotype, (places,)))
-    return SuitBody(fit=fit, bone_transforms=transforms, weights=weights, rest=rest_corners, borrowed=~fitted)
-
-
-def _spread(keyed: BodyFit, keys: np.ndarray, frames: int, known: np.ndarray) -> BodyFit:
-    """The key frames' poses interpolated to every frame (``borrow_poses``).  -> BodyFit (frame, ...)"""
-    local = np.tile(np.eye(3), (frames, keyed.local.shape[1], 1, 1))
-    root = np.zeros((frames, 3))
-    local[keys], root[keys] = keyed.local, keyed.root
-    return borrow_poses(BodyFit(local, root, keyed.phenotype), known)
+    shared = PlaceFitConfig(point_sigma_m=config.point_sigma_m, pose_sigma_rad=config.pose_sigma_rad,
+                            shape_sigma=config.shape_sigma, start=config.start, min_points=config.min_corners,
+                            key_stride=config.key_stride, shape_frames=config.shape_frames,
+                            iterations=config.iterations, chunk=config.chunk, trunk=config.trunk)
+    try:
+        placed = fit_places(body, points, places, shared)
+    except PlaceFitError as e:
+        raise BodyFitError(f"the suit's corners: {e}") from e
+    transforms, rest_corners = _rest_frame(body, placed.fit, lm.rest_of(body, placed.fit.phenotype, (places,)))
+    return SuitBody(fit=placed.fit, bone_transforms=transforms, weights=placed.weights, rest=rest_corners,
+                    borrowed=~placed.fitted)
 
 
 def _rest_frame(body: SolverBody, fit: BodyFit, rest: lm.Rest) -> tuple[np.ndarray, np.ndarray]:

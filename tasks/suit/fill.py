@@ -36,12 +36,11 @@ import xarray as xr
 from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import splu
 
-from mocapflow.tasks.shared.cache import BoundedCache
-from mocapflow.tasks.shared.mesh_body import PHENOTYPE_NAMES, Phenotype, mesh_body
-from mocapflow.tasks.suit.body_fit import BodyFitConfig, fit_body
+from mocapflow.tasks.shared.mesh_body import PHENOTYPE_NAMES
+from mocapflow.tasks.shared.place_fit import reference_body
 from mocapflow.tasks.shared.solver_body import SolverBody
+from mocapflow.tasks.suit.body_fit import BodyFitConfig, fit_body
 
-_BODIES: BoundedCache[str, SolverBody] = BoundedCache(1)  # the reference rig, once per process
 
 METHODS = ("reduced", "kkt")
 COT_MAX = 1.0 / np.tan(np.radians(1.0))  # an angle's cotangent is clamped to +-cot(1 degree) (degenerate triangles)
@@ -396,4 +395,4 @@ def fill_suit(points: xr.Dataset, images: xr.Dataset, config: FillSuitConfig) ->
 
 
 def _solver_body() -> SolverBody:
-    return _BODIES.get_or_make("reference", lambda: SolverBody(mesh_body(Phenotype())))
+    return reference_body()

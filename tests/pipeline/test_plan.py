@@ -76,7 +76,8 @@ def test_a_runtime_setting_keeps_every_key(tmp_path):
     base = keys(tmp_path)
     assert changed(base, keys(tmp_path, "stages.heatmaps.params.batch=2")) == set()
     assert stage_of(changed(base, keys(tmp_path, "stages.heatmaps.params.precision=float32"))) == {
-        "heatmaps", "reflectors2d", "markers3d", "smoothed", "skeleton", "poses", "checked", "reflectors2d_refined"}
+        "heatmaps", "reflectors2d", "markers3d", "smoothed", "skeleton", "template", "checked", "poses",
+        "reflectors2d_refined"}
 
 
 def test_a_weights_file_is_hashed_into_the_key(tmp_path):
@@ -88,7 +89,7 @@ def test_a_weights_file_is_hashed_into_the_key(tmp_path):
     same = keys(tmp_path, "stages.heatmaps.params.weights=a.pt")
     other = keys(tmp_path, "stages.heatmaps.params.weights=b.pt")
     assert stage_of(changed(base, same)) == {"heatmaps", "reflectors2d", "markers3d", "smoothed", "skeleton",
-                                             "poses", "checked", "reflectors2d_refined"}  # the path is a parameter too
+                                             "template", "checked", "poses", "reflectors2d_refined"}  # the path is a parameter too
     assert changed(same, other) == changed(base, same)  # the bytes flip it
 
 
