@@ -12,7 +12,8 @@ A studio sequence in a catalog::
 (``amc_fps``: its frame rate, 120 by default as in the CMU database), paths inside ``data_roots``;
 ``motion_map: my_map.yaml`` gives a skeleton no known naming fits a joint map (YAML ``{template joint:
 BVH joint}``). Files are read here (an AMC take is carried as the BVH text of tasks/studio/asf_amc.py);
-the studio itself (tasks/studio) only sees parsed values.
+the studio itself (tasks/studio) only sees parsed values. The realism switches ``tape``, ``cloth_cm`` and
+``tof_artefacts`` (all off by default) film DeepMoCap's reflectors and sensors as they really are.
 """
 
 from __future__ import annotations
@@ -39,8 +40,8 @@ from mocapflow.tasks.studio.cameras import outside_share
 from mocapflow.tasks.studio import motion as motion_mod
 from mocapflow.tasks.studio.motion import EXERCISES
 from mocapflow.tasks.studio.mesh_synth import MESH_STUDIO_VERSION
-from mocapflow.tasks.studio.synth import STUDIO_VERSION, SequenceSpec
-from mocapflow.tasks.studio.take import Take, make_take
+from mocapflow.tasks.studio.synth import REALISM_FIELDS, REALISM_VERSION, STUDIO_VERSION, SequenceSpec
+from mocapflow.tasks.studio.take import Take, make_take, realism
 
 SPEC_FIELDS = {f.name: f for f in dataclasses.fields(SequenceSpec)}
 _TAKES: BoundedCache[str, Take] = BoundedCache(4)  # fingerprint -> take, this process
@@ -141,6 +142,9 @@ def read_motion(source: MotionSource, where: str) -> str:
             return Path(path).read_text()
         except OSError as exc:
             raise InputError(f"{where}: cannot read {what} {path}: {exc.strerror}") from exc
+        except UnicodeDecodeError as exc:
+            raise InputError(f"{where}: {what} {path} is not text (byte {exc.start} is not UTF-8); give the motion "
+                             "file as the BVH, ASF or AMC text it should be") from exc
 
     if source.skeleton is None:
         return read(source.path, "BVH")
@@ -179,7 +183,7 @@ def read_motion_map(path: Path, where: str) -> dict[str, str]:
     """A BVH joint map file: YAML ``{template joint: BVH joint}`` (tasks/studio/bvh.py, joint_map)."""
     try:
         data = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as exc:
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise InputError(f"{where}: cannot read the joint map {path}: {exc}") from exc
     if not isinstance(data, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in data.items()):
         raise InputError(f"{where}: the joint map {path} must be a YAML mapping of template joint to BVH joint, "
@@ -190,7 +194,7 @@ def read_motion_map(path: Path, where: str) -> dict[str, str]:
 def read_layout(path: Path, where: str) -> dict:
     try:
         data = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as exc:
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise InputError(f"{where}: cannot read camera layout {path}: {exc}") from exc
     if not isinstance(data, dict) or not ({"ring", "sensors"} & set(data)):
         raise InputError(f"{where}: camera layout {path} needs 'ring: {{count, radius, height}}' or "
@@ -207,7 +211,7 @@ def frame_count(spec: SequenceSpec, bvh_text: str | None) -> int:
 
 # Spec fields added after a studio version enter the fingerprint only when set, so caches of sequences
 # that leave them at their default stay valid.
-LATER_FIELDS = ("variation", "body", "motion_map", "camera_roll_deg", "ir_bloom_px")
+LATER_FIELDS = ("variation", "body", "motion_map", "camera_roll_deg", "ir_bloom_px") + REALISM_FIELDS
 
 
 def fingerprint(spec: SequenceSpec, bvh_text: str | None) -> str:
@@ -221,6 +225,8 @@ def fingerprint(spec: SequenceSpec, bvh_text: str | None) -> str:
         content["variation"] = variation_ranges()
     if spec.body == "mesh":
         content["mesh"] = {"studio": MESH_STUDIO_VERSION, "anny": version("anny")}
+    if realism(spec).any:
+        content["realism"] = REALISM_VERSION
     return digest(content)
 
 

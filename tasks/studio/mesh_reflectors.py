@@ -7,6 +7,10 @@ skin faces around the point where a ray from the segment's axis, in the patch's 
 body; its ground truth is that surface point (face, barycentric) on the posed mesh. A strap is the
 2-inch band of the limb's skin faces across the segment's axis; its ground truth is the mean of the band's
 posed vertices, the limb's centre at the strap.
+
+Each placement also keeps its tape's rest-pose frame (``centre``, ``frame``: rows across, along, out), from which
+tasks/studio/tape.py draws the tape itself per pixel (``tape: true``), and ``slips`` moves a reflector along its
+segment and sideways on the skin, as clothing under the tape does (tasks/studio/cloth.py).
 """
 
 from __future__ import annotations
@@ -40,6 +44,9 @@ class MeshPlacement:
     face: int  # patch: the face of its centre (-1 for a strap)
     bary: np.ndarray  # patch: barycentric (u, v) of its centre
     ring: np.ndarray  # strap: vertex indices of the band (empty for a patch)
+    bone: str = ""  # the mesh bone that carries it
+    centre: np.ndarray | None = None  # rest pose: a patch's surface point, a strap's point on the limb's axis
+    frame: np.ndarray | None = None  # (3, 3) rest-pose rows: across the tape, along the segment, out of the skin
 
 
 def _rest_positions(subject: Subject) -> np.ndarray:
@@ -62,8 +69,10 @@ def _segment(body: MeshBody, subject: Subject, bone: str, tmpl_rest: np.ndarray)
 
 
 def place_on_mesh(body: MeshBody, subject: Subject, prims: tuple[Primitive, ...],
-                  placements: tuple[Placement, ...]) -> tuple[tuple[MeshPlacement, ...], np.ndarray]:
-    """The template ``placements`` (on ``prims`` of ``subject``) carried onto ``body``.
+                  placements: tuple[Placement, ...],
+                  slips: np.ndarray | None = None) -> tuple[tuple[MeshPlacement, ...], np.ndarray]:
+    """The template ``placements`` (on ``prims`` of ``subject``) carried onto ``body``; ``slips`` (reflector, 2):
+    metres each one moves along its segment and (a patch) sideways round it, None for none.
 
     Returns the mesh placements and each face's reflector index (-1 for none).  # (face,) int8
     """
@@ -84,10 +93,13 @@ def place_on_mesh(body: MeshBody, subject: Subject, prims: tuple[Primitive, ...]
         centre = tmpl_rest[prim.joint] + p.centre  # template rest world position
         along = (centre - o_t) @ a_t / l_t  # fraction of the segment (of a metre where it has no end)
         origin = o_m + along * l_m * a_m
+        if slips is not None:
+            origin = origin + slips[r, 0] * a_m
         if p.kind == "strap":
             band = _band(body, origin, a_m, bone)
             face_reflector[band] = r
-            out.append(MeshPlacement(p.name, "strap", -1, np.zeros(2), np.unique(body.faces[band])))
+            out.append(MeshPlacement(p.name, "strap", -1, np.zeros(2), np.unique(body.faces[band]), bone, origin,
+                                     _frame(a_m, _perpendicular(a_m))))
             continue
         radial = centre - o_t - ((centre - o_t) @ a_t) * a_t
         direction = radial if np.linalg.norm(radial) > 1e-6 else p.normal
@@ -95,12 +107,62 @@ def place_on_mesh(body: MeshBody, subject: Subject, prims: tuple[Primitive, ...]
         face, bary, t = scene.cast(origin[None], direction[None])
         if face[0] < 0:
             raise MeshPlacementError(f"reflector {p.name}: no skin found from {bone} in direction {direction.round(2)}")
+        if slips is not None and slips[r, 1]:  # sideways: cast again at the point moved round the segment
+            side = np.cross(a_m, direction)
+            target = origin + t[0] * direction + slips[r, 1] * side / max(np.linalg.norm(side), 1e-9)
+            direction = (target - origin) / np.linalg.norm(target - origin)
+            face, bary, t = scene.cast(origin[None], direction[None])
+            if face[0] < 0:
+                raise MeshPlacementError(f"reflector {p.name}: slipped {slips[r].round(3)} m, no skin found from "
+                                         f"{bone}; give a smaller slip")
         face_id = int(skin[face[0]])
         point = origin + t[0] * direction
         normal = np.cross(*(body.vertices[body.faces[face_id, 1:]] - body.vertices[body.faces[face_id, 0]]))
-        face_reflector[_square(centroids, point, normal / np.linalg.norm(normal)) & body.skin] = r
-        out.append(MeshPlacement(p.name, "patch", face_id, bary[0].astype(np.float64), np.zeros(0, np.int64)))
+        normal /= np.linalg.norm(normal)
+        face_reflector[_square(centroids, point, normal) & body.skin] = r
+        out.append(MeshPlacement(p.name, "patch", face_id, bary[0].astype(np.float64), np.zeros(0, np.int64), bone,
+                                 point, _frame(a_m, normal)))
     return tuple(out), face_reflector
+
+
+def _perpendicular(axis: np.ndarray) -> np.ndarray:
+    helper = np.array([0.0, 0.0, 1.0]) if abs(axis[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    out = np.cross(axis, helper)
+    return out / np.linalg.norm(out)
+
+
+def _frame(axis: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Rows (across, along, out): ``normal`` out of the skin, ``axis`` (the segment's) made tangent to it.  (3, 3)"""
+    along = axis - (axis @ normal) * normal
+    if np.linalg.norm(along) < 1e-6:  # the segment points out of the skin (a patch on a segment's end)
+        along = _perpendicular(normal)
+    along /= np.linalg.norm(along)
+    return np.stack([np.cross(along, normal), along, normal])
+
+
+def tape_faces(body: MeshBody, placements: tuple[MeshPlacement, ...], half_sizes: np.ndarray,
+               margin_m: float = 0.02) -> np.ndarray:
+    """Each face's candidate tape (-1 for none): faces that may hold part of a tape ``half_sizes`` (reflector, 3:
+    across, along, out) big, a face's size (``margin_m``) wider; tasks/studio/tape.py tests each pixel exactly.
+    A patch's faces face its way (the other side of a hand is not under it).  # (face,) int8"""
+    out = np.full(len(body.faces), -1, np.int8)
+    corners = body.vertices[body.faces]
+    centroids = corners.mean(axis=1)
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    for r, p in enumerate(placements):
+        if p.centre is None or p.frame is None:
+            raise MeshPlacementError(f"reflector {p.name} has no tape frame; place it with place_on_mesh")
+        rel = (centroids - p.centre) @ p.frame.T  # (face, 3) across, along, out
+        if p.kind == "strap":
+            side = p.bone[-2:]
+            limb = np.array([n.endswith(side) for n in body.bone_names])[body.vertex_bone[body.faces]].all(axis=1)
+            around = np.hypot(rel[:, 0], rel[:, 2])
+            near = limb & (np.abs(rel[:, 1]) <= half_sizes[r, 1] + margin_m) & (around <= STRAP_REACH_M)
+        else:
+            near = ((np.abs(rel[:, 0]) <= half_sizes[r, 0] + margin_m) & (np.abs(rel[:, 1]) <= half_sizes[r, 1] + margin_m)
+                    & (np.abs(rel[:, 2]) <= half_sizes[r, 2] + margin_m) & (normals @ p.frame[2] > 0))
+        out[near & body.skin] = r
+    return out
 
 
 def _band(body: MeshBody, origin: np.ndarray, axis: np.ndarray, bone: str) -> np.ndarray:

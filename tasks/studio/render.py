@@ -342,10 +342,14 @@ def kinect_depth(z, cos, reflector, rng, noise) -> np.ndarray:
     return np.where(valid, np.clip(mm, 1, 65535), 0).astype(np.uint16)
 
 
-def kinect_ir(t, cos, albedo, reflector, rng, noise) -> np.ndarray:
-    """Active-IR intensity: albedo * cos / d^2, saturated retro-reflectors with a little bloom, sensor noise."""
+def kinect_ir(t, cos, albedo, reflector, rng, noise, *, override=None, glow=None) -> np.ndarray:
+    """Active-IR intensity: albedo * cos / d^2, saturated retro-reflectors with a little bloom, sensor noise.
+    ``override`` (y, x): counts that replace the Lambertian return where not NaN (unsaturated tape, tasks/studio/tape.py);
+    ``glow`` (y, x) in [0, 1]: the bloom's shape, instead of a 1-pixel Gaussian round ``reflector``."""
     ir = IR_GAIN * albedo * cos / np.maximum(t, 0.3) ** 2
-    bloom = cv2.GaussianBlur(reflector.astype(np.float32), (0, 0), 1.0)
+    if override is not None:
+        ir = np.where(np.isnan(override), ir, override)
+    bloom = cv2.GaussianBlur(reflector.astype(np.float32), (0, 0), 1.0) if glow is None else glow
     ir = np.where(reflector, IR_REFLECTOR, ir + 0.5 * IR_REFLECTOR * bloom)
     ir = ir + noise * rng.standard_normal(ir.shape) * (15.0 + 0.01 * ir)
     return np.clip(np.rint(ir), 0, 65535).astype(np.uint16)

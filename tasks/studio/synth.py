@@ -23,6 +23,10 @@ STUDIO_VERSION = "2"
 BODIES = ("capsule", "mesh")
 
 
+REALISM_FIELDS = ("tape", "cloth_cm", "tof_artefacts")
+REALISM_VERSION = "1"  # a sequence with a realism switch on is re-rendered when its rendering changes
+
+
 @dataclass(frozen=True)
 class SequenceSpec:
     """What to film: ``motion`` is an exercise name, or ``"bvh"`` with the clip's text given to build_rig."""
@@ -48,6 +52,10 @@ class SequenceSpec:
     label: str = ""  # the motion's name in the ground truth (defaults to ``motion``)
     body: str = "capsule"  # the subject: "capsule" (the template's primitives) or "mesh" (Anny, tasks/studio/mesh_synth.py)
     motion_map: Mapping[str, str] | None = None  # a BVH clip's joint map {template joint: BVH joint} (bvh.joint_map)
+    # DeepMoCap's reflectors and sensors as they really are, on the mesh body only (take.Realism; all off by default)
+    tape: bool = False  # reflectors as real 2-inch tape (tasks/studio/tape.py)
+    cloth_cm: float = 0.0  # cloth up to this thick over the skin, 0-3 cm (tasks/studio/cloth.py)
+    tof_artefacts: bool = False  # the Kinect v2's time-of-flight artefacts (tasks/studio/tof.py)
 
     def __post_init__(self):
         if self.frames is not None and self.frames <= 0:
@@ -73,6 +81,10 @@ class SequenceSpec:
         if self.variation and self.motion == "bvh":
             raise ValueError(f"variation ({self.variation}) applies to the procedural exercises; a BVH clip is "
                              "played as recorded, so leave variation out")
+        if take.realism(self).any and self.body != "mesh":  # realism() checks the values
+            on = ", ".join(f"{k}: {getattr(self, k)}" for k in REALISM_FIELDS if getattr(self, k))
+            raise take.RealismError(f"{on} is filmed on the mesh body only, not body {self.body!r}; set body: mesh, "
+                                    "or leave those fields out")
 
 
 @dataclass(frozen=True)

@@ -19,6 +19,39 @@ from mocapflow.tasks.shared.mesh_body import HEIGHT_RANGE_M, MeshBody, mesh_body
 from mocapflow.tasks.studio import bvh, mesh_motion, motion
 
 
+class RealismError(ValueError):
+    """A realism switch with a value the studio cannot film."""
+
+
+@dataclass(frozen=True)
+class Realism:
+    """How real the DeepMoCap studio's reflectors and sensors are (every switch off: the studio as it was).
+
+    tape: the reflectors drawn as 2-inch tape of their real size, unevenly saturating and flaring (tape.py);
+    cloth_cm: a cloth layer 0 to this many cm thick over the skin, carrying, moving and partly hiding the tape
+    (cloth.py; 0: bare skin); tof: the Kinect v2's time-of-flight artefacts (tof.py).
+    """
+
+    tape: bool = False
+    cloth_cm: float = 0.0
+    tof: bool = False
+
+    def __post_init__(self):
+        if not 0 <= self.cloth_cm <= 3:
+            raise RealismError(f"cloth_cm = {self.cloth_cm!r}: clothes stand 0-3 cm off the skin; give cloth_cm "
+                               "between 0 (bare skin) and 3")
+
+    @property
+    def any(self) -> bool:
+        return self.tape or self.cloth_cm > 0 or self.tof
+
+
+def realism(spec) -> Realism:
+    """The realism switches of a sequence spec (all off where it has none)."""
+    return Realism(bool(getattr(spec, "tape", False)), float(getattr(spec, "cloth_cm", 0.0)),
+                   bool(getattr(spec, "tof_artefacts", False)))
+
+
 @dataclass(frozen=True)
 class Take:
     spec: object  # synth.SequenceSpec: the motion, frames, fps and seed of the take
