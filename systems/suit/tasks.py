@@ -14,6 +14,7 @@ from mocapflow.tasks.suit.labels import LabelConfig
 from mocapflow.tasks.suit.oracle import OracleConfig
 from mocapflow.tasks.suit.quads import QuadConfig
 from mocapflow.tasks.suit.reconstruct import ReconstructConfig
+from mocapflow.tasks.suit.verify import VerifyCodesConfig, VerifyLabelsConfig
 
 TASKS = (
     # The suit's counterpart: a `studio_suit` dataset's takes as grey images with calibration and the pattern.
@@ -64,6 +65,25 @@ TASKS = (
         reads={"images": ("cells",), "corners": ("x", "y", "logit")},
         description="labels grown over the suit's grid: unread squares' corners completed and extended from "
                     "labelled ones (beyond the paper)",
+    ),
+    # Every reading checked against the print (beyond the paper): each stage writes the schema it checks, so a
+    # catalog inserts it after read_codes or grow_labels (benchmarks/suit_verify.yaml) and the rest reads it as is.
+    TaskSpec(
+        name="verify_codes", fn=Lazy("mocapflow.tasks.suit.verify", "verify_codes"), version="1",
+        params=VerifyCodesConfig, output="suit_codes", partition="view",
+        inputs={"images": "suit_images", "corners": "suit_corners", "quads": "suit_quads", "codes": "suit_codes"},
+        reads={"images": ("image", "code"), "corners": ("x", "y")},
+        description="each accepted quad rectified and compared with the print's glyph pairs in four rotations "
+                    "(NCC): the reading kept where the print agrees, replaced where the print is decisive, else "
+                    "refused",
+    ),
+    TaskSpec(
+        name="verify_labels", fn=Lazy("mocapflow.tasks.suit.verify", "verify_labels"), version="1",
+        params=VerifyLabelsConfig, output="suit_labels", partition="view",
+        inputs={"images": "suit_images", "labels": "suit_labels"},
+        reads={"images": ("image", "code", "square_corners", "cells")},
+        description="grown labels (or all) kept only where the print's squares around the corner match the image "
+                    "there (NCC) and put the corner at the label",
     ),
     # Training the chain from studio takes (§4): per-image samples, then one training per dataset.
     TaskSpec(
