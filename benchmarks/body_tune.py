@@ -33,8 +33,8 @@ ROOT = Path(__file__).resolve().parents[1]
 def candidates() -> dict[str, BodyPoseConfig]:
     base = BodyPoseConfig()
     out = {}
-    for rounds in (0, 1, 2, 3):
-        for sigma in (0.3, 0.5, 1.0):
+    for rounds in (0, 1, 2):
+        for sigma in (0.3, 0.5):
             fit = replace(base.fit, pose_sigma_rad=sigma)
             out[f"rounds {rounds}, sigma_theta {sigma}"] = replace(base, fit=fit, calibration_rounds=rounds)
     return out

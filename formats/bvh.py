@@ -15,6 +15,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from mocapflow.pipeline.errors import InputError
+from mocapflow.tasks.shared.mesh_body import MeshBody
 from mocapflow.tasks.studio.bvh import BVHError, parse_bvh
 
 BVH_SCALE = 100.0  # metres -> centimetres
@@ -51,6 +52,23 @@ def bvh_text(names: list[str], parents: np.ndarray, offsets: np.ndarray, quat: n
     lines += ["MOTION", f"Frames: {len(motion)}", f"Frame Time: {1.0 / fps:.8f}"]
     lines += [" ".join(f"{v:.5f}" for v in row) for row in motion]
     return "\n".join(lines) + "\n"
+
+
+def anny_rig_bvh(body: MeshBody, bone_rotation: np.ndarray, root: np.ndarray, fps: float) -> str:
+    """BVH text of Anny's whole rig as solved (every bone, ``body``'s rest offsets): bone_rotation (frame, bone, 4)
+    x y z w each bone's world rotation from its rest orientation, root (frame, 3) the root's head. A bone's BVH
+    rotation is its world rotation relative to its parent's, so the file's forward kinematics give the solved bone
+    heads exactly."""
+    parents = body.bone_parents
+    offsets = body.rest_heads - np.where(parents[:, None] >= 0, body.rest_heads[np.maximum(parents, 0)], 0.0)
+    world = Rotation.from_quat(np.asarray(bone_rotation, np.float64).reshape(-1, 4)).as_matrix()
+    world = world.reshape(len(bone_rotation), -1, 3, 3)
+    local = world.copy()
+    child = parents >= 0
+    local[:, child] = np.swapaxes(world[:, parents[child]], -1, -2) @ world[:, child]
+    quats = Rotation.from_matrix(local.reshape(-1, 3, 3)).as_quat().reshape(local.shape[:2] + (4,))
+    names = [name.replace(".", "_") for name in body.bone_names]
+    return bvh_text(names, parents, offsets, quats, np.asarray(root, np.float64), float(fps))
 
 
 def _numbers(v: np.ndarray) -> str:

@@ -1,9 +1,14 @@
-"""`mocapflow evaluate` for DeepMoCap's stages, against the studio's ground truth.
+"""`mocapflow evaluate` for DeepMoCap's stages, against the studio's ground truth, and without it the labels'
+plausibility per view.
 
 Each sequence's artifacts are read view by view and scored by the pure metrics of tasks/deepmocap/evaluation.py:
-scene flow (the `flow` stage), the labelled 2D reflectors (a stage writing `reflectors2d`), the 3D reflectors
-(`markers3d`, `smoothed_markers` and the plausibility check that refines them, with the tail of the error: p95,
-p99 and the share of marker-frames more than 10 cm from the truth) and the joints of the solved poses (`poses`).
+scene flow (the `flow` stage), the labelled 2D reflectors (a stage writing `reflectors2d`, per view too), the 3D
+reflectors (`markers3d`, `smoothed_markers` and the plausibility check that refines them, with the tail of the
+error: p95, p99 and the share of marker-frames more than 10 cm from the truth) and the joints of the solved poses
+(`poses`). Every take, a recording without ground truth too, gets the plausibility of each view's labels
+(tasks/deepmocap/consistency.py: the views against each other and against the fitted body), where the catalog
+has a `markers3d` stage and poses; with truth, beside each view's true 2D mAP and the share of its labels lifted
+onto their true reflector, to show how well the checks track them.
 """
 
 from __future__ import annotations
@@ -16,9 +21,12 @@ from mocapflow.pipeline.evaluate import format_rows, pct
 from mocapflow.pipeline.plan import Plan
 from mocapflow.pipeline.registry import Evaluator
 from mocapflow.pipeline.storage import Store
+from mocapflow.tasks.deepmocap.consistency import (CHECKS, ConsistencyConfig, add_counts, summarize,
+                                                   true_on_reflector, view_counts)
 from mocapflow.tasks.deepmocap.evaluation import (TABLE8_JOINTS, Matches2D, flow_errors, jitter, joint_errors, match_2d,
                                                   pck_radius, summarize_2d, summarize_flow, summarize_joints,
                                                   summarize_markers)
+from mocapflow.tasks.deepmocap.refine2d import reflectors_on_poses
 from mocapflow.tasks.shared.marker_errors import marker_errors
 
 C_MIN_SWEEP = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
@@ -45,17 +53,29 @@ def applies(catalog) -> bool:
 
 def evaluate_deepmocap(catalog, plan: Plan, store: Store, per_sequence: dict, thorough: bool = True) -> dict:
     """Figures per sequence (into ``per_sequence``) and overall for every DeepMoCap stage the catalog has
-    (``thorough`` False: all but the scene flow, the slowest to score and no figure of the capture itself)."""
+    (``thorough`` False: all but the scene flow, the slowest to score and no figure of the capture itself); the
+    plausibility of each view's labels (``plausibility``) where the catalog has the stages it reads, and only that
+    where the sequences have no ground truth (recordings)."""
     stage_2d = stage_writing(catalog, "reflectors2d")
     stage_poses = poses_stage(catalog)
     raws = {}
     for seq in plan.sequences:
         raw = plan.open(store, "frames", seq.id)
-        if "gt_body" not in raw:
-            raise PlanError(f"sequence {seq.id!r} has no ground truth (gt_body); evaluate on studio sequences")
         raws[seq.id] = raw
         per_sequence.setdefault(seq.id, {})["exercise"] = raw.attrs.get("exercise", "")
+    untrue = [s for s, raw in raws.items() if "gt_body" not in raw]
     result: dict = {}
+    if untrue:
+        if len(untrue) < len(raws):
+            true = next(s for s in raws if s not in untrue)
+            raise PlanError(f"sequence {untrue[0]!r} has no ground truth (gt_body) but {true!r} has: evaluate the "
+                            "recordings and the studio sequences apart (--sequences)")
+        if not plausibility_stages(catalog):
+            raise PlanError(f"sequence {untrue[0]!r} has no ground truth (gt_body), and the catalog no markers3d and "
+                            "poses stages whose plausibility could stand in for it; evaluate on studio sequences, or "
+                            "add the stages markers3d and poses (see catalog.yaml)")
+        result["plausibility"] = evaluate_plausibility(catalog, plan, store, per_sequence)
+        return result
     if "flow" in catalog.stages and thorough:
         result["flow"] = _evaluate_flow(plan, store, raws, per_sequence)
         result["task"] = catalog.stages["flow"].task
@@ -71,7 +91,79 @@ def evaluate_deepmocap(catalog, plan: Plan, store: Store, per_sequence: dict, th
             result[f"markers_{kind}"] = _evaluate_markers(plan, store, raws, stage, schema, kind, per_sequence)
     if stage_poses is not None:
         result["poses"] = _evaluate_poses(plan, store, raws, stage_poses, per_sequence)
+    if plausibility_stages(catalog):
+        result["plausibility"] = evaluate_plausibility(catalog, plan, store, per_sequence, raws)
     return result
+
+
+def plausibility_stages(catalog) -> tuple[str, str] | None:
+    """The stages the plausibility of the views reads: the markers3d stage (each view's lifted labels) and the
+    poses (where the body puts each reflector); None where the catalog lacks either."""
+    fused, poses = stage_writing(catalog, "markers3d"), poses_stage(catalog)
+    return (fused, poses) if fused is not None and poses is not None else None
+
+
+def body_reflectors(catalog, plan: Plan, store: Store, stage: str, sequence: str, names: list[str],
+                    frames: np.ndarray) -> np.ndarray:
+    """Where the poses of ``stage`` put the reflectors ``names`` in ``frames``: a body fit's ``reflector_position``
+    (NaN in frames it did not fit, posed from their neighbours), or the template's reflectors carried by its solved
+    poses (its skeleton stage's offsets; NaN where unsolved).  -> (frame, R, 3)"""
+    poses = plan.open(store, stage, sequence).load().sel(frame=frames)
+    if "reflector_position" in poses:
+        missing = sorted(set(names) - {str(n) for n in poses["reflector"].values})
+        if missing:
+            raise PlanError(f"stage {stage!r} places no {missing[0]!r} on the body, which the markers3d stage "
+                            "labels; fit the body to the same reflectors")
+        out = poses["reflector_position"].sel(reflector=names).transpose("frame", "reflector", "xyz").values
+        fitted = poses["fitted"].values.astype(bool) if "fitted" in poses else np.ones(len(frames), bool)
+        return np.where(fitted[:, None, None], out.astype(np.float64), np.nan)
+    skeleton = catalog.stages[stage].inputs.get("skeleton")
+    if skeleton is None:
+        raise PlanError(f"stage {stage!r} writes poses without reflectors and reads no skeleton; the plausibility of "
+                        "the views needs a body fit (fit_body_poses) or solve_poses with its skeleton input")
+    return reflectors_on_poses(poses, plan.open(store, skeleton, sequence).load(), names, frames)[0]
+
+
+def evaluate_plausibility(catalog, plan: Plan, store: Store, per_sequence: dict, raws: dict | None = None,
+                          config: ConsistencyConfig = ConsistencyConfig()) -> dict:
+    """Per sequence and over all, per view: the share of its labels agreeing with another view, on their side of
+    the fitted body and on the body (tasks/deepmocap/consistency.py). Where ``raws`` carry the truth
+    (``gt_reflectors``), per view also the share of its lifted labels within ``on_body_m`` of their true reflector
+    (``true_on_reflector``), to show how well the checks track the truth."""
+    fused, poses = plausibility_stages(catalog)
+    per_view, truth_total, names = {}, {}, None  # a view's counts over the sequences it films, by its name
+    for seq in plan.sequences:
+        markers = plan.open(store, fused, seq.id).load()
+        seq_names = [str(n) for n in markers["reflector"].values]
+        if names is not None and seq_names != names:
+            raise PlanError(f"sequence {seq.id!r} labels the reflectors {seq_names[:3]}..., another sequence "
+                            f"{names[:3]}...; evaluate takes labelled alike together (--sequences)")
+        names, views = seq_names, [str(v) for v in markers["view"].values]
+        lifted = markers["view_position"].transpose("frame", "reflector", "view", "xyz").values.astype(np.float64)
+        body = body_reflectors(catalog, plan, store, poses, seq.id, names, markers["frame"].values)
+        counts = view_counts(lifted, body, names, config)
+        for v, view in enumerate(views):
+            per_view[view] = add_counts(per_view.get(view), {k: c[:, v] for k, c in counts.items()})
+        figures = summarize(counts, views, names, config)
+        raw = (raws or {}).get(seq.id)
+        if raw is not None and "gt_reflectors" in raw:
+            truth = raw["gt_reflectors"].sel(reflector=names).values
+            near = true_on_reflector(lifted, truth, config)
+            for v, view in enumerate(views):
+                figures["views"][view]["true_on_reflector"] = _share(*near[:, v])
+                truth_total[view] = truth_total.get(view, 0) + near[:, v]
+        per_sequence[seq.id]["plausibility"] = figures
+    views = list(per_view)
+    out = summarize({k: np.stack([per_view[v][k] for v in views], axis=1) for k in CHECKS}, views, names, config)
+    for view, near in truth_total.items():
+        out["views"][view]["true_on_reflector"] = _share(*near)
+    out.update({"stage": fused, "reflectors": catalog.stages[fused].inputs.get("reflectors"), "poses": poses,
+                "agreement_m": config.agreement_m, "on_body_m": config.on_body_m})
+    return out
+
+
+def _share(passed, counted) -> float:
+    return float(passed / counted) if counted else float("nan")
 
 
 def _evaluate_poses(plan: Plan, store: Store, raws: dict, stage: str, per_sequence: dict) -> dict:
@@ -144,11 +236,13 @@ def _evaluate_2d(plan: Plan, store: Store, raws: dict, stage: str, per_sequence:
     names = None
     n_reflectors = raws[plan.sequences[0].id].sizes["reflector"]
     total = {k: Matches2D(n_reflectors) for k in ("filtered", "unfiltered")}
+    per_view: dict[str, Matches2D] = {}  # the filtered estimates of each view, over the sequences
     for seq in plan.sequences:
         raw = raws[seq.id]
         if "gt_reflectors2d" not in raw:
             raise PlanError(f"sequence {seq.id!r} has no 2D reflector ground truth (gt_reflectors2d)")
         seq_matches = {k: Matches2D(n_reflectors) for k in total}
+        seq_view = {str(view): Matches2D(n_reflectors) for view in seq.views}
         for view in seq.views:
             est = plan.open(store, stage, seq.id, view)
             est, gt = est.sel(view=view).load(), raw.sel(view=view)
@@ -158,13 +252,16 @@ def _evaluate_2d(plan: Plan, store: Store, raws: dict, stage: str, per_sequence:
                       for kind, (x, y, c) in {"filtered": ("x", "y", "confidence"),
                                               "unfiltered": ("candidate_x", "candidate_y",
                                                              "candidate_confidence")}.items()}
+            own = (per_view.setdefault(str(view), Matches2D(n_reflectors)), seq_view[str(view)])
             for i in range(est.sizes["frame"]):
                 radius = pck_radius(body[i])
                 for kind, (xy, confidence) in arrays.items():
-                    for matches in (seq_matches[kind], total[kind]):
+                    for matches in (seq_matches[kind], total[kind]) + (own if kind == "filtered" else ()):
                         match_2d(matches, xy[i], confidence[i], uv[i], pixels[i], radius)
         per_sequence[seq.id][key] = {k: summarize_2d(m, names) for k, m in seq_matches.items()}
+        per_sequence[seq.id][key]["per_view"] = {view: summarize_2d(m, names) for view, m in seq_view.items()}
     out = {k: summarize_2d(m, names) for k, m in total.items()}
+    out["per_view"] = {view: summarize_2d(m, names) for view, m in per_view.items()}
     out["sweep"] = {c: summarize_2d(total["filtered"], names, c_min=c) for c in C_MIN_SWEEP}
     out["stage"] = stage
     return out
@@ -197,6 +294,12 @@ def deepmocap_headline(result: dict) -> dict:
         p = result["poses"]
         out.update({"pck3d_20cm": p["pck_20cm"], "pck3d_5cm": p["pck_5cm"], "mae3d_cm": p["mae_cm"],
                     "rmse3d_cm": p["rmse_cm"], "poses_solved": p["solved"]})
+    if "plausibility" in result:  # over every view, and the least of any view
+        p = result["plausibility"]
+        for check in CHECKS:
+            shares = [v[check] for v in p["views"].values() if np.isfinite(v[check])]
+            out.update({f"plausibility_{check}": p["all"][check],
+                        f"plausibility_{check}_worst_view": min(shares) if shares else float("nan")})
     return out
 
 
@@ -213,7 +316,43 @@ def deepmocap_table(result: dict) -> list[str]:
         lines += ([""] if lines else []) + _markers_table(result)
     if "poses" in result:
         lines += ([""] if lines else []) + poses_table(result["poses"])
+    if "plausibility" in result:
+        lines += ([""] if lines else []) + plausibility_table(result)
     return lines
+
+
+def plausibility_table(result: dict) -> list[str]:
+    """Per sequence and view, the plausibility of its labels; with ground truth, the view's true 2D mAP and the
+    share of its lifted labels on their true reflector beside them."""
+    p = result["plausibility"]
+    truth = any("true_on_reflector" in v for v in p["views"].values())
+    lines = [f"plausibility of each view's labels, no ground truth needed ({p['stage']} against {p['poses']}): % of "
+             f"its lifted labels within {100 * p['agreement_m']:g} cm of another view's, nearer their own side's "
+             f"reflector on the body than the mirrored one, within {100 * p['on_body_m']:g} cm of their reflector on "
+             "the body"]
+    head = ("sequence", "motion", "view", "labels", "agree %", "left/right %", "on body %")
+    head += ("true 2D mAP %", "on true reflector %") if truth else ()
+    rows = [head + ("most off the body (% of its labels)",)]
+    scored = result.get("reflectors2d", {})
+    same = scored.get("stage") == p.get("reflectors")  # the 2D labels scored are those the views lifted
+    overall = {"exercise": "", "plausibility": p, "reflectors2d": scored}
+    for name, s in list(result["sequences"].items()) + [("all", overall)]:
+        if "plausibility" not in s:
+            continue
+        for view, f in s["plausibility"]["views"].items():
+            row = (name, s["exercise"], view, str(f["on_body_n"]), pct(f["agreement"]), pct(f["left_right"]),
+                   pct(f["on_body"]))
+            if truth:
+                true_map = s.get("reflectors2d", {}).get("per_view", {}).get(view, {}).get("map", np.nan) if same \
+                    else np.nan
+                row += (pct(true_map), pct(f.get("true_on_reflector", np.nan)))
+            worst = ", ".join(f"{label} {100 * share:.0f}" for label, share in f["worst"].items())
+            rows.append(row + (worst or "-",))
+        f = s["plausibility"]["all"]
+        true_map = s.get("reflectors2d", {}).get("filtered", {}).get("map", np.nan) if same else np.nan
+        rows.append((name, s["exercise"], "all views", str(f["on_body_n"]), pct(f["agreement"]), pct(f["left_right"]),
+                     pct(f["on_body"])) + ((pct(true_map), "") if truth else ()) + ("",))
+    return lines + format_rows(rows)
 
 
 def poses_table(p: dict) -> list[str]:

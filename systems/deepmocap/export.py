@@ -8,8 +8,10 @@ point; the camera bits name the fused views (the first seven) for markers3d, non
 TRC is Y up by default (OpenSim's convention: the world rotated about x, x stays, y = z, z = -y, so handedness is
 kept) or Z up on request (formats/trc.py).
 
-BVH (formats/bvh.py) follows the convention of animation tools: Y up, the subject facing +Z, centimetres, the
-template's 20 joints. Frames the solver left unsolved hold the nearest solved pose.
+BVH (formats/bvh.py) follows the convention of animation tools: Y up, the subject facing +Z, centimetres: of the body
+fitted to the reflectors (the default poses), Anny's whole rig at the take's phenotype, whose forward kinematics give
+the fitted bones' heads; of the template's poses, its 20 joints, frames the solver left unsolved holding the
+nearest solved pose.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from mocapflow.pipeline.export import UNIT_SCALE, target, write_atomically
 from mocapflow.pipeline.registry import ExportJob, Exporter
 from mocapflow.tasks.shared.body import JOINT_NAMES, PARENTS
 from mocapflow.tasks.shared.kinematics import Y_UP_TO_Z_UP
+from mocapflow.tasks.shared.mesh_body import PHENOTYPE_NAMES, Phenotype, mesh_body
 
 
 def _arrays(markers: xr.Dataset) -> tuple[np.ndarray, list[str], float, np.ndarray]:
@@ -108,8 +111,16 @@ def _parents(poses: xr.Dataset) -> np.ndarray:
     return PARENTS
 
 
+def body_bvh(body: xr.Dataset) -> str:
+    """BVH text of the body fitted to the reflectors: Anny's whole rig at the take's phenotype."""
+    phenotype = Phenotype(**dict(zip(PHENOTYPE_NAMES, map(float, body["shape"].sel(phenotype=list(PHENOTYPE_NAMES))))))
+    return bvh.anny_rig_bvh(mesh_body(phenotype), body["bone_rotation"].values, body["root"].values,
+                            float(body.attrs["fps"]))
+
+
 def write_bvh(poses: xr.Dataset, path: Path) -> None:
-    text = poses_bvh(poses)
+    """The poses as BVH: Anny's rig for a body fitted to the reflectors, the template's 20 joints for its poses."""
+    text = body_bvh(poses) if "bone_rotation" in poses else poses_bvh(poses)
     write_atomically(path, lambda p: p.write_text(text), ".bvh")
 
 
@@ -125,5 +136,5 @@ EXPORTERS = (
     Exporter("c3d", ("smoothed_markers", "markers3d"), _export(lambda job, path: write_c3d(job.data, path), "c3d")),
     Exporter("trc", ("smoothed_markers", "markers3d"),
              _export(lambda job, path: write_trc(job.data, path, job.up or "y"), "trc"), options=("up",)),
-    Exporter("bvh", ("poses",), _export(lambda job, path: write_bvh(job.data, path), "bvh")),
+    Exporter("bvh", ("body_poses", "poses"), _export(lambda job, path: write_bvh(job.data, path), "bvh")),
 )

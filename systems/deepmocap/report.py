@@ -1,6 +1,7 @@
 """DeepMoCap in `mocapflow report`: its takes (the exported markers, the fused views' evidence, the solved poses and
 the studio's truth) and its accuracy figures (2D reflector estimates over each view's IR image, the solved
-skeleton against the true one, the 3D PCK curve, the per-joint error), drawn with OpenCV.
+skeleton against the true one, the 3D PCK curve, the per-joint error), drawn with OpenCV; for every take, with or
+without truth, the plausibility of each view's labels (tasks/deepmocap/consistency.py).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import xarray as xr
 
 from mocapflow.pipeline.catalog import final_stage, stage_writing
 from mocapflow.pipeline.registry import ReportSection
-from mocapflow.systems.deepmocap.evaluate import poses_stage
+from mocapflow.systems.deepmocap.evaluate import evaluate_plausibility, plausibility_stages, poses_stage
 from mocapflow.pipeline.report import (FONT, SOLVED, TRUTH, WHITE, Take, bar_chart, base_takes, colour, line_plot,
                                        write_png)
 from mocapflow.tasks.shared.body import JOINT_NAMES, PARENTS
@@ -140,8 +141,9 @@ def accuracy_figures(folder: Path, catalog, plan, store, result: dict) -> list[P
     labels over each view of every sequence's middle frame."""
     stage_2d, poses = stage_writing(catalog, "reflectors2d"), poses_stage(catalog)
     source = stage_writing(catalog, "raw_sequence")
+    checked = plausibility_figure(folder, catalog, plan, store, result)
     if stage_2d is None or source is None:
-        return []
+        return checked
 
     def opened(seq):
         raw = plan.open(store, source, seq.id)
@@ -149,14 +151,41 @@ def accuracy_figures(folder: Path, catalog, plan, store, result: dict) -> list[P
 
     if poses is not None and "poses" in result:
         raw, reflectors = opened(plan.sequences[0])
-        return figures(folder, raw, reflectors, plan.open(store, poses, plan.sequences[0].id).load(), result)
+        return figures(folder, raw, reflectors, plan.open(store, poses, plan.sequences[0].id).load(), result) + checked
     folder.mkdir(parents=True, exist_ok=True)
-    out = []
+    out = checked
     for seq in plan.sequences:
         raw, reflectors = opened(seq)
         out.append(folder / f"labels_{seq.id}.png")
         write_png(out[-1], label_views(raw, reflectors, int(raw.sizes["frame"] // 2)))
     return out
+
+
+PLAUSIBILITY_BARS = (("agreement", "agree"), ("left_right", "left/right"), ("on_body", "on body"),
+                     ("true_on_reflector", "on true refl."))  # the last only with truth
+
+
+def plausibility_chart(plausibility: dict) -> np.ndarray:
+    """One bar per view and check: the share (%) of the view's labels that pass it (over every sequence)."""
+    values = {f"{view} {label}": 100 * f[key] for view, f in plausibility["views"].items()
+              for key, label in PLAUSIBILITY_BARS if key in f}
+    title = (f"labels per view: agree within {100 * plausibility['agreement_m']:g} cm, on their side, within "
+             f"{100 * plausibility['on_body_m']:g} cm of the body")
+    return bar_chart(values, title=title, unit="%", size=(640, 60 + 26 * len(values)))
+
+
+def plausibility_figure(folder: Path, catalog, plan, store, result: dict) -> list[Path]:
+    """``plausibility.png``, the plausibility of each view's labels: the evaluation's, or measured here where there
+    is none (a recording: `mocapflow report` evaluates only takes with truth); nothing where the catalog lacks a
+    markers3d stage or poses."""
+    plausibility = result.get("plausibility")
+    if plausibility is None and plausibility_stages(catalog) and plan.sequences:
+        plausibility = evaluate_plausibility(catalog, plan, store, {seq.id: {} for seq in plan.sequences})
+    if plausibility is None:
+        return []
+    folder.mkdir(parents=True, exist_ok=True)
+    write_png(folder / "plausibility.png", plausibility_chart(plausibility))
+    return [folder / "plausibility.png"]
 
 
 # The evaluation's JSON keys, named for a reader: (label, scale, unit)
@@ -177,6 +206,10 @@ NAMED_FIGURES = {
     "marker_checked_completeness": ("3D markers present (checked, exported)", 100, "%"),
     "marker_fused_err_median_mm": ("3D marker error, median (fused)", 1, "mm"),
     "flow_epe_mm": ("scene flow end-point error, mean", 1, "mm"), "flow_coverage": ("scene flow coverage", 100, "%"),
+    "plausibility_agreement": ("labels agreeing with another view", 100, "%"),
+    "plausibility_left_right": ("labels on their side of the body", 100, "%"),
+    "plausibility_on_body": ("labels on the body", 100, "%"),
+    "plausibility_on_body_worst_view": ("labels on the body, worst view", 100, "%"),
 }
 
 

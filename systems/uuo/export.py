@@ -57,18 +57,8 @@ def write_uuo_c3d(solved: xr.Dataset, markers: xr.Dataset, path: Path) -> None:
 
 def rig_bvh_text(solved: xr.Dataset) -> str:
     """BVH text of the solved Anny rig (see the module's text)."""
-    body = mesh_body(Phenotype(**solved.attrs["phenotype"]))
-    parents = body.bone_parents
-    offsets = body.rest_heads - np.where(parents[:, None] >= 0, body.rest_heads[np.maximum(parents, 0)], 0.0)
-    world = Rotation.from_quat(solved["bone_rotation"].values.reshape(-1, 4)).as_matrix()
-    world = world.reshape(solved.sizes["frame"], -1, 3, 3)
-    local = world.copy()
-    child = parents >= 0
-    local[:, child] = np.swapaxes(world[:, parents[child]], -1, -2) @ world[:, child]
-    quats = Rotation.from_matrix(local.reshape(-1, 3, 3)).as_quat().reshape(local.shape[:2] + (4,))
-    names = [name.replace(".", "_") for name in body.bone_names]
-    return bvh.bvh_text(names, parents, offsets, quats, solved["root"].values.astype(np.float64),
-                    float(solved.attrs["fps"]))
+    return bvh.anny_rig_bvh(mesh_body(Phenotype(**solved.attrs["phenotype"])), solved["bone_rotation"].values,
+                            solved["root"].values, float(solved.attrs["fps"]))
 
 
 def write_uuo_bvh(solved: xr.Dataset, path: Path) -> None:

@@ -9,7 +9,7 @@ confidence. The places are the nominal ones; a subject's reflectors sit a few ce
 first fit each reflector's place is calibrated to the take (``calibrate_places``): its observations unposed into the
 fitted rest body by its place's skinning, their median taken, and the place moved there (the convex blend of
 three nearby vertices nearest it: for a patch of the skin's, for a strap of its limb's); the body is then fitted
-again from the first fit with the calibrated places, ``calibration_rounds`` times.
+again with the calibrated places from the phenotype found, ``calibration_rounds`` times.
 
 The joints are read from the fitted body: the heads of the bones at the 20 template joints (as the studio's truth
 and UUO's joints are). Per frame also where the fitted body puts each reflector, and the RMS distance of the observed
@@ -18,7 +18,7 @@ reflectors from it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import xarray as xr
@@ -29,7 +29,7 @@ from scipy.spatial.transform import Rotation
 from mocapflow.tasks.deepmocap.reflector_places import PLACES
 from mocapflow.tasks.shared import body_fit as lm
 from mocapflow.tasks.shared.body import JOINT_NAMES
-from mocapflow.tasks.shared.mesh_body import PHENOTYPE_NAMES
+from mocapflow.tasks.shared.mesh_body import PHENOTYPE_NAMES, Phenotype
 from mocapflow.tasks.shared.place_fit import PlaceFitConfig, PlaceFitError, fit_places, reference_body
 from mocapflow.tasks.shared.solver_body import BodyFit, SolverBody
 
@@ -109,7 +109,7 @@ def calibrated_places(body: SolverBody, placed, points: np.ndarray, places: lm.P
 
 
 def _near_vertices(rest_vertices: np.ndarray, triple: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """A strap's candidates: the vertices of the limb within 8 cm of its calibrated centre, nearest first."""
+    """A strap's candidates: the 24 vertices nearest its calibrated centre within 8 cm, nearest first."""
     d = np.linalg.norm(rest_vertices - target, axis=1)
     near = np.flatnonzero(d < 0.08)
     return near[np.argsort(d[near])][:24] if len(near) >= 3 else triple
@@ -131,10 +131,9 @@ def _nearest_blend(rest_vertices: np.ndarray, candidates: np.ndarray, target: np
     return best[1], best[2]
 
 
-def _fit(body: SolverBody, points: np.ndarray, confidence: np.ndarray, places: lm.Places, config: BodyPoseConfig,
-         warm=None):
+def _fit(body: SolverBody, points: np.ndarray, confidence: np.ndarray, places: lm.Places, config: BodyPoseConfig):
     try:
-        return fit_places(body, points, places, config.fit, confidence, warm)
+        return fit_places(body, points, places, config.fit, confidence)
     except PlaceFitError as e:
         raise BodyPoseError(f"the reflectors cannot pose the body: {e}") from e
 
@@ -153,7 +152,8 @@ def fit_body_poses(markers: xr.Dataset, config: BodyPoseConfig) -> xr.Dataset:
     kinds = [PLACES[PLACE_NAMES.index(n)][1] for n in names]
     for _ in range(config.calibration_rounds):
         places = calibrated_places(body, placed, points, places, kinds, config)
-        placed = _fit(body, points, confidence, places, config, warm=placed)
+        start = Phenotype(**dict(zip(PHENOTYPE_NAMES, np.clip(placed.fit.phenotype, 0.0, 1.0).tolist())))
+        placed = _fit(body, points, confidence, places, replace(config, fit=replace(config.fit, start=start)))
     return _dataset(markers, body, placed, places, points, names)
 
 

@@ -172,12 +172,11 @@ def _check(points: np.ndarray, confidence: np.ndarray, places: lm.Places) -> Non
 
 
 def fit_places(body: SolverBody, points: np.ndarray, places: lm.Places, config: PlaceFitConfig = PlaceFitConfig(),
-               confidence: np.ndarray | None = None, warm: PlacedBody | None = None) -> PlacedBody:
+               confidence: np.ndarray | None = None) -> PlacedBody:
     """Fit Anny to a take's points at known ``places`` of its rest mesh (see the module's text).
 
     points (frame, place, 3) NaN where unobserved; confidence (frame, place) >= 0, each point's weight relative to
-    ``1 / point_sigma_m^2`` (1 where not given). ``warm``: an earlier fit of the same take (the places moved a
-    little since): its poses and phenotype replace the key frames' first poses, and every stage starts from them.
+    ``1 / point_sigma_m^2`` (1 where not given).
     """
     points = np.asarray(points, np.float64)
     confidence = np.ones(points.shape[:2]) if confidence is None else np.asarray(confidence, np.float64)
@@ -190,31 +189,15 @@ def fit_places(body: SolverBody, points: np.ndarray, places: lm.Places, config: 
                             "body cannot be fitted (lower min_points or check the observations)")
     weights = lm.place_weights(body, places)
     skin, good = lm.skin_of(body, weights), np.flatnonzero(fitted)
-    if warm is None:
-        keys = np.union1d(good[::config.key_stride], good[-1:])
-        keyed = _key_frames(body, points[keys], confidence[keys], places, skin, config)
-        start = _spread(keyed, keys, len(points), np.isin(np.arange(len(points)), keys))
-    else:
-        start = _reshaped(body, points, confidence, places, skin, config, warm.fit, good)
+    keys = np.union1d(good[::config.key_stride], good[-1:])
+    keyed = _key_frames(body, points[keys], confidence[keys], places, skin, config)
+    start = _spread(keyed, keys, len(points), np.isin(np.arange(len(points)), keys))
     between = BodyFit(start.local[good], start.root[good], start.phenotype)  # E_Theta toward the key frames' poses
     solved = lm.solve_poses(body, places, _terms(points[good], confidence[good], between.local, config),
                             lm.State.of(between), config.iterations, CONVERGED, config.chunk, skin)
     local, root = start.local, start.root
     local[good], root[good] = solved.local.numpy(), solved.root.numpy()
     return PlacedBody(borrow_poses(BodyFit(local, root, start.phenotype), fitted), weights, fitted)
-
-
-def _reshaped(body: SolverBody, points: np.ndarray, confidence: np.ndarray, places: lm.Places, skin: lm.Skin,
-              config: PlaceFitConfig, earlier: BodyFit, good: np.ndarray) -> BodyFit:
-    """An earlier fit's poses with the phenotype fitted again, jointly with the poses of up to ``shape_frames`` of
-    its frames, E_Theta toward the earlier poses."""
-    shaped = _evenly(good, config.shape_frames)
-    state = lm.solve_take(body, places, _terms(points[shaped], confidence[shaped], earlier.local[shaped], config),
-                          lm.State.of(BodyFit(earlier.local[shaped], earlier.root[shaped], earlier.phenotype)),
-                          config.iterations, CONVERGED, skin)
-    local, root = earlier.local.copy(), earlier.root.copy()
-    local[shaped], root[shaped] = state.local.numpy(), state.root.numpy()
-    return BodyFit(local, root, state.phenotype)
 
 
 def _spread(keyed: BodyFit, keys: np.ndarray, frames: int, known: np.ndarray) -> BodyFit:

@@ -94,3 +94,17 @@ def test_reflectors_without_a_place_and_bad_settings_are_refused_by_name():
         bp.BodyPoseConfig(calibration_rounds=-1)
     with pytest.raises(bp.BodyPoseError, match="cannot pose the body"):
         bp.fit_body_poses(markers(np.full_like(points, np.nan)), bp.BodyPoseConfig())
+
+
+def test_the_fitted_body_exports_as_a_bvh_whose_joints_are_the_fitted_ones(tmp_path):
+    from mocapflow.formats.bvh import read_bvh_joints
+    from mocapflow.systems.deepmocap.export import write_bvh
+
+    points, _ = performed(PHENOTYPE, bp.nominal_places(bp.PLACE_NAMES))
+    solved = bp.fit_body_poses(markers(points), bp.BodyPoseConfig(calibration_rounds=0))
+    write_bvh(solved, tmp_path / "take.bvh")
+    joints, names, fps = read_bvh_joints(tmp_path / "take.bvh")
+    assert fps == pytest.approx(30.0) and len(names) == solved.sizes["bone"]
+    rig = reference_body().body
+    heads = joints[:, [names.index(b.replace(".", "_")) for b in rig.bone_names]]  # the file's forward kinematics
+    np.testing.assert_allclose(heads[:, rig.joint_bones()], solved["position"].values, atol=2e-4)  # float32 joints
