@@ -400,11 +400,12 @@ def build_report(catalog, plan, store, folder: Path, *, title: str, summary: dic
         raise PlanError(f"the catalog has no stage that a system's report section shows (sections: {names}); add "
                         "a stage writing markers (see catalog.yaml)")
     images, accuracy, figures_ = [], None, {}
-    if result is None and has_ground_truth(catalog, plan, store):
-        try:
+    if result is None:
+        truth = has_ground_truth(catalog, plan, store)
+        try:  # without truth, what a system checks of a take by itself (DeepMoCap's per-view plausibility)
             result = evaluate(catalog, plan, store, thorough=False)  # the slowest figures (scene flow) left out
-        except PlanError as exc:  # ground truth, but no stage the evaluation scores: say so on the page
-            accuracy = f"not measured: {exc}"
+        except PlanError as exc:  # no stage the evaluation scores (or, without truth, nothing to check): say so
+            accuracy = f"not measured: {exc}" if truth else None
     if result is not None:
         accuracy, figures_ = table(result), headline(result)
     images = [p for r in sections if r.figures is not None for p in r.figures(folder, catalog, plan, store, result or {})]
