@@ -14,6 +14,8 @@ A studio sequence in a catalog::
 BVH joint}``). Files are read here (an AMC take is carried as the BVH text of tasks/studio/asf_amc.py);
 the studio itself (tasks/studio) only sees parsed values. The realism switches ``tape``, ``cloth_cm`` and
 ``tof_artefacts`` (all off by default) film DeepMoCap's reflectors and sensors as they really are.
+``time_base_fps`` puts a take on a clock (tasks/studio/take.py): every dataset of a catalog's ``joint_take``
+films on one (120 fps unless given), so all its systems sample the same motion.
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ from mocapflow.tasks.studio import motion as motion_mod
 from mocapflow.tasks.studio.motion import EXERCISES
 from mocapflow.tasks.studio.mesh_synth import MESH_STUDIO_VERSION
 from mocapflow.tasks.studio.synth import REALISM_FIELDS, REALISM_VERSION, STUDIO_VERSION, SequenceSpec
-from mocapflow.tasks.studio.take import Take, make_take, realism
+from mocapflow.tasks.studio.take import TIME_BASE_FPS, Take, make_take, realism
 
 SPEC_FIELDS = {f.name: f for f in dataclasses.fields(SequenceSpec)}
 _TAKES: BoundedCache[str, Take] = BoundedCache(4)  # fingerprint -> take, this process
@@ -211,7 +213,7 @@ def frame_count(spec: SequenceSpec, bvh_text: str | None) -> int:
 
 # Spec fields added after a studio version enter the fingerprint only when set, so caches of sequences
 # that leave them at their default stay valid.
-LATER_FIELDS = ("variation", "body", "motion_map", "camera_roll_deg", "ir_bloom_px") + REALISM_FIELDS
+LATER_FIELDS = ("variation", "body", "motion_map", "camera_roll_deg", "ir_bloom_px", "time_base_fps") + REALISM_FIELDS
 
 
 def fingerprint(spec: SequenceSpec, bvh_text: str | None) -> str:
@@ -250,7 +252,11 @@ def sequence_specs(catalog, dataset, kind: str, *, mesh_only: bool = False, forc
                    layout: Mapping | None = None) -> list[tuple[str, str, dict, tuple]]:
     """Per sequence of a studio dataset: (id, where, its ``EXTRA_KEYS`` fields, (spec, BVH text, motion source)).
     A sequence's fields are the dataset's ``defaults`` and its own; ``mesh_only``: the take is filmed on the mesh
-    body (another ``body`` is refused); ``forced`` fields are set whatever was given."""
+    body (another ``body`` is refused); ``forced`` fields are set whatever was given. A dataset that films the
+    catalog's joint take samples each take on the joint clock (``time_base_fps``: TIME_BASE_FPS unless given), so
+    every system's truth of an instant is the same."""
+    joint_take = getattr(catalog, "joint_take", None)
+    joint = joint_take is not None and dataset.name in joint_take.datasets
     opts = dataset.options  # its keys were checked against the reader's options when the catalog was loaded
     sequences = opts.get("sequences") or {}
     if not isinstance(sequences, dict) or not sequences:
@@ -264,6 +270,8 @@ def sequence_specs(catalog, dataset, kind: str, *, mesh_only: bool = False, forc
         origin = {k: dataset.where_of(*(("defaults", k) if k not in (body or {}) else ("sequences", seq_id, k)))
                   for k in fields}
         extra = {k: fields.pop(k) for k in EXTRA_KEYS if k in fields}
+        if joint:  # one performance for every system: its motion sampled once, on one clock (take.py)
+            fields.setdefault("time_base_fps", TIME_BASE_FPS)
         if mesh_only and fields.setdefault("body", "mesh") != "mesh":
             raise CatalogError(f"{where}: {kind} takes are filmed on the mesh body; drop 'body' or set it to mesh")
         fields.update(forced or {})

@@ -10,6 +10,8 @@ floor in the frames where the template stands, the lift interpolated in between,
 height. Copying the template's lowest foot point instead made the mesh float where the template does (its
 proportions differ from the source's: 1.5-4.6 cm in stance on the CMU clips), and one lift for the whole
 take left the stance soles 2-3 cm up where the mesh's legs bend differently (benchmarks/mesh_studio.py).
+A joint take lifts each frame by the stance lift of its time base (``stance_lift`` on the motion sampled once,
+interpolated to the frame's instant: tasks/studio/take.py), so every system's mesh stands alike at an instant.
 """
 
 from __future__ import annotations
@@ -97,25 +99,46 @@ def bone_rotations(body: MeshBody, subject: Subject, local_rot: np.ndarray) -> n
     return out
 
 
-def retarget(body: MeshBody, subject: Subject, motion: Motion) -> MeshTake:
-    """``motion`` (performed by the template ``subject``) performed by the mesh ``body``."""
+def retarget(body: MeshBody, subject: Subject, motion: Motion, lift: np.ndarray | None = None) -> MeshTake:
+    """``motion`` (performed by the template ``subject``) performed by the mesh ``body``. ``lift``: the height the
+    stance frames give each frame (stance_lift, sampled from a joint take's time base: take.make_take), by default
+    the one these frames give themselves; a frame is never lifted less than its lowest sole needs."""
+    rotations, root, posed = _posed(body, subject, motion)
+    lowest = _lowest_sole(body, posed)
+    if lift is None:
+        lift = _stance_lift(lowest, lowest_foot_point(motion.local_rot, motion.root_pos, subject))
+    up = np.outer(np.maximum(lift, -lowest), [0.0, 0.0, 1.0])
+    posed = PosedMesh(posed.vertices + up[:, None], posed.heads + up[:, None], posed.frames)
+    return MeshTake(rotations, root + up, posed)
+
+
+def stance_lift(body: MeshBody, subject: Subject, motion: Motion) -> np.ndarray:
+    """Per frame of ``motion`` the height its stance frames give the mesh (before the floor check of retarget):
+    what a joint take samples at each system's instants.  # (frame,)"""
+    _, _, posed = _posed(body, subject, motion)
+    return _stance_lift(_lowest_sole(body, posed), lowest_foot_point(motion.local_rot, motion.root_pos, subject))
+
+
+def _posed(body: MeshBody, subject: Subject, motion: Motion) -> tuple[np.ndarray, np.ndarray, PosedMesh]:
+    """The bones' world rotations, the root and the mesh posed by ``motion``, before the lift."""
     rotations = bone_rotations(body, subject, motion.local_rot)
     _, pos = forward_kinematics(motion.local_rot, motion.root_pos, rest_offsets(subject), PARENTS)
     hips = [JOINT_INDEX["LeftHip"], JOINT_INDEX["RightHip"]]
     mesh_hips = body.rest_heads[[body.bone("upperleg01.L"), body.bone("upperleg01.R")]].mean(axis=0)
     root_rest = body.rest_heads[0]
     root = pos[:, hips].mean(axis=1) - rotations[:, 0] @ (mesh_hips - root_rest)  # hip midpoints coincide
-    posed = pose_mesh(body, rotations, root)
-    up = np.outer(_lift(body, posed, lowest_foot_point(motion.local_rot, motion.root_pos, subject)), [0.0, 0.0, 1.0])
-    posed = PosedMesh(posed.vertices + up[:, None], posed.heads + up[:, None], posed.frames)
-    return MeshTake(rotations, root + up, posed)
+    return rotations, root, pose_mesh(body, rotations, root)
 
 
-def _lift(body: MeshBody, posed: PosedMesh, template_lowest: np.ndarray) -> np.ndarray:
-    """Per-frame height to add: the lowest sole on the floor in the template's stance frames (its lowest foot
+def _lowest_sole(body: MeshBody, posed: PosedMesh) -> np.ndarray:
+    """Per frame the height of the mesh's lowest sole point.  # (frame,)"""
+    return posed.vertices[:, body.vertices[:, 2] < SOLE_HEIGHT_M, 2].min(axis=1)
+
+
+def _stance_lift(lowest: np.ndarray, template_lowest: np.ndarray) -> np.ndarray:
+    """Per-frame height that puts the lowest sole on the floor in the template's stance frames (its lowest foot
     point within CONTACT_M of the take's lowest), interpolated between them (a jump keeps its height over
-    them), never below the floor.  # (frame,)"""
-    lowest = posed.vertices[:, body.vertices[:, 2] < SOLE_HEIGHT_M, 2].min(axis=1)
+    them).  # (frame,)"""
     stance = template_lowest <= template_lowest.min() + CONTACT_M
     frames = np.arange(len(lowest))
-    return np.maximum(np.interp(frames, frames[stance], -lowest[stance]), -lowest)
+    return np.interp(frames, frames[stance], -lowest[stance])

@@ -56,6 +56,10 @@ class SequenceSpec:
     tape: bool = False  # reflectors as real 2-inch tape (tasks/studio/tape.py)
     cloth_cm: float = 0.0  # cloth up to this thick over the skin, 0-3 cm (tasks/studio/cloth.py)
     tof_artefacts: bool = False  # the Kinect v2's time-of-flight artefacts (tasks/studio/tof.py)
+    # a joint take's clock: the motion resampled and centred once at this rate over the window, and every frame sampled
+    # from that (take.clocked_motion), so takes of one performance at any fps hold one truth per instant (None: the
+    # motion resampled and centred at the sequence's own fps, as a single-system catalog films it)
+    time_base_fps: float | None = None
 
     def __post_init__(self):
         if self.frames is not None and self.frames <= 0:
@@ -71,6 +75,9 @@ class SequenceSpec:
         if not 0 <= self.ir_bloom_px <= 20:
             raise ValueError(f"ir_bloom_px must be within 0-20 pixels (a real Kinect v2's reflector regions need about 3), "
                              f"got {self.ir_bloom_px}")
+        if self.time_base_fps is not None and not self.time_base_fps > 0:
+            raise ValueError(f"time_base_fps must be positive (the rate a joint take's motion is sampled at once, e.g. "
+                             f"120), got {self.time_base_fps}")
         if self.variation < 0:
             raise ValueError(f"variation must be >= 0 (0 = the textbook exercise), got {self.variation}")
         if self.body not in BODIES:

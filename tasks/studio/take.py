@@ -6,17 +6,31 @@ template subject of the same height perform the motion (an exercise, or a BVH cl
 skins the whole motion onto the mesh. Each system's filming module then turns a take into that system's raw
 dataset: the DeepMoCap sensors (synth.py, mesh_synth.py), a UUO marker layout (uuo_takes.py), the suit's grey
 cameras (suit_takes.py). Nothing here places reflectors or cameras.
+
+A joint take (one performance filmed by several systems at their own rates, pipeline/compare.py) has a clock:
+``spec.time_base_fps`` (TIME_BASE_FPS, set by systems/studio/specs.py for every dataset of a catalog's
+``joint_take``). Its motion is then resampled, centred and put on the floor once, at that rate over the window
+(``start_s``, ``frames / fps``: the same for every system), and the mesh's stance lift worked out once on it
+(mesh_motion.stance_lift); each system's frames are sampled from that one motion at their instants (copied where
+an instant is on the clock, interpolated between), so every system's truth of a shared instant is one. Without
+a clock a take is resampled and centred at its own fps, so the instants it films set its centring, floor height
+and stance lift: the same clip filmed at 30 and 5 fps differed by up to 9.6 mm at the same instant.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
 
 from mocapflow.tasks.shared import body
 from mocapflow.tasks.shared.mesh_body import HEIGHT_RANGE_M, MeshBody, mesh_body, random_phenotype
 from mocapflow.tasks.studio import bvh, mesh_motion, motion
+
+
+TIME_BASE_FPS = 120.0  # a joint take's clock: CMU's rate, which 5, 10, 15, 20, 24, 30, 40 and 60 fps all sample
 
 
 class RealismError(ValueError):
@@ -74,7 +88,14 @@ def mesh_subject(spec) -> tuple[MeshBody, body.Subject]:
 
 def performed_motion(spec, subject: body.Subject, bvh_text: str | None) -> motion.Motion:
     """The motion ``subject`` performs, n_frames + 1 frames: the BVH clip retargeted (``spec.motion == "bvh"``),
-    else the procedural exercise."""
+    else the procedural exercise; with a clock (``spec.time_base_fps``) sampled from the motion at that rate."""
+    if getattr(spec, "time_base_fps", None) is not None:
+        base, times = clocked_motion(spec, subject, bvh_text)
+        return sample_motion(base, times, spec.fps)
+    return _motion(spec, subject, bvh_text)
+
+
+def _motion(spec, subject: body.Subject, bvh_text: str | None) -> motion.Motion:
     if spec.motion == "bvh":
         if bvh_text is None:
             raise ValueError("motion 'bvh' needs the clip's text")
@@ -86,8 +107,67 @@ def performed_motion(spec, subject: body.Subject, bvh_text: str | None) -> motio
                            variation=spec.variation, seed=spec.seed)
 
 
+def clocked_motion(spec, subject: body.Subject, bvh_text: str | None) -> tuple[motion.Motion, np.ndarray]:
+    """A take with a clock: the motion resampled (and centred, and put on the floor) once at ``spec.time_base_fps``
+    over the take's window, whatever its own fps, and the instants of its n_frames + 1 frames (s from the window's
+    start: ``frame / fps``)."""
+    rate = float(spec.time_base_fps)
+    clip = bvh.parse_bvh(bvh_text) if spec.motion == "bvh" and bvh_text is not None else None
+    if spec.frames is None and clip is not None:  # the clip from start_s to its end, on the clock as far as it goes
+        samples, frames = bvh.available_frames(clip, spec.fps, spec.start_s), None
+    else:
+        samples = (spec.frames or 90) + 1
+        frames = int(np.ceil((samples - 1) / spec.fps * rate - 1e-6))  # the window's length on the clock
+        if clip is not None:  # a window that does not end on the clock ends in its last step (< 1 / rate)
+            frames = min(frames, bvh.available_frames(clip, rate, spec.start_s) - 1)
+    base = _motion(dataclasses.replace(spec, fps=rate, frames=frames, time_base_fps=None), subject, bvh_text)
+    return base, np.arange(samples) / spec.fps
+
+
+def on_clock(times: np.ndarray, fps: float, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """For instants ``times`` (s) on a clock of ``count`` ticks at ``fps``: the tick of each and whether it is on
+    one (within a microsecond; else it lies between two, or past the last)."""
+    ticks = times * fps
+    index = np.round(ticks).astype(np.int64)
+    on = (np.abs(ticks - index) < 1e-6 * fps) & (index < count)
+    return np.minimum(index, count - 1), on
+
+
+def sample_values(values: np.ndarray, fps: float, times: np.ndarray) -> np.ndarray:
+    """``values`` (tick, ...) of a clock at ``fps`` at ``times`` (s): copied on a tick, linear in between (held past
+    the last)."""
+    index, on = on_clock(times, fps, len(values))
+    out = values[index].astype(np.float64)
+    if not on.all():
+        ticks = np.arange(len(values)) / fps
+        flat = values.reshape(len(values), -1)
+        out[~on] = np.stack([np.interp(times[~on], ticks, flat[:, k]) for k in range(flat.shape[1])],
+                            axis=1).reshape((-1,) + values.shape[1:])
+    return out
+
+
+def sample_motion(base: motion.Motion, times: np.ndarray, fps: float) -> motion.Motion:
+    """``base`` (on its clock, ``base.fps``, from the window's start) at ``times`` (s), as a motion at ``fps``: a
+    frame on a tick is that tick's; one between ticks has the rotations slerped and the root interpolated."""
+    n = len(base.root_pos)
+    index, on = on_clock(times, base.fps, n)
+    local = base.local_rot[index].copy()
+    if not on.all():
+        ticks = np.arange(n) / base.fps
+        t = np.clip(times[~on], 0.0, ticks[-1])
+        for j in range(local.shape[1]):
+            local[~on, j] = Slerp(ticks, Rotation.from_matrix(base.local_rot[:, j]))(t).as_matrix()
+    return motion.Motion(local, sample_values(base.root_pos, base.fps, times), fps, base.label)
+
+
 def make_take(spec, bvh_text: str | None = None) -> Take:
-    """The take ``spec`` describes, on the mesh body."""
+    """The take ``spec`` describes, on the mesh body (with a clock: sampled from the motion on the clock, the mesh
+    lifted as the clock's stance frames say)."""
     body_, subject = mesh_subject(spec)
-    mot = performed_motion(spec, subject, bvh_text)
-    return Take(spec, body_, subject, mot, mesh_motion.retarget(body_, subject, mot))
+    if getattr(spec, "time_base_fps", None) is None:
+        mot = performed_motion(spec, subject, bvh_text)
+        return Take(spec, body_, subject, mot, mesh_motion.retarget(body_, subject, mot))
+    base, times = clocked_motion(spec, subject, bvh_text)
+    mot = sample_motion(base, times, spec.fps)
+    lift = sample_values(mesh_motion.stance_lift(body_, subject, base), base.fps, times)
+    return Take(spec, body_, subject, mot, mesh_motion.retarget(body_, subject, mot, lift))

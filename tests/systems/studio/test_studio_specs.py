@@ -115,7 +115,8 @@ def test_later_fields_enter_the_fingerprint_only_when_set():
     plain = SequenceSpec("classic_squat", seed=3)
     before_the_fields = {k: v for k, v in dataclasses.asdict(plain).items()
                          if k not in ("variation", "body", "motion_map", "camera_roll_deg", "ir_bloom_px", "tape",
-                                      "cloth_cm", "tof_artefacts")}  # every field added after the studio's version
+                                      "cloth_cm", "tof_artefacts", "time_base_fps")}  # every field added after the
+    # studio's version
     assert fingerprint(plain, None) == digest({"spec": before_the_fields, "bvh": None, "studio": STUDIO_VERSION})
     assert fingerprint(SequenceSpec("classic_squat", seed=3, variation=0.5), None) != fingerprint(plain, None)
     assert fingerprint(SequenceSpec("classic_squat", seed=3, body="mesh"), None) != fingerprint(plain, None)
@@ -124,6 +125,7 @@ def test_later_fields_enter_the_fingerprint_only_when_set():
     assert fingerprint(SequenceSpec("classic_squat", seed=3, ir_bloom_px=3), None) != fingerprint(plain, None)
     assert fingerprint(SequenceSpec("classic_squat", seed=3, body="mesh", tape=True), None) != \
         fingerprint(SequenceSpec("classic_squat", seed=3, body="mesh"), None)
+    assert fingerprint(SequenceSpec("classic_squat", seed=3, time_base_fps=120.0), None) != fingerprint(plain, None)
 
 
 def test_a_clip_cut_to_a_window_is_fingerprinted_as_centred_on_it():
