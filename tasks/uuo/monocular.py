@@ -4,7 +4,7 @@ The paper runs HMR 2.0 on the take's video and starts UUO from its body (Milef e
 estimator is BlazePose GHUM 3D (Bazarevsky et al. 2020; Grishchenko et al. 2022), the two TensorFlow Lite
 networks that ship in the mediapipe wheel (``pose_detection.tflite``, ``pose_landmark_full.tflite``), run by the
 LiteRT interpreter (``ai-edge-litert``, the ``monocular`` extra) instead of mediapipe's graph, whose own
-dependencies clash with OpenCV's headless build. The graph's steps are rebuilt as functions of arrays:
+dependencies clash with OpenCV's headless build. The graph's steps are rebuilt as functions of arrays (tasks/shared/blazepose.py):
 
 1. the detector on the frame letterboxed to 224 x 224 (SSD anchors, one box and four key points per anchor);
 2. the region of interest from two key points (the hips' centre and a point on the body's circle): a square
@@ -33,30 +33,20 @@ from dataclasses import dataclass, field
 import numpy as np
 import xarray as xr
 
+from mocapflow.tasks.shared import blazepose
+from mocapflow.tasks.shared.blazepose import (LEFT_ANKLE, LEFT_EAR, LEFT_ELBOW, LEFT_FOOT_INDEX, LEFT_HEEL, LEFT_HIP,
+                                              LEFT_INDEX, LEFT_KNEE, LEFT_PINKY, LEFT_SHOULDER, LEFT_WRIST, MIRRORED,
+                                              RIGHT_ANKLE, RIGHT_EAR, RIGHT_ELBOW, RIGHT_FOOT_INDEX, RIGHT_HEEL,
+                                              RIGHT_HIP, RIGHT_INDEX, RIGHT_KNEE, RIGHT_PINKY, RIGHT_SHOULDER,
+                                              RIGHT_WRIST, body_region)
 from mocapflow.tasks.shared.body import JOINT_NAMES
 from mocapflow.tasks.uuo.prior import FilePriorConfig, PriorError, joints_prior
-
-DETECTOR_SIZE = 224
-LANDMARK_SIZE = 256
-N_LANDMARKS = 39  # 33 of the body, then 33 (hips' centre) and 34 (the body circle's point) for tracking
-_STRIDES = (8, 16, 32, 32, 32)  # the detector's SSD layers; each gives two anchors per cell
-
-# BlazePose's landmarks (the person's own left and right).
-NOSE, LEFT_EAR, RIGHT_EAR = 0, 7, 8
-LEFT_SHOULDER, RIGHT_SHOULDER, LEFT_ELBOW, RIGHT_ELBOW, LEFT_WRIST, RIGHT_WRIST = 11, 12, 13, 14, 15, 16
-LEFT_PINKY, RIGHT_PINKY, LEFT_INDEX, RIGHT_INDEX = 17, 18, 19, 20
-LEFT_HIP, RIGHT_HIP, LEFT_KNEE, RIGHT_KNEE, LEFT_ANKLE, RIGHT_ANKLE = 23, 24, 25, 26, 27, 28
-LEFT_HEEL, RIGHT_HEEL, LEFT_FOOT_INDEX, RIGHT_FOOT_INDEX = 29, 30, 31, 32
 
 # Where the template's neck joint lies on the line from the hips' centre through the shoulders' (the upper arms'
 # heads): 1.21 of the way, measured on Anny's default adult at rest (mesh_body(Phenotype())), whose SpineBase
 # is its Hips and whose Head is at the ears' height.
 NECK_FRACTION = 1.21
 TOES_FRACTION = 0.7  # the toes' base between the heel and the foot's tip
-
-
-class EstimatorError(RuntimeError):
-    """The monocular estimator cannot run (its runtime or model missing or broken)."""
 
 
 @dataclass(frozen=True)
@@ -84,86 +74,6 @@ class MonocularPriorConfig:
             raise PriorError(f"monocular prior perturbation out of range: shift_px two finite pixel offsets (x, y) "
                              f"(got {self.shift_px}), scale in [0.5, 2] (got {self.scale}); (0, 0) and 1 perturb "
                              "nothing")
-
-
-# ---- the networks' geometry (kernels) ------------------------------------------------------------------------
-
-def ssd_anchors() -> np.ndarray:
-    """Centres (x, y) in [0, 1] of the detector's 2,254 anchors, in its output order (fixed size 1).  -> (2254, 2)"""
-    out, layer = [], 0
-    while layer < len(_STRIDES):
-        stride, per_cell = _STRIDES[layer], 0
-        while layer < len(_STRIDES) and _STRIDES[layer] == stride:  # layers of one stride share the grid
-            per_cell, layer = per_cell + 2, layer + 1
-        cells = int(np.ceil(DETECTOR_SIZE / stride))
-        yy, xx = np.mgrid[0:cells, 0:cells]
-        centres = np.stack([(xx + 0.5) / cells, (yy + 0.5) / cells], axis=-1).reshape(-1, 1, 2)
-        out.append(np.repeat(centres, per_cell, axis=1).reshape(-1, 2))
-    return np.concatenate(out)
-
-
-_ANCHORS = ssd_anchors()
-
-
-def letterbox(image: np.ndarray, size: int) -> tuple[np.ndarray, float, np.ndarray]:
-    """``image`` (y, x, 3) uint8 padded to a square and resized to ``size``: (float32 in [-1, 1], the square's side
-    in pixels, its offset (x, y) in the image)."""
-    import cv2
-
-    h, w = image.shape[:2]
-    side = max(h, w)
-    square = np.zeros((side, side, 3), np.uint8)
-    oy, ox = (side - h) // 2, (side - w) // 2
-    square[oy:oy + h, ox:ox + w] = image
-    small = cv2.resize(square, (size, size), interpolation=cv2.INTER_AREA)
-    return small.astype(np.float32) / 127.5 - 1.0, float(side), np.array([ox, oy], float)
-
-
-def decode_detection(boxes: np.ndarray, logits: np.ndarray, side: float, offset: np.ndarray,
-                     min_score: float) -> np.ndarray | None:
-    """The best-scored body's four key points in image pixels, or None below ``min_score``.
-
-    boxes (2254, 12): per anchor the box (x, y, w, h) then four key points (x, y), in detector pixels relative to
-    the anchor's centre; logits (2254,).  -> (4, 2)"""
-    scores = 1.0 / (1.0 + np.exp(-np.clip(logits, -80.0, 80.0)))
-    best = int(np.argmax(scores))
-    if scores[best] < min_score:
-        return None
-    points = boxes[best, 4:12].reshape(4, 2) / DETECTOR_SIZE + _ANCHORS[best]  # in [0, 1] of the square
-    return points * side - offset
-
-
-@dataclass(frozen=True)
-class Region:
-    """A square region of the image: centre (x, y) pixels, side in pixels, rotation (radians, image plane)."""
-
-    centre: np.ndarray
-    side: float
-    rotation: float
-
-    @property
-    def turn(self) -> np.ndarray:
-        c, s = np.cos(self.rotation), np.sin(self.rotation)
-        return np.array([[c, -s], [s, c]])
-
-    def to_image(self, crop_xy: np.ndarray, crop_size: int) -> np.ndarray:
-        """Crop pixels (n, 2) -> image pixels (n, 2)."""
-        return (crop_xy / crop_size - 0.5) * self.side @ self.turn.T + self.centre
-
-    def crop_transform(self, crop_size: int) -> np.ndarray:
-        """The 2 x 3 affine map from crop pixels to image pixels (cv2.warpAffine with WARP_INVERSE_MAP)."""
-        out = np.zeros((2, 3))
-        out[:, :2] = self.turn * self.side / crop_size
-        out[:, 2] = self.centre - self.turn @ np.array([0.5, 0.5]) * self.side
-        return out
-
-
-def body_region(centre: np.ndarray, circle: np.ndarray, scale: float = 1.25) -> Region:
-    """The region around a body from its hips' centre and a point on its circle (mediapipe's alignment points,
-    target angle 90 degrees, then enlarged by ``scale``)."""
-    d = np.asarray(circle, float) - np.asarray(centre, float)
-    rotation = np.pi / 2 - np.arctan2(-d[1], d[0])
-    return Region(np.asarray(centre, float), 2.0 * float(np.hypot(*d)) * scale, float(rotation))
 
 
 def to_z_up(world: np.ndarray) -> np.ndarray:
@@ -200,9 +110,7 @@ def template_joints(landmarks: np.ndarray) -> np.ndarray:
     return np.stack([named[name] for name in JOINT_NAMES], axis=-2)
 
 
-# BlazePose's 33 body landmarks with the sides swapped (the nose stays): a mirrored image's landmarks read back.
-MIRRORED_LANDMARKS = np.array([0, 4, 5, 6, 1, 2, 3, 8, 7, 10, 9, 12, 11, 14, 13, 16, 15, 18, 17, 20, 19, 22, 21, 24, 23,
-                               26, 25, 28, 27, 30, 29, 32, 31])
+MIRRORED_LANDMARKS = MIRRORED  # BlazePose's 33 landmarks with the sides swapped (the nose stays)
 
 
 def perturb_frames(frames: np.ndarray, shift_px: tuple[float, float] = (0.0, 0.0), scale: float = 1.0,
@@ -236,66 +144,8 @@ def unmirror_landmarks(landmarks: np.ndarray) -> np.ndarray:
 
 # ---- the estimator (the two networks run by LiteRT) ----------------------------------------------------------
 
-def _interpreter(model: bytes, what: str):
-    try:
-        from ai_edge_litert.interpreter import Interpreter
-    except ImportError as exc:
-        raise EstimatorError("the monocular prior runs BlazePose's .tflite networks with LiteRT, which is not "
-                             "installed; pip install 'mocapflow[monocular]' (the ai-edge-litert package)") from exc
-    if not isinstance(model, (bytes, bytearray)) or not model:
-        raise EstimatorError(f"the {what} network is missing: give the stage's {what} parameter the path of its "
-                             ".tflite file (python -m mocapflow.systems.uuo.blazepose DIR fetches both)")
-    try:
-        interp = Interpreter(model_content=bytes(model), num_threads=1)
-        interp.allocate_tensors()
-    except (ValueError, RuntimeError) as exc:
-        raise EstimatorError(f"the {what} network's file is not a TensorFlow Lite model LiteRT can run: {exc}") from exc
-    return interp
-
-
-class BlazePose:
-    """BlazePose GHUM 3D (full): detection, region tracking and landmarks, one frame after another."""
-
-    def __init__(self, detector: bytes, landmarker: bytes, min_detection: float = 0.5, min_presence: float = 0.5):
-        self._det = _interpreter(detector, "detector")
-        self._lmk = _interpreter(landmarker, "landmarker")
-        self.min_detection, self.min_presence = min_detection, min_presence
-        det_in, det_out = self._det.get_input_details(), self._det.get_output_details()
-        lmk_in = self._lmk.get_input_details()
-        lmk_out = {d["name"]: d for d in self._lmk.get_output_details()}
-        if (tuple(det_in[0]["shape"]) != (1, DETECTOR_SIZE, DETECTOR_SIZE, 3)
-                or tuple(lmk_in[0]["shape"]) != (1, LANDMARK_SIZE, LANDMARK_SIZE, 3)
-                or not {"Identity", "Identity_1", "Identity_4"} <= set(lmk_out)):
-            raise EstimatorError("the networks are not BlazePose's pose_detection and pose_landmark_full (inputs "
-                                 f"{det_in[0]['shape'].tolist()} and {lmk_in[0]['shape'].tolist()}); fetch them with "
-                                 "python -m mocapflow.systems.uuo.blazepose DIR")
-        self._det_io = (det_in[0]["index"], det_out[0]["index"], det_out[1]["index"])
-        self._lmk_io = (lmk_in[0]["index"], lmk_out["Identity"]["index"], lmk_out["Identity_1"]["index"],
-                        lmk_out["Identity_4"]["index"])
-
-    def detect(self, image: np.ndarray) -> Region | None:
-        """The region of the best body the detector finds, or None."""
-        square, side, offset = letterbox(image, DETECTOR_SIZE)
-        inp, boxes, logits = self._det_io
-        self._det.set_tensor(inp, square[None])
-        self._det.invoke()
-        points = decode_detection(self._det.get_tensor(boxes)[0], self._det.get_tensor(logits)[0, :, 0], side, offset,
-                                  self.min_detection)
-        return None if points is None else body_region(points[0], points[1])
-
-    def landmarks(self, image: np.ndarray, region: Region) -> tuple[np.ndarray, np.ndarray, float]:
-        """(image landmarks (39, 2) pixels, world landmarks (39, 3) metres in image axes, presence flag)."""
-        import cv2
-
-        crop = cv2.warpAffine(image, region.crop_transform(LANDMARK_SIZE), (LANDMARK_SIZE, LANDMARK_SIZE),
-                              flags=cv2.WARP_INVERSE_MAP | cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-        inp, screen, flag, world = self._lmk_io
-        self._lmk.set_tensor(inp, (crop.astype(np.float32) / 255.0)[None])
-        self._lmk.invoke()
-        xy = region.to_image(self._lmk.get_tensor(screen)[0].reshape(N_LANDMARKS, 5)[:, :2], LANDMARK_SIZE)
-        w = self._lmk.get_tensor(world)[0].reshape(N_LANDMARKS, 3)
-        w = np.column_stack([w[:, :2] @ region.turn.T, w[:, 2]])  # the crop's axes back to the image's
-        return xy, w, float(self._lmk.get_tensor(flag)[0, 0])
+class BlazePose(blazepose.BlazePose):
+    """BlazePose GHUM 3D (full), one frame after another: the region tracked from each frame's landmarks."""
 
     def track(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World landmarks per frame, Z up (frame, 33, 3), NaN where no body was found; and the presence (frame,)."""
@@ -306,7 +156,7 @@ class BlazePose:
             region = region or self.detect(image)
             if region is None:
                 continue
-            xy, world, presence[k] = self.landmarks(image, region)
+            xy, _, world, presence[k] = self.landmarks(image, region)
             if presence[k] < self.min_presence:
                 region = None  # lost: the detector looks again on the next frame
                 continue

@@ -12,8 +12,8 @@ from blazepose_models import blazepose_files
 from mocapflow.tasks.shared.body import JOINT_NAMES
 from mocapflow.tasks.shared.kinematics import rigid_fit
 from mocapflow.tasks.uuo import monocular
-from mocapflow.tasks.uuo.monocular import (BlazePose, EstimatorError, MonocularPriorConfig, Region, body_region,
-                                           decode_detection, monocular_prior, perturb_frames, ssd_anchors,
+from mocapflow.tasks.shared.blazepose import EstimatorError, Region, body_region, decode_detection, ssd_anchors
+from mocapflow.tasks.uuo.monocular import (BlazePose, MonocularPriorConfig, monocular_prior, perturb_frames,
                                            template_joints, to_z_up, unmirror_landmarks)
 from mocapflow.tasks.uuo.prior import PriorError, aligned_mpjpe, procrustes_mpjpe
 
