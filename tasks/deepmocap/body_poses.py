@@ -30,7 +30,8 @@ from mocapflow.tasks.deepmocap.reflector_places import PLACES
 from mocapflow.tasks.shared import body_fit as lm
 from mocapflow.tasks.shared.body import JOINT_NAMES
 from mocapflow.tasks.shared.mesh_body import PHENOTYPE_NAMES, Phenotype
-from mocapflow.tasks.shared.place_fit import PlaceFitConfig, PlaceFitError, fit_places, reference_body
+from mocapflow.tasks.shared.place_fit import (PlacedBody, PlaceFitConfig, PlaceFitError, fit_places,
+                                              phenotype_vector, reference_body)
 from mocapflow.tasks.shared.solver_body import BodyFit, SolverBody
 
 PLACE_NAMES = tuple(p[0] for p in PLACES)
@@ -148,6 +149,8 @@ def fit_body_poses(markers: xr.Dataset, config: BodyPoseConfig) -> xr.Dataset:
     points = np.where(use[..., None], points, np.nan)
     body = reference_body()
     places = nominal_places(names)
+    if not (use.sum(1) >= config.fit.min_points).any():  # nothing to pose by: every frame unfitted, not an error
+        return _dataset(markers, body, _unfitted(body, len(points), len(names)), places, points, names)
     placed = _fit(body, points, confidence, places, config)
     kinds = [PLACES[PLACE_NAMES.index(n)][1] for n in names]
     for _ in range(config.calibration_rounds):
@@ -155,6 +158,13 @@ def fit_body_poses(markers: xr.Dataset, config: BodyPoseConfig) -> xr.Dataset:
         start = Phenotype(**dict(zip(PHENOTYPE_NAMES, np.clip(placed.fit.phenotype, 0.0, 1.0).tolist())))
         placed = _fit(body, points, confidence, places, replace(config, fit=replace(config.fit, start=start)))
     return _dataset(markers, body, placed, places, points, names)
+
+
+def _unfitted(body: SolverBody, frames: int, count: int) -> PlacedBody:
+    """A take no frame of which has ``min_points`` reflectors: the rest body at the default phenotype, NaN-placed."""
+    fit = BodyFit(np.tile(np.eye(3), (frames, body.n_bones, 1, 1)), np.full((frames, 3), np.nan),
+                  phenotype_vector(Phenotype()))
+    return PlacedBody(fit, np.zeros((count, body.n_bones)), np.zeros(frames, bool))
 
 
 def _dataset(markers: xr.Dataset, body: SolverBody, placed, places: lm.Places, points: np.ndarray,

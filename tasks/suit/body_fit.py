@@ -14,12 +14,11 @@ bone's rest -> posed 4x4 transform [M_k | h_k - M_k r_k].
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from mocapflow.tasks.shared import body_fit as lm
-from mocapflow.tasks.shared.mesh_body import Phenotype
 from mocapflow.tasks.shared.place_fit import PlaceFitConfig, PlaceFitError, fit_places
 from mocapflow.tasks.shared.solver_body import BodyFit, SolverBody
 
@@ -28,24 +27,7 @@ class BodyFitError(ValueError):
     """Corners, places on the body or settings the suit's body fit cannot use."""
 
 
-@dataclass(frozen=True)
-class BodyFitConfig:
-    point_sigma_m: float = 0.001  # sigma_p: the corners' weight, 1 / sigma_p^2 per squared metre
-    pose_sigma_rad: float = 1.0  # sigma_theta: E_Theta, each bone's rotation from the anchor pose (not the root's)
-    shape_sigma: float = 0.3  # sigma_beta: E_beta, the phenotype from ``start``
-    start: Phenotype = field(default_factory=Phenotype)  # the phenotype the fit starts from
-    min_corners: int = 30  # fewer observed corners: the frame borrows its neighbours' pose
-    key_stride: int = 8  # every so many frames posed first, from the rest pose; the others start between them
-    shape_frames: int = 20  # key frames the phenotype is fitted on
-    iterations: int = 30  # Levenberg-Marquardt iterations, at most, per stage
-    chunk: int = 8  # frames solved at once (bounded memory; small arrays stay in cache)
-    trunk: tuple[str, ...] = ("torso", "hips")  # parts whose corners place the rest pose
-
-    def __post_init__(self):
-        if min(self.point_sigma_m, self.pose_sigma_rad, self.shape_sigma) <= 0 or self.min_corners < 3 \
-                or min(self.key_stride, self.shape_frames, self.chunk, self.iterations) < 1:
-            raise BodyFitError(f"body fit settings out of range: sigmas > 0, min_corners >= 3, key_stride, "
-                               f"shape_frames, chunk, iterations >= 1 (got {self})")
+BodyFitConfig = PlaceFitConfig  # the suit's body fit is the house's (min_points: its fewest corners a frame)
 
 
 @dataclass(frozen=True)
@@ -93,12 +75,8 @@ def fit_body(body: SolverBody, points: np.ndarray, face: np.ndarray, barycentric
     face, barycentric = np.asarray(face), np.asarray(barycentric, np.float64)
     _check_places(body, points, face, barycentric)
     places = lm.Places.of_faces(body.body, face, barycentric)
-    shared = PlaceFitConfig(point_sigma_m=config.point_sigma_m, pose_sigma_rad=config.pose_sigma_rad,
-                            shape_sigma=config.shape_sigma, start=config.start, min_points=config.min_corners,
-                            key_stride=config.key_stride, shape_frames=config.shape_frames,
-                            iterations=config.iterations, chunk=config.chunk, trunk=config.trunk)
     try:
-        placed = fit_places(body, points, places, shared)
+        placed = fit_places(body, points, places, config)
     except PlaceFitError as e:
         raise BodyFitError(f"the suit's corners: {e}") from e
     transforms, rest_corners = _rest_frame(body, placed.fit, lm.rest_of(body, placed.fit.phenotype, (places,)))

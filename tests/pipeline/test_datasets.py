@@ -40,7 +40,7 @@ def test_image_folder_is_imported_exactly(tmp_path):
     per_view = ("masks", "flow", "heatmaps", "reflectors2d", "reflectors2d_refined")  # the whole chain runs, even on noise
     assert sorted(summary["executed"]) == sorted([f"{s}/take1/{v}" for s in per_view for v in ("k0", "k1")]
                                                  + ["frames/take1", "markers3d/take1", "smoothed/take1", "skeleton/take1",
-                                                    "poses/take1", "checked/take1"])
+                                                    "template/take1", "checked/take1", "poses/take1"])
     [arrays] = [a for (pid, _), a in read_artifacts(tmp_path / "recs" / "storage").items() if pid == "frames/take1"]
     np.testing.assert_array_equal(arrays["depth"][1], data["k1", "depth"])
     np.testing.assert_array_equal(arrays["ir"][0], data["k0", "ir"])

@@ -6,6 +6,7 @@ import pytest
 
 from mocapflow.tasks.shared import mesh_body as mb
 from mocapflow.tasks.shared.kinematics import rodrigues, world_rotations
+from mocapflow.tasks.shared.place_fit import PlaceFitError
 from mocapflow.tasks.suit.body_fit import BodyFitConfig, BodyFitError, corner_weights, fit_body
 from mocapflow.tasks.suit.fill import repose, skinning_transforms, unpose
 from mocapflow.tasks.shared.solver_body import SolverBody
@@ -74,5 +75,5 @@ def test_bad_places_are_refused(take):
         fit_body(solver, truth[:, :10], face, bary)
     with pytest.raises(BodyFitError, match="no frame has 30"):
         fit_body(solver, np.full_like(truth, np.nan), face, bary)
-    with pytest.raises(BodyFitError, match="out of range"):
-        BodyFitConfig(min_corners=2)
+    with pytest.raises(PlaceFitError, match="out of range"):
+        BodyFitConfig(min_points=2)
