@@ -22,10 +22,14 @@ so is a lock or claim file still unreadable a second after it was created (its w
 where no claim is left behind).
 
 Locally this rests on ``O_CREAT | O_EXCL`` and ``os.replace`` (atomic on POSIX, on NFSv3+ and on SMB).
-An object store needs conditional writes for the same guarantee: create-if-absent for the claim and the lock
-(S3 ``If-None-Match: *``, GCS ``ifGenerationMatch=0``) and compare-and-swap on the lock's version (S3
-``If-Match: <ETag>``, GCS ``ifGenerationMatch=<generation>``); fsspec exposes neither, so there the create is
-write-then-read-back, which narrows the race but does not close it.
+An object store needs a conditional write for the same guarantee: create-if-absent for the claim and the lock.
+On S3 (s3fs) the create is a PUT with ``If-None-Match: *`` (``conditional_create``), which the server refuses where
+the object exists, so exactly one contender creates a lock or a claim, as ``O_EXCL`` does; every replacement of a
+lock (a renewal, a takeover, a release) happens under the claim on its generation, so it needs no compare-and-swap
+of its own, and a PUT replaces an object whole. S3 reads are strongly consistent after writes (AWS since 2020;
+MinIO; moto), and the store reads markers and locks without a listings cache (storage.py). A server that ignores
+``If-None-Match`` (some older S3-compatible ones) and any other fsspec filesystem get a look, then a write, then
+a read back, which narrows the race but does not close it.
 
 Clocks: the lease is measured from the renewal time the holder writes, on the reader's clock, so the hosts'
 clocks must agree to well within the lease (NTP keeps them within milliseconds).
@@ -35,6 +39,7 @@ from __future__ import annotations
 
 import contextvars
 import errno
+import inspect
 import json
 import logging
 import math
@@ -267,7 +272,9 @@ class LeasedLock:
                 _unlink_quietly(path)
                 raise
             return True
-        if self.fs.exists(path):  # best effort: fsspec has no create-if-absent (see the module's docstring)
+        if conditional_create(self.fs):
+            return _create_if_absent(self.fs, path, data)
+        if self.fs.exists(path):  # best effort: no create-if-absent on this filesystem (see the module's docstring)
             return False
         self.fs.pipe_file(path, data)
         return _token(self._read(path)) == info["token"]
@@ -355,6 +362,48 @@ def _fenced(label: str, path: str, holder: dict) -> bool:
     log.warning("%s: the lock %s is held by worker %s of this run, which the scheduler reports dead; taking it over",
                 label, path, worker)
     return True
+
+
+def conditional_create(fs) -> bool:
+    """Whether ``fs`` creates an object only where none exists, in one request the server decides: S3 through an s3fs
+    whose ``pipe_file`` takes ``mode="create"`` (a PUT with ``If-None-Match: *``; AWS S3, MinIO and moto honour it).
+    Elsewhere a create is a look, then a write (best effort: see the module's docstring)."""
+    if "s3" not in _protocols(fs):
+        return False
+    method = getattr(type(fs), "_pipe_file", None)
+    try:
+        return method is not None and "mode" in inspect.signature(method).parameters
+    except (TypeError, ValueError):
+        return False
+
+
+def _create_if_absent(fs, path: str, data: bytes) -> bool:
+    """Create the object ``path`` holding ``data`` with a conditional write; False where it exists (or a concurrent
+    conditional write of it won: S3's 409 ConditionalRequestConflict)."""
+    try:
+        fs.pipe_file(path, data, mode="create")
+    except FileExistsError:
+        return False
+    except OSError as exc:
+        if _s3_code(exc) in ("PreconditionFailed", "ConditionalRequestConflict"):
+            return False
+        raise
+    return True
+
+
+def _s3_code(exc: BaseException | None) -> str | None:
+    """The S3 error code behind ``exc`` (botocore's ClientError among its causes), or None."""
+    while exc is not None:
+        response = getattr(exc, "response", None)
+        if isinstance(response, dict):
+            return response.get("Error", {}).get("Code")
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+def _protocols(fs) -> tuple[str, ...]:
+    proto = fs.protocol
+    return (proto,) if isinstance(proto, str) else tuple(proto)
 
 
 def _put(fs, local: bool, path: str, data: bytes, tmp: str) -> None:

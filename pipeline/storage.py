@@ -83,7 +83,7 @@ class Store:
 
     def __init__(self, root: str):
         self.root = root
-        self.fs, self.base = fsspec.core.url_to_fs(root)
+        self.fs, self.base = fsspec.core.url_to_fs(root, **_storage_options(root))
         self.local = "file" in _protocols(self.fs)
 
     # ---- paths -------------------------------------------------------------------------
@@ -457,8 +457,9 @@ class Store:
         by creating ``.lock.takeover-<holder's token>`` exclusively, checks again that it is stale, and moves its
         own lock over it with ``os.replace``; a second contender fails to create the claim, or finds the new lock
         live, and backs off, so two never both win. On a local or mounted folder these are ``O_EXCL`` creates
-        and renames; an object store needs conditional writes (create-if-absent and compare-and-swap on the
-        object's version) for the same guarantee, which fsspec does not expose, so there it is best effort.
+        and renames; on S3 the creates are conditional PUTs (``If-None-Match: *``) and a PUT replaces an object
+        whole, for the same guarantee; on a server that ignores the condition, or another object store, the
+        create is a look then a write: best effort (pipeline/locks.py, docs/engine.md, Object stores).
         A holder that loses its lock (no renewal for a whole lease: a stalled host) gets a LockError on exit.
         """
         lock = LeasedLock(self.fs, self._marker(stage, key, ".lock"), self.local, label, lease_s)
@@ -637,6 +638,16 @@ def _chunk_groups(recorded: dict) -> dict[str, dict[str, str]]:
     """``"init"``, each region and ``"meta"`` (the metadata, recorded at the commit) -> {zarr key: digest}, from
     ``Store.digests``."""
     return {"init": recorded.get("init", {}), **recorded.get("regions", {}), "meta": recorded.get("meta", {})}
+
+
+def _storage_options(root: str) -> dict:
+    """The fsspec options of a storage root: none for a local folder; for any other (an object store) no listings
+    cache, since other processes and hosts write there meanwhile and every check of a marker, a lock or a run lease
+    must see their writes (s3fs answers ``exists`` from a cached listing of the folder otherwise). Credentials and
+    endpoints come from the environment or fsspec's configuration, never from the catalog (docs/engine.md, Object
+    stores)."""
+    protocol = fsspec.core.split_protocol(root)[0]
+    return {} if protocol in (None, "file", "local") else {"use_listings_cache": False}
 
 
 def _protocols(fs) -> tuple[str, ...]:
