@@ -1,7 +1,10 @@
 # Two commands on a fresh machine: `make demo` and `make test`. Both create .venv (Python 3.11) if it is
 # missing and install mocapflow into it with the CPU build of PyTorch (requirements-cpu.txt).
+# `make demo` shows the three systems in turn (DeepMoCap, UUO, the suit; a few minutes each on two cores), each in
+# mocapflow-demo-all/<system>/ with its report page; one system: `make demo SYSTEM=uuo` (deepmocap, uuo or suit).
 
 PYTHON ?= python3.11
+SYSTEM ?= all
 VENV ?= .venv
 BIN := $(VENV)/bin
 TORCH_CPU_INDEX := https://download.pytorch.org/whl/cpu
@@ -10,7 +13,7 @@ INSTALL := -r requirements-cpu.txt -e ".[test,monocular]"
 .PHONY: demo test install
 
 demo: install
-	$(BIN)/mocapflow demo
+	$(BIN)/mocapflow demo --system $(SYSTEM)
 
 test: install
 	$(BIN)/python -m pytest -q -n auto --durations=40

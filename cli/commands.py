@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
@@ -11,7 +12,9 @@ from pathlib import Path
 
 import click
 
-from mocapflow.cli.demo import DEFAULT_MOTIONS, DemoOptions, run_demo
+from mocapflow.cli.demo import CHOICES as DEMO_CHOICES
+from mocapflow.cli.demo import DemoOptions, describe_demo, run_demo
+from mocapflow.cli.demo import folders as demo_folders
 from mocapflow.cli.scaffold import scaffold
 from mocapflow.formats.calibration import read_calibration, write_calibration
 from mocapflow.pipeline.catalog import load_catalog
@@ -331,9 +334,15 @@ def _gc_delete(store: Store, v) -> str | None:
 @click.argument("folder", type=click.Path(file_okay=False))
 @click.option("--force", is_flag=True, help="overwrite an existing catalog.yaml")
 def init(folder, force):
-    """Scaffold a catalog.yaml for a FOLDER of recordings (raw zarr stores or PNG sequence folders)."""
-    path = scaffold(Path(folder), force=force)
-    click.echo(f"wrote {path}; check it with `mocapflow run --catalog {path} --dry-run`")
+    """Scaffold a catalog.yaml for a FOLDER of recordings: C3D/TRC marker files (UUO), DeepMoCap dataset takes,
+    raw zarr stores or depth-and-IR PNG folders (DeepMoCap), suit images with a calibration (a studio rehearsal: the
+    suit reads no recorded images yet)."""
+    made = scaffold(Path(folder), force=force)
+    for note in made.notes:
+        click.echo(f"note: {note}", err=True)
+    click.echo(f"wrote {made.path} ({made.kind}); check it with `mocapflow run --catalog {made.path} --dry-run`, "
+               f"run it with `mocapflow run --catalog {made.path}` and see it with "
+               f"`mocapflow report --catalog {made.path} --out {Path(folder) / 'report'}`")
 
 
 @main.group()
@@ -447,26 +456,47 @@ def report(catalog_path, overrides, sequences, out_dir, workers, threads):
 
 
 @main.command()
-@click.option("--out", "out_dir", default="mocapflow-demo", show_default=True, type=click.Path(file_okay=False),
-              help="folder for the demo's catalog, cache, exports and report")
+@click.option("--system", "system", default="deepmocap", show_default=True, type=click.Choice(DEMO_CHOICES),
+              help="which system to show (all: the three in turn, each in OUT/<system>/)")
+@click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False),
+              help="folder for the demo's catalog, cache, exports and report [default: mocapflow-demo, or "
+                   "mocapflow-demo-<system> for another system than deepmocap]")
 @click.option("--motion", "motions", multiple=True, metavar="EXERCISE",
-              help="a studio exercise (repeatable) [jumping_jack, classic_squat, elbow_flexion]")
-@click.option("--frames", default=90, show_default=True, help="frames per sequence (30 fps)")
+              help="a studio exercise (repeatable) [deepmocap: jumping_jack, uuo: side_reaches, suit: classic_squat]")
+@click.option("--frames", default=None, type=int,
+              help="frames per take [deepmocap 45 and uuo 30 at 30 fps, suit 2 at 5 fps]")
+@click.option("--plan", "show_plan", is_flag=True,
+              help="print what each demo would film and run (stages, partitions, exports) and run nothing")
 @workers_option
 @threads_option
-@click.option("--json", "as_json", is_flag=True, help="print the figures as one JSON object, the last line of stdout")
-def demo(out_dir, motions, frames, workers, threads, as_json):
-    """Run the whole system on a small studio dataset: accuracy table, BVH + C3D, and an HTML report."""
-    text, summary, written = run_demo(Path(out_dir), DemoOptions(motions=tuple(motions) or DEFAULT_MOTIONS,
-                                                                  frames=frames), workers=workers,
-                                       processes=not threads, log=lambda store: _run_log(store, "demo"),
-                                       report=_stage_lines())
-    click.echo(text)
-    for path in written:
-        click.echo(f"wrote {path}")
-    click.echo(_log_said(summary.pop("log", None), Store(str(Path(out_dir) / "storage"))))
+@click.option("--json", "as_json", is_flag=True,
+              help="print the figures as one JSON object, the last line of stdout (with all: one object per system)")
+def demo(system, out_dir, motions, frames, show_plan, workers, threads, as_json):
+    """Each capture system on a small studio take of the mesh body: accuracy table, its files and an HTML report."""
+    out = Path(out_dir or ("mocapflow-demo" if system == "deepmocap" else f"mocapflow-demo-{system}"))
+    places = demo_folders(out, system)
+    options = {s: DemoOptions(motions=tuple(motions), frames=frames, system=s) for s in places}
+    for s in places:  # every system's options checked before anything runs
+        options[s] = options[s].resolved()
+    if show_plan:
+        for s, folder in places.items():
+            click.echo(describe_demo(folder, options[s]))
+        return
+    figures = {}
+    for s, folder in places.items():
+        if len(places) > 1:
+            click.echo(f"== {s}: {folder} ==")
+        with contextlib.ExitStack() as logs:  # each system's run in its own log file
+            text, summary, written = run_demo(
+                folder, options[s], workers=workers, processes=not threads,
+                log=lambda store, s=s: logs.enter_context(run_log(store, f"demo --system {s}")), report=_stage_lines())
+        click.echo(text)
+        for path in written:
+            click.echo(f"wrote {path}")
+        click.echo(_log_said(summary.pop("log", None), Store(str(folder / "storage"))))
+        figures[s] = summary
     if as_json:
-        click.echo(json.dumps(summary))
+        click.echo(json.dumps(figures[system] if system != "all" else figures))
 
 
 @main.command()
