@@ -33,6 +33,19 @@ def in_template_order(names, values: np.ndarray) -> np.ndarray:
     return values[:, [names.index(j) for j in JOINT_NAMES]].astype(np.float64)
 
 
+PRIORS = {"monocular_prior": "BlazePose's estimate from the take's video (its networks, trained on real images)",
+          "file_prior": "a monocular body prior per frame, read from a file",
+          "combine_priors": "several monocular body priors per frame, combined"}
+
+
+def _prior_said(catalog, stage: str) -> str:
+    """What the solve's prior is, by the task of the prior stage it descends from."""
+    tasks = [catalog.stages[s].spec.name for s in catalog.ancestors(stage)]
+    found = next((PRIORS[t] for t in tasks if t in PRIORS), None)
+    return found or ("a monocular body prior per frame, simulated from the studio's truth"
+                     if "simulated_prior" in tasks else "a monocular body prior per frame")
+
+
 def capture(catalog, plan, store, stage: str, sequence: str) -> Capture:
     solved = plan.open(store, stage, sequence).load()
     source = next(s for s in catalog.ancestors(stage) if catalog.stages[s].spec.source)
@@ -45,7 +58,7 @@ def capture(catalog, plan, store, stage: str, sequence: str) -> Capture:
     needs = {"cameras": "an optical marker system's cameras (markers given as 3D points)",
              "markers": f"{len(np.unique(markers['gt_source'].values[real]))} unlabelled markers on the "
                         f"{part.replace('_', ' ')}",
-             "prior": "a monocular body prior per frame (simulated)"}
+             "prior": _prior_said(catalog, stage)}
     return Capture(stage=stage, fps=float(markers.attrs["fps"]),
                    joints=in_template_order(solved["joint"].values, solved["joints"].values),
                    truth=in_template_order(markers["joint"].values, markers["gt_joints"].values),
