@@ -38,6 +38,7 @@ SYSTEMS = {  # how each is filmed and configured, and which body it fits
     "markerless": "markerless peer (5 grey cameras, BlazePose 2D keypoints, Pose2Sim's triangulation; no body model)",
 }
 FITS_ANNY = {"deepmocap", "uuo", "suit"}
+FIGURES = ("compare_parts.png", "compare_error_walk_b.png")  # of the page's figures, those docs/results.md shows
 
 
 def _num(v, fmt="{:.1f}") -> str:
@@ -103,15 +104,15 @@ def summary_row(result: dict) -> str:
     cost = " / ".join(_num(result["overall"][s]["cpu_s_per_s"]) for s in systems)
     return (f"| one performance, {len(systems)} systems (6 held-out takes, same truth frames, realistic defaults): "
             f"MPJPE {' / '.join(systems)}; CPU s per captured s | {mpjpe} mm; {cost} | (measured, no goal) | "
-            "`python docs/make_compare_section.py` ([below](#one-performance-three-systems)) |")
+            "`python docs/make_compare_section.py` ([below](#one-performance-three-systems-and-the-markerless-peer)) |")
 
 
 def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         subprocess.run([sys.executable, "-m", "mocapflow.cli.commands", "compare", "--catalog", str(CATALOG),
                         "--out", tmp], check=True, cwd=ROOT / "benchmarks")
-        for png in Path(tmp).glob("*.png"):
-            shutil.copy(png, ROOT / "docs" / "compare" / png.name)
+        for name in FIGURES:
+            shutil.copy(Path(tmp) / name, ROOT / "docs" / "compare" / name)
     catalog = load_catalog(str(CATALOG), ())
     result = compare_plan(catalog, build_plan(catalog), Store(catalog.root))
     wall = sys.argv[1] if len(sys.argv) > 1 else ""
