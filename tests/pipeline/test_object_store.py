@@ -292,37 +292,7 @@ def test_gc_on_s3_deletes_an_orphaned_version_and_keeps_the_live_ones(s3, toy_ru
     assert_same_as_local(s3, "gc", project)  # the live versions, intact
 
 
-# ---- (e) locks ----------------------------------------------------------------------------------------------------
-def test_two_runs_on_one_s3_root_never_compute_a_partition_twice(s3, toy_run, tmp_path):
-    project, _ = toy_run()
-    on_s3(s3, project, "two")
-    hold = tmp_path / "hold"  # the first run's scale tasks wait while it exists, holding their locks
-    hold.write_text("")
-    with open(tmp_path / "first.out", "w") as out:
-        first = subprocess.Popen([sys.executable, "-m", "mocapflow.cli.commands", "run", "--json", "--keep-going"],
-                                 cwd=project, env=s3.env(TOY_HOLD_WHILE=str(hold)), stdout=out,
-                                 stderr=subprocess.DEVNULL, text=True)
-        try:
-            poll(lambda: len(s3.locks("two", "scaled")) == 2, "the first run inside two scaled partitions")
-            second = last_json(mocapflow_s3(s3, "run", "--json", "--keep-going", cwd=project, check=False))
-        finally:
-            hold.unlink()
-            first.wait(timeout=300)
-    first_summary = json.loads((tmp_path / "first.out").read_text().strip().splitlines()[-1])
-    assert second["errors"], "the second run reaches the first run's locked partitions"
-    for message in second["errors"].values():
-        assert "is being written by another run" in message and f"pid {first.pid}" in message
-    twice = set(first_summary["executed"]) & set(second["executed"])
-    assert not twice, f"computed by both runs: {sorted(twice)}"
-    for partition in set(first_summary["regions"]) & set(second["regions"]):
-        assert first_summary["regions"][partition] + second["regions"][partition] <= 5, f"{partition} written twice"
-
-    last = last_json(mocapflow_s3(s3, "run", "--json", cwd=project))
-    assert last["failed"] == []
-    assert not set(last["executed"]) & (set(first_summary["executed"]) | set(second["executed"]))
-    assert_same_as_local(s3, "two", project)
-
-
+# ---- locks: the conditional create (two whole runs racing: tests/pipeline/test_concurrency.py, locally) ----
 def test_s3_lock_create_is_conditional_so_one_of_many_contenders_wins(s3, monkeypatch):
     store = Store(s3.url("race"))  # the engine's own client: credentials from the environment, set here for it
     assert conditional_create(store.fs), "s3fs must create with If-None-Match (s3fs >= 2024.12)"
