@@ -10,32 +10,16 @@ centre, is the convex blend of three of its band's vertices whose rest position 
 
 from __future__ import annotations
 
-from itertools import combinations
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import nnls
-
+from mocapflow.tasks.deepmocap.body_poses import nearest_blend
 from mocapflow.tasks.shared import body, reflectors
 from mocapflow.tasks.shared.mesh_body import Phenotype, mesh_body
 from mocapflow.tasks.studio.mesh_reflectors import place_on_mesh
 from mocapflow.tasks.studio.take import HEIGHT_RANGE_M
 
 OUT = Path(__file__).parents[1] / "tasks" / "deepmocap" / "reflector_places.py"
-
-
-def strap_blend(vertices: np.ndarray, ring: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Three of the band's vertices and their convex blend (weights >= 0, sum 1) nearest the band's mean: of every
-    triple, the one whose nearest convex blend lies closest.  -> (3,) int, (3,) float"""
-    centre = vertices[ring].mean(axis=0)
-    best = (np.inf, None, None)
-    for triple in combinations(ring, 3):
-        a = np.vstack([vertices[list(triple)].T, 100.0 * np.ones(3)])  # the sum held at 1 by a heavy row
-        w, _ = nnls(a, np.append(centre, 100.0))
-        miss = np.linalg.norm(w @ vertices[list(triple)] / w.sum() - centre)
-        if miss < best[0]:
-            best = (miss, np.array(triple), w / w.sum())
-    return best[1], best[2]
 
 
 def main() -> None:
@@ -46,7 +30,7 @@ def main() -> None:
     rows = []
     for p in placed:
         if p.kind == "strap":
-            vertices, weights = strap_blend(mesh.vertices, p.ring)
+            vertices, weights = nearest_blend(mesh.vertices, p.ring, mesh.vertices[p.ring].mean(axis=0))
         else:
             vertices = mesh.faces[p.face]
             u, v = p.bary

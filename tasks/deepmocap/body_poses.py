@@ -105,7 +105,7 @@ def calibrated_places(body: SolverBody, placed, points: np.ndarray, places: lm.P
         target = np.median(rest[seen, r], axis=0)
         candidates = skin[tree.query(target, k=12)[1]] if kinds[r] == "patch" else \
             _near_vertices(rest_vertices, places.vertices[r], target)
-        vertices[r], weights[r] = _nearest_blend(rest_vertices, candidates, target)
+        vertices[r], weights[r] = nearest_blend(rest_vertices, candidates, target)
     return lm.Places(vertices, weights)
 
 
@@ -116,7 +116,7 @@ def _near_vertices(rest_vertices: np.ndarray, triple: np.ndarray, target: np.nda
     return near[np.argsort(d[near])][:24] if len(near) >= 3 else triple
 
 
-def _nearest_blend(rest_vertices: np.ndarray, candidates: np.ndarray, target: np.ndarray):
+def nearest_blend(rest_vertices: np.ndarray, candidates: np.ndarray, target: np.ndarray):
     """Of triples of ``candidates``, the convex blend (weights >= 0, sum 1) nearest ``target``."""
     best = (np.inf, None, None)
     for i in range(len(candidates)):
