@@ -15,6 +15,7 @@ import xarray as xr
 
 from mocapflow.tasks.deepmocap import targets
 from mocapflow.tasks.shared.cache import BoundedCache
+from mocapflow.tasks.shared.precision import native_bfloat16, resolve_precision
 from mocapflow.tasks.shared.reflectors import REFLECTOR_NAMES
 from mocapflow.tasks.deepmocap.training import CropConfig, sample_inputs
 
@@ -49,38 +50,6 @@ def crop_to_image(m: np.ndarray, sample_scale: float) -> np.ndarray:
     # sample pixel s -> image pixel (s + 0.5) / scale - 0.5
     return np.vstack([to_sample[0] / sample_scale, to_sample[1] / sample_scale]) + np.array(
         [[0, 0, 0.5 / sample_scale - 0.5], [0, 0, 0.5 / sample_scale - 0.5]])
-
-
-@functools.lru_cache(maxsize=1)
-def native_bfloat16() -> bool:
-    """Whether this CPU computes bfloat16 natively (AVX512-BF16 or AMX); elsewhere torch emulates it, slower
-    than float32. torch only answers through private helpers, so an unknown answer counts as native."""
-    import torch
-
-    try:
-        return bool(torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported())
-    except AttributeError:
-        return True
-
-
-@functools.lru_cache(maxsize=1)
-def amx_tiles() -> bool:
-    """Whether this CPU has AMX tiles (torch's private helper; an unknown answer counts as none)."""
-    import torch
-
-    try:
-        return bool(torch.cpu._is_amx_tile_supported())
-    except AttributeError:
-        return False
-
-
-def resolve_precision(precision: str) -> str:
-    """The numeric path ``precision`` names on this CPU. "auto" is bfloat16 only with AMX tiles: measured per
-    view-frame on one core, bfloat16 against float32 was 9.2 against 16.1 ms with AMX, 25.4 against 20.6 ms with
-    AVX512-BF16 alone and 129 against 31 ms with AVX2 alone (emulated); see docs/results.md."""
-    if precision != "auto":
-        return precision
-    return "bfloat16" if amx_tiles() else "float32"
 
 
 @functools.lru_cache(maxsize=1)

@@ -73,31 +73,41 @@ def _nothing():
     return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(0), np.zeros((0, 2))
 
 
-def _extensions(cells: np.ndarray, edges: dict, xy: np.ndarray, known: np.ndarray, radius: float):
-    """(corner, predicted xy, search radius px, origin: the labelled corner it continues from) of the far corners
-    of the neighbours of every fully labelled cell."""
-    corner, pred, reach, origin = [], [], [], []
-    for cell in np.flatnonzero(known[cells].all(axis=1)):
-        c = cells[cell]
-        for i in range(4):
-            p, q, r, s = c[i], c[(i + 1) % 4], c[(i + 2) % 4], c[(i + 3) % 4]
-            across = [(n, j) for n, j in edges[(min(p, q), max(p, q))] if n != cell]
+def far_corners(cells: np.ndarray, edges: dict | None = None) -> np.ndarray:
+    """For each cell's edge i (its corners i, i + 1), the two far corners of the cell across it: the one beside
+    corner i, then the one beside corner i + 1; -1 where no cell lies across (the grid's border).
+    cells (cell, 4) counter-clockwise -> (cell, 4, 2) int64"""
+    edges = cell_edges(cells) if edges is None else edges
+    out = np.full((len(cells), 4, 2), -1, np.int64)
+    for pair in edges.values():
+        for cell, i in pair:
+            across = [(n, j) for n, j in pair if n != cell]
             if not across:
                 continue
             n, j = across[0]  # the edge is the neighbour's corners j, j + 1 (q, p when both run counter-clockwise)
             ring = cells[n]
-            far_p, far_q = ((ring[(j + 2) % 4], ring[(j + 3) % 4]) if ring[j] == q
+            q = cells[cell][(i + 1) % 4]
+            out[cell, i] = ((ring[(j + 2) % 4], ring[(j + 3) % 4]) if ring[j] == q
                             else (ring[(j + 3) % 4], ring[(j + 2) % 4]))
-            side = np.linalg.norm(xy[p] - xy[q])
-            for target, near, behind in ((far_p, p, s), (far_q, q, r)):
-                if not known[target]:
-                    corner.append(target)
-                    pred.append(2 * xy[near] - xy[behind])
-                    reach.append(radius * side)
-                    origin.append(xy[near])
-    if not corner:
+    return out
+
+
+def _extensions(cells: np.ndarray, far: np.ndarray, xy: np.ndarray, known: np.ndarray, radius: float):
+    """(corner, predicted xy, search radius px, origin: the labelled corner it continues from) of the far corners
+    of the neighbours of every fully labelled cell: across edge p q (corners i, i + 1), the corner beside p at
+    2 p - s and the one beside q at 2 q - r (s, r the cell's corners behind p, q)."""
+    full = np.flatnonzero(known[cells].all(axis=1))
+    c, target = cells[full], far[full]  # (m, 4), (m, 4, 2)
+    turn = (np.arange(4)[:, None] + np.arange(4)[None, :]) % 4  # [i, k]: corner i + k
+    p, q, r, s = (c[:, turn[:, k]] for k in range(4))  # (m, 4) each, edge i's p q and the two behind them
+    near, behind = np.stack([p, q], axis=-1), np.stack([s, r], axis=-1)  # (m, 4, 2)
+    side = np.repeat(np.linalg.norm(xy[p] - xy[q], axis=-1)[..., None], 2, axis=-1)
+    ok = target >= 0
+    ok[ok] = ~known[target[ok]]
+    if not ok.any():
         return _nothing()
-    return np.asarray(corner, np.int64), np.asarray(pred), np.asarray(reach), np.asarray(origin)
+    near = near[ok]
+    return target[ok], 2 * xy[near] - xy[behind[ok]], radius * side[ok], xy[near]
 
 
 def _nearer_one(tree: cKDTree, detections: np.ndarray, origin: np.ndarray, found: np.ndarray) -> np.ndarray:
@@ -105,29 +115,38 @@ def _nearer_one(tree: cKDTree, detections: np.ndarray, origin: np.ndarray, found
     origin, within 30 degrees of that direction): the next corner is nearer than one square (a foreshortened
     square), and what was found may be the corner after it."""
     out = np.zeros(len(origin), bool)
-    for i in np.flatnonzero(np.isfinite(origin).all(axis=1)):
-        ray = detections[found[i]] - origin[i]
-        length = float(np.linalg.norm(ray))
-        for j in tree.query_ball_point(origin[i], 0.8 * length):
-            step = detections[j] - origin[i]
-            along = float(step @ ray) / length
-            if j != found[i] and 0.15 * length < along and along > np.cos(np.radians(30)) * np.linalg.norm(step):
-                out[i] = True
-                break
+    rows = np.flatnonzero(np.isfinite(origin).all(axis=1))
+    if not len(rows):
+        return out
+    start, hit = origin[rows], found[rows]
+    ray = detections[hit] - start
+    length = np.linalg.norm(ray, axis=1)
+    near = tree.query_ball_point(start, 0.8 * length)
+    owner = np.repeat(np.arange(len(rows)), [len(n) for n in near])
+    if not len(owner):
+        return out
+    other = np.concatenate(near).astype(np.int64)
+    step = detections[other] - start[owner]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        along = np.einsum("ij,ij->i", step, ray[owner]) / length[owner]
+    between = (other != hit[owner]) & (0.15 * length[owner] < along) \
+        & (along > np.cos(np.radians(30)) * np.linalg.norm(step, axis=1))
+    out[rows[owner[between]]] = True
     return out
 
 
 def grow_labels(detections: np.ndarray, detection_of: np.ndarray, cells: np.ndarray, config: GrowConfig = GrowConfig(),
-                edges: dict | None = None, logits: np.ndarray | None = None) -> np.ndarray:
+                far: np.ndarray | None = None, logits: np.ndarray | None = None) -> np.ndarray:
     """One image's labels grown over the grid.
 
     detections (n, 2) every detection's (x, y); detection_of (corner,) the detection labelled each suit corner
-    (-1 none); cells (cell, 4) the grid's squares; logits (n,) CornerdetNet's, for ``min_logit``.
+    (-1 none); cells (cell, 4) the grid's squares; far their :func:`far_corners` (computed when not given: once
+    per suit is enough); logits (n,) CornerdetNet's, for ``min_logit``.
     -> detection_of with the grown labels added (corner,)"""
     detection_of = detection_of.copy()
     if not len(detections):
         return detection_of
-    edges = cell_edges(cells) if edges is None else edges
+    far = far_corners(cells) if far is None else far
     tree = cKDTree(detections)
     for _ in range(config.rounds):
         known = detection_of >= 0
@@ -135,7 +154,7 @@ def grow_labels(detections: np.ndarray, detection_of: np.ndarray, cells: np.ndar
         xy[known] = detections[detection_of[known]]
         found = [_completions(cells, xy, known, config.complete_radius)]
         if config.extend:
-            found.append(_extensions(cells, edges, xy, known, config.extend_radius))
+            found.append(_extensions(cells, far, xy, known, config.extend_radius))
         corner, pred, reach, origin = (np.concatenate(parts) for parts in zip(*found))
         if not len(corner):
             break
@@ -171,7 +190,7 @@ def grow_corner_labels(images, corners, labels, config: GrowConfig):
     import xarray as xr
 
     cells = images["cells"].values
-    edges = cell_edges(cells)
+    far = far_corners(cells)
     x, y = labels["x"].values.copy(), labels["y"].values.copy()
     named = labels["quads"].values.copy()
     for v in range(x.shape[0]):
@@ -180,7 +199,7 @@ def grow_corner_labels(images, corners, labels, config: GrowConfig):
             real = np.isfinite(det).all(axis=1)
             det = det[real]
             detection_of = _detection_indices(det, x[v, f], y[v, f])
-            grown = grow_labels(det, detection_of, cells, config, edges, corners["logit"].values[v, f][real])
+            grown = grow_labels(det, detection_of, cells, config, far, corners["logit"].values[v, f][real])
             new = (grown >= 0) & (detection_of < 0)
             x[v, f, new], y[v, f, new] = det[grown[new], 0], det[grown[new], 1]
             named[v, f, new] = 0

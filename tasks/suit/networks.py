@@ -6,8 +6,11 @@ torch; the stages import these when they run.
 
 from __future__ import annotations
 
+import copy
+
 import torch
 from torch import nn
+from torch.nn.utils.fusion import fuse_conv_bn_eval
 
 from mocapflow.tasks.suit.net_configs import N_CHARS, CodeNetConfig, CornerNetConfig
 from mocapflow.tasks.suit.quads import CROP
@@ -82,3 +85,48 @@ class RecogNet(nn.Module):
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         y = self.out(self.trunk(x))
         return y[:, :4], y[:, 4:4 + N_CHARS], y[:, 4 + N_CHARS:]
+
+
+# ------------------------------------------------------------------------------------------------------ inference
+
+def for_inference(net: nn.Module) -> nn.Module:
+    """A copy of a suit network (CornerdetNet, RejectorNet or RecogNet, in eval mode) that computes the same outputs
+    faster on a CPU, differing by float rounding only: every batch normalisation folded into the convolution before
+    it (its eval-mode affine map), each ReLU moved after the max pool that follows it (they commute: the max of the
+    ReLUs is the ReLU of the max, on a quarter of the values) and the weights in channels-last layout (in torch's
+    default one the unfused ReLU, batch normalisation and max pool over full-size maps cost more than the
+    convolutions). Measured on one core: RecogNet reads a crop in 0.43 ms instead of 1.5 ms, CornerdetNet's pass
+    over an image is 17-24 % faster (docs/suit.md). A network already prepared is returned as it is; training and
+    ``pack_state`` need the original."""
+    if getattr(net, "for_inference", False):
+        return net
+    if net.training:
+        raise ValueError("for_inference needs a network in eval mode (its batch normalisation's running statistics)")
+    fast = copy.deepcopy(net)
+    _fold_children(fast)
+    fast.for_inference = True
+    return fast.to(memory_format=torch.channels_last)
+
+
+def _fold_children(module: nn.Module) -> None:
+    """In place, every Sequential under ``module`` folded (:func:`folded`)."""
+    for name, child in list(module.named_children()):
+        if isinstance(child, nn.Sequential):
+            setattr(module, name, nn.Sequential(*folded(child)))
+        _fold_children(getattr(module, name))
+
+
+def folded(layers: nn.Sequential) -> list[nn.Module]:
+    """Conv2d + BatchNorm2d -> the fused Conv2d; ReLU + MaxPool2d -> MaxPool2d + ReLU (in place: the pool's output
+    is its own); other layers as they are."""
+    out: list[nn.Module] = []
+    for layer in layers:
+        if isinstance(layer, nn.BatchNorm2d) and out and isinstance(out[-1], nn.Conv2d):
+            out[-1] = fuse_conv_bn_eval(out[-1], layer)
+        elif isinstance(layer, nn.MaxPool2d) and out and isinstance(out[-1], nn.ReLU):
+            out[-1:] = [layer, nn.ReLU(inplace=True)]
+        else:
+            out.append(layer)
+    return out
+
+

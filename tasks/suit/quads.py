@@ -94,9 +94,21 @@ def corner_quads(xy: np.ndarray, config: QuadConfig = QuadConfig()) -> np.ndarra
     quads = np.column_stack([c[ok], a[ok], d[ok], b[ok]])  # c -> a -> d -> b goes round the quad
     if not len(quads):
         return np.zeros((0, 4), np.int64)
-    quads = _canonical(quads, xy)
-    quads = np.unique(quads, axis=0)
+    quads = unique_rows(_canonical(quads, xy), n)
     return quads[quad_ok(xy[quads], config)]
+
+
+def unique_rows(quads: np.ndarray, n: int) -> np.ndarray:
+    """``np.unique(quads, axis=0)`` for rows of indices below n: sorted, each once, through one int64 key per row
+    (a tenth of the time; rows sort alike either way).  quads (q, 4) -> (u, 4)"""
+    quads = np.asarray(quads, np.int64)
+    if n ** 4 >= 2 ** 63:
+        return np.unique(quads, axis=0)
+    key = np.unique(((quads[:, 0] * n + quads[:, 1]) * n + quads[:, 2]) * n + quads[:, 3])
+    out = np.empty((len(key), 4), np.int64)
+    for i in range(3, -1, -1):
+        key, out[:, i] = np.divmod(key, n)
+    return out
 
 
 def edge_contrast(image: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -112,7 +124,7 @@ def edge_contrast(image: np.ndarray, points: np.ndarray) -> np.ndarray:
     along = points[:, :, None, :] + t * edges[:, :, None, :]  # (q, 4, 5, 2)
     inside = _bilinear(image, along + step * inward[:, :, None, :])
     outside = _bilinear(image, along - step * inward[:, :, None, :])
-    return np.sort(inside - outside, axis=2)[:, :, 1].min(axis=1)  # one sample may fall on a glyph
+    return np.partition(inside - outside, 1, axis=2)[:, :, 1].min(axis=1)  # one sample may fall on a glyph
 
 
 def _bilinear(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
@@ -122,9 +134,8 @@ def _bilinear(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
     y = np.clip(xy[..., 1], 0, h - 1.001)
     x0, y0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
     fx, fy = x - x0, y - y0
-    im = image.astype(np.float32)
-    top = im[y0, x0] * (1 - fx) + im[y0, x0 + 1] * fx
-    bottom = im[y0 + 1, x0] * (1 - fx) + im[y0 + 1, x0 + 1] * fx
+    top = image[y0, x0] * (1 - fx) + image[y0, x0 + 1] * fx  # the grey levels gathered, not the image converted
+    bottom = image[y0 + 1, x0] * (1 - fx) + image[y0 + 1, x0 + 1] * fx
     return top * (1 - fy) + bottom * fy
 
 

@@ -117,15 +117,10 @@ def test_bfloat16_without_native_support_is_named_in_a_warning(monkeypatch, capl
     assert "precision: auto" in caplog.text and "AVX512-BF16" in caplog.text
 
 
-def test_auto_precision_is_bfloat16_only_with_amx(monkeypatch):
+def test_the_heatmaps_run_in_the_precision_the_cpu_serves_best_by_default():
     from mocapflow.tasks.deepmocap import heatmaps
 
-    monkeypatch.setattr(heatmaps, "amx_tiles", lambda: True)
-    assert heatmaps.resolve_precision("auto") == "bfloat16"
-    monkeypatch.setattr(heatmaps, "amx_tiles", lambda: False)
-    assert heatmaps.resolve_precision("auto") == "float32"
-    assert heatmaps.resolve_precision("bfloat16") == "bfloat16"  # asked for: kept, whatever the CPU
-    assert heatmaps.HeatmapConfig().precision == "auto"
+    assert heatmaps.HeatmapConfig().precision == "auto"  # tasks/shared/precision.py resolves it
 
 
 def test_half_rounds_like_numpy_below_the_normal_range():

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mocapflow.tasks.suit.grow import GrowConfig, cell_edges, grow_labels
+from mocapflow.tasks.suit.grow import GrowConfig, cell_edges, far_corners, grow_labels
 
 
 def _grid(rows=6, cols=7, side=30.0, tilt=0.15, bend=0.0):
@@ -119,3 +119,17 @@ def test_an_extension_past_a_foreshortened_square_is_refused_not_taken_for_the_c
     # 2 x (30) - 0 = 60: the fifth corner's place; the third (at 45) lies between, so nothing is named
     assert (grown[[2, 7]] == -1).all()
 
+
+
+def test_far_corners_are_the_next_squares_corners_beside_each_edges_ends():
+    _, cells = _grid(rows=2, cols=3)
+    far = far_corners(cells)
+    # cell 1 (row 0, column 1): corners (1, 2, 6, 5) counter-clockwise as listed; across its edge 1 -> 2 (corners
+    # 2, 6: the right side) lies cell 2, whose far corners are 3 beside 2 and 7 beside 6
+    np.testing.assert_array_equal(far[1, 1], [3, 7])
+    np.testing.assert_array_equal(far[1, 3], [4, 0])  # across the left side (5 -> 1): 4 beside 5, 0 beside 1
+    assert (far[0, 3] == -1).all() and (far[0, 0] == -1).all()  # the grid's left and top borders
+    inner = far[..., 0] >= 0
+    assert inner.sum() == 2 * 7  # seven inner edges, seen from both sides
+    edges = cell_edges(cells)
+    np.testing.assert_array_equal(far_corners(cells, edges), far)

@@ -82,3 +82,12 @@ def test_bad_settings_and_images_are_refused():
         qd.QuadConfig(min_angle=100.0)
     with pytest.raises(qd.QuadError, match="grey"):
         qd.warp_quads(np.zeros((10, 10, 3), np.uint8), np.zeros((1, 4, 2)))
+
+
+@pytest.mark.parametrize("n", [7, 60_000])  # the int64 key, and past it np.unique's own path
+def test_unique_rows_are_numpys_unique_rows(n):
+    rng = np.random.default_rng(3)
+    rows = rng.integers(0, n, (500, 4))
+    rows = np.vstack([rows, rows[::3]])[rng.permutation(667)]  # with repeats, in any order
+    np.testing.assert_array_equal(qd.unique_rows(rows, n), np.unique(rows, axis=0))
+    assert qd.unique_rows(np.zeros((0, 4), np.int64), n).shape == (0, 4)
