@@ -29,7 +29,8 @@ from mocapflow.tasks.deepmocap.flow import DisConfig, dis  # noqa: E402
 from mocapflow.tasks.deepmocap.heatmaps import HeatmapConfig, fcn_heatmaps  # noqa: E402
 from mocapflow.tasks.deepmocap.masks import MaskConfig, masks  # noqa: E402
 from mocapflow.tasks.deepmocap.reflectors2d import GreedyConfig, greedy_reflectors  # noqa: E402
-from mocapflow.tasks.studio.synth import SequenceSpec, build_rig, synthesize  # noqa: E402
+from mocapflow.tasks.deepmocap.film.synth import build_rig, synthesize  # noqa: E402
+from mocapflow.tasks.studio.spec import SequenceSpec
 
 ROOT = Path(__file__).resolve().parents[1]
 WEIGHTS = ROOT / "models" / "deepmocap_fcn.pt"

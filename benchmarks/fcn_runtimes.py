@@ -28,12 +28,15 @@ for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
+from mocapflow.formats.bvh import parse_bvh  # noqa: E402
 from mocapflow.tasks.deepmocap.fcn import N_REFLECTORS, to_input  # noqa: E402
 from mocapflow.tasks.deepmocap.flow import DisConfig, dis  # noqa: E402
 from mocapflow.tasks.deepmocap.heatmaps import inference_model, network_inputs  # noqa: E402
 from mocapflow.tasks.deepmocap.masks import MaskConfig, masks  # noqa: E402
 from mocapflow.tasks.deepmocap.training import CropConfig  # noqa: E402
-from mocapflow.tasks.studio.synth import SequenceSpec, build_rig, synthesize  # noqa: E402
+from mocapflow.tasks.shared.bvh_clip import BVHClip  # noqa: E402
+from mocapflow.tasks.deepmocap.film.synth import build_rig, synthesize  # noqa: E402
+from mocapflow.tasks.studio.spec import SequenceSpec
 
 ROOT = Path(__file__).resolve().parents[1]
 WEIGHTS = ROOT / "models" / "deepmocap_fcn.pt"
@@ -41,9 +44,9 @@ HELD_OUT = ROOT.parent / "shared" / "data" / "motions" / "cmu_12_01_walk.bvh"
 BATCH = 8
 
 
-def crops(spec: SequenceSpec, weights: dict, bvh_text: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+def crops(spec: SequenceSpec, weights: dict, clip: BVHClip | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The `heatmaps` stage's network inputs for every view-frame of a studio take.  -> (n, s, s, 3) uint8 x2"""
-    raw = synthesize(build_rig(spec, bvh_text), 0, spec.frames)
+    raw = synthesize(build_rig(spec, clip), 0, spec.frames)
     m, f = masks(raw[["depth", "ir"]], MaskConfig()), dis(raw, DisConfig())
     depth, flow, _ = network_inputs(m, f, CropConfig(**weights.get("crop", {})), weights["architecture"]["input_size"])
     return depth, flow
@@ -126,7 +129,7 @@ def main() -> None:
     torch.set_num_threads(1)
     weights = torch.load(parser.parse_args().weights, weights_only=True)
     held_out = crops(SequenceSpec("bvh", frames=24, seed=9100, random_layout=True, start_s=1.0), weights,
-                     HELD_OUT.read_text())
+                     parse_bvh(HELD_OUT.read_text()))
     calibration = crops(SequenceSpec("jumping_jack", frames=16, seed=100, random_layout=True), weights)
     full = inference_model(weights)
     paths = {"torch_float32": torch_path(full)}

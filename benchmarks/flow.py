@@ -22,7 +22,8 @@ import torch  # noqa: E402
 
 from mocapflow.tasks.deepmocap.flow import DisConfig, PrimalDualConfig, dis  # noqa: E402
 from mocapflow.tasks.deepmocap.pdflow import primal_dual  # noqa: E402
-from mocapflow.tasks.studio.synth import SequenceSpec, build_rig, synthesize  # noqa: E402
+from mocapflow.tasks.deepmocap.film.synth import build_rig, synthesize  # noqa: E402
+from mocapflow.tasks.studio.spec import SequenceSpec
 
 ROOT = Path(__file__).resolve().parents[1]
 VARIANTS = {"dis": lambda ds: dis(ds, DisConfig()),  # around the subject (the default)

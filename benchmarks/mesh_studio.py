@@ -31,13 +31,15 @@ for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np  # noqa: E402
 
+from mocapflow.formats.bvh import parse_bvh  # noqa: E402
 from mocapflow.tasks.shared.body import Subject  # noqa: E402
 from mocapflow.tasks.shared.cameras import Camera  # noqa: E402
 from mocapflow.tasks.shared.mesh_body import mesh_body, pose_mesh, random_phenotype  # noqa: E402
-from mocapflow.tasks.studio import bvh, mesh_motion, mesh_render  # noqa: E402
+from mocapflow.tasks.studio import mesh_motion, mesh_render, retarget  # noqa: E402
 from mocapflow.tasks.studio.cameras import look_at  # noqa: E402
-from mocapflow.tasks.studio.mesh_synth import view_frame  # noqa: E402
-from mocapflow.tasks.studio.synth import SequenceSpec, build_rig  # noqa: E402
+from mocapflow.tasks.deepmocap.film.mesh_synth import view_frame  # noqa: E402
+from mocapflow.tasks.deepmocap.film.synth import build_rig  # noqa: E402
+from mocapflow.tasks.studio.spec import SequenceSpec
 
 ROOT = Path(__file__).resolve().parents[1]
 CONTACT_M = 0.02  # a source foot whose toe is within this height of its lowest is on the floor
@@ -96,14 +98,14 @@ def pose_times(frames: int) -> tuple[float, float]:
 
 
 def retarget_quality(path: Path, seed: int) -> dict:
-    clip = bvh.parse_bvh(path.read_text())
+    clip = parse_bvh(path.read_text())
     body = mesh_body(random_phenotype(np.random.default_rng([seed, 2])))
     subject = Subject(height=body.height)  # the template that performs the clip, as in the mesh studio
-    motion = bvh.retarget(clip, subject, fps=clip.fps)
+    motion = retarget.retarget(clip, subject, fps=clip.fps)
     take = mesh_motion.retarget(body, subject, motion)
-    source = bvh.world_positions(clip)
+    source = retarget.world_positions(clip)
     index = {n: i for i, n in enumerate(clip.names)}
-    mapping = bvh.joint_map(clip)
+    mapping = retarget.joint_map(clip)
     angles = []
     for bone, (joint, end_bone, _) in mesh_motion.SEGMENTS.items():
         m = mapping.get(joint)

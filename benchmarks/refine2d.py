@@ -26,8 +26,9 @@ import numpy as np  # noqa: E402
 
 from mocapflow.pipeline.catalog import load_catalog  # noqa: E402
 from mocapflow.pipeline.plan import build_plan  # noqa: E402
-from mocapflow.pipeline.report import overlay, write_png  # noqa: E402
 from mocapflow.pipeline.storage import Store  # noqa: E402
+from mocapflow.presentation.report import write_png  # noqa: E402
+from mocapflow.systems.deepmocap.report import overlay  # noqa: E402
 from mocapflow.tasks.deepmocap.refine2d import Refine2DConfig, refine_reflectors  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]

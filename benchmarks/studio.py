@@ -23,8 +23,9 @@ for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from mocapflow.tasks.studio import render  # noqa: E402
-from mocapflow.tasks.studio.synth import SequenceSpec, build_rig  # noqa: E402
+from mocapflow.tasks.deepmocap.film import render  # noqa: E402
+from mocapflow.tasks.deepmocap.film.synth import build_rig  # noqa: E402
+from mocapflow.tasks.studio.spec import SequenceSpec
 
 
 def render_times(motions=("jumping_jack", "kick_box_kicking", "classic_squat"), frames=30) -> list[float]:

@@ -37,14 +37,16 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
 
+from mocapflow.formats.bvh import parse_bvh  # noqa: E402
 from mocapflow.tasks.shared import mesh_body as mb  # noqa: E402
-from mocapflow.tasks.studio import suit_takes as st  # noqa: E402
-from mocapflow.tasks.studio import synth  # noqa: E402
+from mocapflow.tasks.suit import takes as st  # noqa: E402
+from mocapflow.tasks.deepmocap.film import synth  # noqa: E402
+from mocapflow.tasks.studio.spec import SequenceSpec  # noqa: E402
 from mocapflow.tasks.studio.mesh_render import (NO_HIT, MeshScene, cast_view, interpolate,  # noqa: E402
                                                  surface_points, visibility)
 from mocapflow.tasks.suit import corners as co  # noqa: E402
 from mocapflow.tasks.suit import networks  # noqa: E402
-from mocapflow.tasks.shared import suit_pattern as pt  # noqa: E402
+from mocapflow.tasks.suit import pattern as pt  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 MOTIONS = Path(os.environ.get("MOCAPFLOW_MOTIONS", ROOT.parent / "shared" / "data" / "motions"))
@@ -129,10 +131,10 @@ def render_take(motion: str, seed: int, radius: float, suit_name: str, frames: r
     ref = mb.mesh_body(mb.Phenotype())
     suit = pt.make_suit(ref, pt.SUITS[suit_name])
     if motion.endswith(".bvh"):
-        spec = synth.SequenceSpec(motion="bvh", body="mesh", frames=frames.stop, views=1, seed=seed)
-        rig0 = synth.build_rig(spec, (MOTIONS / motion).read_text())
+        spec = SequenceSpec(motion="bvh", body="mesh", frames=frames.stop, views=1, seed=seed)
+        rig0 = synth.build_rig(spec, parse_bvh((MOTIONS / motion).read_text()))
     else:
-        rig0 = synth.build_rig(synth.SequenceSpec(motion=motion, body="mesh", frames=frames.stop, views=1, seed=seed))
+        rig0 = synth.build_rig(SequenceSpec(motion=motion, body="mesh", frames=frames.stop, views=1, seed=seed))
     ring = st.SuitCameras(count=cameras, radius=radius, view_height_m=view_height_m)
     rig = st.suit_rig(rig0.body, suit, ring, st.SuitLook(), seed=seed)
     verts = rig0.take.posed.vertices

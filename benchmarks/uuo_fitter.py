@@ -37,7 +37,8 @@ TUNING = ("side_reaches", "elbow_flexion", "kick_box_kicking", "side_step_knee_e
 def make_take(motion: str, seed: int, frames: int, part: str = "body"):
     """A tuning take: 40 markers on the whole body, or 20 on a part (the held-out split's partial layouts)."""
     from mocapflow.systems.studio import specs as studio_io
-    from mocapflow.tasks.studio import synth, uuo_takes as uuo
+    from mocapflow.tasks.deepmocap.film import synth
+    from mocapflow.tasks.uuo import takes as uuo
     from mocapflow.tasks.uuo import prior, segmentation
 
     spec, _, _ = studio_io.make_spec({"motion": motion, "seed": seed, "frames": frames, "body": "mesh", "views": 1},

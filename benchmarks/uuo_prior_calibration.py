@@ -9,7 +9,7 @@ articulated error), MPJPE after one rigid registration with scale of the take (H
 part matching itself estimates (one rotation for the take, a translation per frame: ``aligned``); then the
 median and p90 over takes. The realistic form's defaults were chosen with it (aligned median in 130-150 mm).
 ``--form monocular`` measures the real estimator instead: each take filmed by the studio's video camera
-(tasks/studio/video.py), BlazePose run on it and Anny fitted to its joints (tasks/uuo/monocular.py).
+(tasks/uuo/video.py), BlazePose run on it and Anny fitted to its joints (tasks/uuo/monocular.py).
 
 ``--draws 3`` makes three priors per take and combines them (tasks/uuo/combine.py), each rotation average in
 turn, and prints the single draws' and the combinations' error after part matching's alignment, median and p90
@@ -80,7 +80,9 @@ def calibration_take(name: str, seed: int, frames: int):
     bone, 4), the true template joints (frame, joint, 3))."""
     from scipy.spatial.transform import Rotation
 
-    from mocapflow.tasks.studio.synth import SequenceSpec, build_rig
+    from mocapflow.tasks.deepmocap.film.synth import build_rig
+
+    from mocapflow.tasks.studio.spec import SequenceSpec
 
     rig = build_rig(SequenceSpec(name, frames=frames, seed=500 + seed, body="mesh", views=1))
     n = rig.n_frames
@@ -149,7 +151,7 @@ def monocular_draws(models: str, shift_px: float):
     the right and down, and mirrored (tasks/uuo/monocular.py perturb_frames)."""
     from pathlib import Path
 
-    from mocapflow.tasks.studio.video import VideoSpec, film
+    from mocapflow.tasks.uuo.video import VideoSpec, film
     from mocapflow.tasks.uuo import monocular
 
     folder = Path(models)
@@ -170,7 +172,7 @@ def monocular_estimate(models: str):
     """(rig, frames, truth joints) -> (PA, RR, aligned) mm of the monocular prior on the take's studio video."""
     from pathlib import Path
 
-    from mocapflow.tasks.studio.video import VideoSpec, film
+    from mocapflow.tasks.uuo.video import VideoSpec, film
     from mocapflow.tasks.uuo import monocular, prior
 
     folder = Path(models)

@@ -19,7 +19,8 @@ import numpy as np
 
 def main() -> None:
     from mocapflow.systems.studio import specs as studio_io
-    from mocapflow.tasks.studio import synth, uuo_takes as uuo
+    from mocapflow.tasks.deepmocap.film import synth
+    from mocapflow.tasks.uuo import takes as uuo
     from mocapflow.tasks.uuo import prior, segmentation, solve
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -19,24 +19,22 @@ from mocapflow.cli.scaffold import scaffold
 from mocapflow.formats.calibration import read_calibration, write_calibration
 from mocapflow.pipeline.catalog import load_catalog
 from mocapflow.pipeline.compare import compare_plan
-from mocapflow.pipeline.compare import headline as compare_headline
-from mocapflow.pipeline.compare import table as compare_table
-from mocapflow.pipeline.compare_page import write_compare_page
 from mocapflow.pipeline.errors import MocapflowError, PlanError
 from mocapflow.pipeline.evaluate import evaluate as run_evaluation
-from mocapflow.pipeline.evaluate import evaluation_plan, headline, table
+from mocapflow.pipeline.evaluate import evaluation_plan
 from mocapflow.pipeline.export import export_files
 from mocapflow.pipeline.plan import Partition, Plan, WorkItem, build_plan, held_versions, select, status
+from mocapflow.pipeline.registry import commands as system_commands
 from mocapflow.pipeline.registry import did_you_mean
-from mocapflow.pipeline.report import build_report
 from mocapflow.pipeline.runlog import run_log
 from mocapflow.pipeline.scheduler import check_address, compute_missing, failure_report, run_items
 from mocapflow.pipeline.storage import Store
 from mocapflow.pipeline.training import export_weights, training_item
-from mocapflow.systems.studio.film_deepmocap import write_sequence
-from mocapflow.systems.studio.specs import make_spec, read_layout
-from mocapflow.tasks.studio.motion import EXERCISES
-from mocapflow.tasks.studio.synth import build_rig
+from mocapflow.presentation.compare import headline as compare_headline
+from mocapflow.presentation.compare import table as compare_table
+from mocapflow.presentation.compare import write_compare_page
+from mocapflow.presentation.evaluate import headline, table
+from mocapflow.presentation.report import build_report
 
 catalog_option = click.option("--catalog", "catalog_path", default="catalog.yaml", show_default=True,
                               type=click.Path(dir_okay=False), help="catalog file")
@@ -51,6 +49,24 @@ threads_option = click.option("--threads", is_flag=True,
 
 
 class _Group(click.Group):
+    """The engine's commands, then those the registered systems add (``System.commands``), loaded only when the
+    command line lists them or is asked for one it does not have itself."""
+
+    def list_commands(self, ctx):
+        try:
+            added = system_commands()
+        except MocapflowError as exc:  # a broken plug-in must not hide the engine's own commands
+            logging.getLogger(__name__).warning("the systems' commands are not listed: %s", exc)
+            added = {}
+        return sorted({*super().list_commands(ctx), *added})
+
+    def get_command(self, ctx, name):
+        own = super().get_command(ctx, name)
+        if own is not None:
+            return own
+        found = system_commands().get(name)
+        return found[1].load() if found is not None else None
+
     def invoke(self, ctx):
         try:
             return super().invoke(ctx)
@@ -376,18 +392,17 @@ def import_calibration(files, fmt, unit, up, fps, out, force):
 
 
 @main.command()
-@click.option("--catalog", "catalog_path", default="training/catalog.yaml", show_default=True,
-              type=click.Path(dir_okay=False), help="training catalog")
+@click.option("--catalog", "catalog_path", required=True, type=click.Path(dir_okay=False),
+              help="training catalog (a system's training stage per dataset)")
 @set_option
 @sequences_option
 @click.option("--stage", default=None, help="the training stage [the catalog's one stage run per dataset]")
-@click.option("--out", default="models/deepmocap_fcn_capsule.pt", show_default=True, type=click.Path(dir_okay=False),
-              help="weights file to write")
+@click.option("--out", required=True, type=click.Path(dir_okay=False), help="weights file to write")
 @workers_option
 @threads_option
 @click.option("--json", "as_json", is_flag=True, help="print a JSON summary as the last line of stdout")
 def train(catalog_path, overrides, sequences, stage, out, workers, threads, as_json):
-    """Train the two-stream FCN (seeded) and write its weights; every step is a cached stage."""
+    """Train the catalog's network (seeded) and write its weights; every step is a cached stage."""
     started = time.perf_counter()
     catalog = load_catalog(catalog_path, overrides)
     store = Store(catalog.root)
@@ -543,54 +558,6 @@ def compare(catalog_path, overrides, sequences, workers, threads, out_dir, as_js
             click.echo(f"wrote {path}")
     if as_json:
         click.echo(json.dumps(compare_headline(result)))
-
-
-@main.command()
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="folder for <sequence>.zarr")
-@click.option("--motion", "motions", multiple=True, required=True, metavar="NAME_OR_FILE",
-              help="an exercise name, a .bvh clip or an .amc take (repeatable; one sequence each)")
-@click.option("--views", default=3, show_default=True, help="sensors on the default ring")
-@click.option("--frames", default=None, type=int, help="frames per sequence [90; a BVH clip's length]")
-@click.option("--fps", default=30.0, show_default=True)
-@click.option("--seed", default=0, show_default=True, help="subject, placement and noise seed")
-@click.option("--subject-height", default=None, type=float, help="metres, 1.50-2.00 [random from the seed]")
-@click.option("--noise", default=1.0, show_default=True, help="sensor noise level (0 = clean)")
-@click.option("--layout", "layout_file", default=None, type=click.Path(dir_okay=False, exists=True),
-              help="camera layout YAML (ring: {count, radius, height} or sensors: [{name, position}])")
-@click.option("--body", type=click.Choice(["capsule", "mesh"]), default="capsule", show_default=True,
-              help="the subject: the template's capsules or the Anny mesh body")
-@click.option("--motion-map", "motion_map", default=None, type=click.Path(dir_okay=False, exists=True),
-              help="joint map YAML {template joint: BVH joint} for the clips' skeleton")
-@click.option("--skeleton", default=None, type=click.Path(dir_okay=False, exists=True),
-              help="the ASF skeleton of the .amc takes")
-@click.option("--amc-fps", "amc_fps", default=None, type=float, help="the .amc takes' frame rate [120]")
-@click.option("--force", is_flag=True, help="overwrite existing sequences in --out")
-def synth(out_dir, motions, views, frames, fps, seed, subject_height, noise, layout_file, body, motion_map, skeleton,
-          amc_fps, force):
-    """Render studio sequences (raw-sequence zarr stores with ground truth)."""
-    layout = read_layout(Path(layout_file), "--layout") if layout_file else None
-    out = Path(out_dir)
-    jobs = []
-    for motion in motions:
-        raw = {"motion": motion, "views": views, "fps": fps, "seed": seed, "noise": noise, "body": body,
-               "subject_height": subject_height, **({"frames": frames} if frames is not None else {}),
-               **({"motion_map": motion_map} if motion_map and motion not in EXERCISES else {})}
-        if motion.lower().endswith(".amc"):
-            raw.update({k: v for k, v in (("skeleton", skeleton), ("amc_fps", amc_fps)) if v is not None})
-        spec, text, _ = make_spec(raw, f"--motion {motion}", lambda p: Path(p).resolve(), layout,
-                                  skeleton_hint="pass --skeleton subject.asf")
-        name = Path(motion).stem if text is not None else motion
-        target = out / f"{name}.zarr"
-        if target.exists() and not force:
-            raise MocapflowError(f"{target} exists; pass --force to overwrite it or choose another --out")
-        jobs.append((spec, text, target))
-    out.mkdir(parents=True, exist_ok=True)
-    for spec, text, target in jobs:
-        started = time.perf_counter()
-        rig = build_rig(spec, text)
-        write_sequence(rig, str(target))
-        click.echo(f"wrote {target} ({rig.n_frames} frames x {len(rig.views)} views, "
-                   f"{time.perf_counter() - started:.1f} s)")
 
 
 def _matrix(plan: Plan, stages: list[str], cells: dict[str, str]) -> str:

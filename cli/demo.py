@@ -30,12 +30,13 @@ from typing import Callable
 from mocapflow.cli.scaffold import DEFAULT_STAGES
 from mocapflow.pipeline.catalog import load_catalog
 from mocapflow.pipeline.errors import InputError, StorageError
-from mocapflow.pipeline.evaluate import evaluate, headline, table
+from mocapflow.pipeline.evaluate import evaluate
 from mocapflow.pipeline.export import export_files
 from mocapflow.pipeline.plan import build_plan
-from mocapflow.pipeline.report import build_report
 from mocapflow.pipeline.scheduler import compute_missing
 from mocapflow.pipeline.storage import Store
+from mocapflow.presentation.evaluate import headline, table
+from mocapflow.presentation.report import build_report
 from mocapflow.tasks.studio.motion import EXERCISES
 
 SYSTEMS = ("deepmocap", "uuo", "suit")

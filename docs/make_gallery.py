@@ -13,10 +13,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from mocapflow.formats.bvh import parse_bvh
 from mocapflow.tasks.deepmocap.flow import DisConfig, PrimalDualConfig, dis
 from mocapflow.tasks.deepmocap.masks import MaskConfig, masks
 from mocapflow.tasks.deepmocap.pdflow import primal_dual
-from mocapflow.tasks.studio.synth import SequenceSpec, build_rig, synthesize
+from mocapflow.tasks.deepmocap.film.synth import build_rig, synthesize
+from mocapflow.tasks.studio.spec import SequenceSpec
 
 OUT = Path(__file__).resolve().parent / "studio"
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "motions"
@@ -79,9 +81,9 @@ def main() -> None:
     clip = SHARED / "cmu_14_14_jumping_jacks.bvh"
     if clip.exists():
         shots.append(("cmu_jumping_jacks", SequenceSpec("bvh", frames=40, seed=7, random_layout=True),
-                      clip.read_text(), 30))
-    for name, spec, text, frame in shots:
-        ds = synthesize(build_rig(spec, text), frame, frame + 1)
+                      parse_bvh(clip.read_text()), 30))
+    for name, spec, motion_clip, frame in shots:
+        ds = synthesize(build_rig(spec, motion_clip), frame, frame + 1)
         img = panel(ds, 0)
         cv2.imwrite(str(OUT / f"{name}.png"), cv2.resize(img, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA))
         print("wrote", OUT / f"{name}.png")

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from mocapflow.pipeline.catalog import load_catalog
-from mocapflow.systems.studio.film_deepmocap import StudioReader
+from mocapflow.systems.deepmocap.film import StudioReader
 from mocapflow.tasks.shared.reflectors import REFLECTOR_NAMES, STRAPS
 
 ROOT = Path(__file__).resolve().parents[1]

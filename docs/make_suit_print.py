@@ -11,9 +11,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from mocapflow.tasks.shared import suit_pattern as pt
+from mocapflow.tasks.suit import pattern as pt
 from mocapflow.tasks.shared.mesh_body import Phenotype, mesh_body, random_phenotype
-from mocapflow.tasks.studio import suit_takes as st
+from mocapflow.tasks.suit import takes as st
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "suit"

@@ -21,7 +21,7 @@ Figures per system: MPJPE (mean over the joints it gives, per frame and over the
 (BODY_PARTS), the surface error (per frame the median distance of the given surface from the true skin, mm),
 completeness (the share of truth joint-frames given) and the cost: the CPU seconds the engine recorded for the
 system's stages of the sequence (each region's worker CPU time, summed; the studio's filming, a source stage, left
-out) per captured second.
+out) per captured second. The comparison's table, JSON figures and page are presentation/compare.py's.
 """
 
 from __future__ import annotations
@@ -32,7 +32,6 @@ import numpy as np
 
 from mocapflow.pipeline import registry
 from mocapflow.pipeline.errors import PlanError
-from mocapflow.pipeline.evaluate import format_rows
 from mocapflow.pipeline.plan import Plan
 from mocapflow.pipeline.storage import Store
 from mocapflow.tasks.shared.body import JOINT_NAMES
@@ -191,38 +190,3 @@ def overall(rows: list[dict]) -> dict:
 def _mean(values: np.ndarray) -> float:
     values = values[np.isfinite(values)]
     return float(values.mean()) if values.size else float("nan")
-
-
-def headline(result: dict) -> dict:
-    """`mocapflow compare --json`: per system its MPJPE, cost, completeness and surface error."""
-    out: dict = {"compare_takes": len(result["takes"]), "compare_frames": sum(len(t["times"])
-                                                                           for t in result["takes"].values())}
-    for system, o in result["overall"].items():
-        out[f"compare_{system}_mpjpe_mm"] = o["mpjpe_mm"]
-        out[f"compare_{system}_take_median_mm"] = o["take_median_mm"]
-        out[f"compare_{system}_cpu_s_per_s"] = o["cpu_s_per_s"]
-        out[f"compare_{system}_completeness"] = o["completeness"]
-        if o["surface_mm"] is not None:
-            out[f"compare_{system}_surface_mm"] = o["surface_mm"]
-    return out
-
-
-def _num(v, fmt="{:.1f}") -> str:
-    return "-" if v is None or not np.isfinite(v) else fmt.format(v)
-
-
-def table(result: dict) -> str:
-    """The comparison as text: one row per system, then per take, then what each needs."""
-    systems = result["systems"]
-    rows = [("system", "MPJPE mm", "takes median / p90", *BODY_PARTS, "surface mm", "complete", "CPU s / s")]
-    for s in systems:
-        o = result["overall"][s]
-        rows.append((s, _num(o["mpjpe_mm"]), f"{_num(o['take_median_mm'])} / {_num(o['take_p90_mm'])}",
-                     *(_num(o["parts_mm"][p]) for p in BODY_PARTS), _num(o["surface_mm"]),
-                     f"{o['completeness']:.1%}", _num(o["cpu_s_per_s"])))
-    per_take = [("take", "frames", "truth gap mm", *(f"{s} MPJPE mm" for s in systems))]
-    for take, t in result["takes"].items():
-        per_take.append((take, str(len(t["times"])), _num(t["truth_gap_mm"]),
-                         *(_num(t["systems"][s]["mpjpe_mm"]) for s in systems)))
-    needs = [f"{s}: " + "; ".join(f"{k} {v}" for k, v in result["overall"][s]["needs"].items()) for s in systems]
-    return "\n".join(format_rows(rows) + [""] + format_rows(per_take) + ["", "what each needs"] + needs)

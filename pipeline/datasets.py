@@ -43,6 +43,7 @@ class SequenceInfo:
     n_frames: int
     fingerprint: str
     spec: Mapping[str, Any]  # reader-specific (a studio spec, or a resolved path)
+    image: tuple[int, int] | None = None  # (height, width) px of its views' images, as its reader states them
 
 
 def discover(catalog, dataset, pattern: str | None = None) -> list[SequenceInfo]:

@@ -2,13 +2,11 @@
 
 Missing partitions are computed first (through the same engine as `mocapflow run`); then every registered
 system's evaluator that applies to the catalog (registry.Evaluator: DeepMoCap's, UUO's, the suit's, a plug-in's)
-scores its stages. The result holds each evaluator's figures and ``sequences`` (figures per sequence); the headline
-and the tables are each evaluator's, in the order the systems are registered.
+scores its stages. The result holds each evaluator's figures and ``sequences`` (figures per sequence); its headline
+figures and text tables are presentation/evaluate.py's.
 """
 
 from __future__ import annotations
-
-import numpy as np
 
 from mocapflow.pipeline import registry
 from mocapflow.pipeline.errors import PlanError
@@ -40,28 +38,3 @@ def evaluate(catalog, plan: Plan, store: Store, *, thorough: bool = True) -> dic
     for evaluator in found:
         result.update(evaluator.evaluate(catalog, plan, store, result["sequences"], thorough))
     return result
-
-
-def headline(result: dict) -> dict:
-    """The JSON figures `mocapflow evaluate --json` prints: the sequence count, then each evaluator's."""
-    out: dict = {"sequences": len(result["sequences"])}
-    for evaluator in registry.evaluators():
-        out.update(evaluator.headline(result))
-    return out
-
-
-def table(result: dict) -> str:
-    """The text tables of every evaluator with figures in ``result``, a blank line between them."""
-    parts = [lines for e in registry.evaluators() if (lines := e.table(result))]
-    return "\n\n".join("\n".join(lines) for lines in parts)
-
-
-def format_rows(rows: list[tuple]) -> list[str]:
-    """Rows of strings as left-aligned columns, two spaces apart."""
-    widths = [max(len(r[c]) for r in rows) for c in range(len(rows[0]))]
-    return ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
-
-
-def pct(v: float) -> str:
-    """A share as a percentage with two decimals, '-' for NaN."""
-    return "-" if np.isnan(v) else f"{100 * v:.2f}"

@@ -143,7 +143,6 @@ def build_plan(catalog: Catalog, sequences: str | None = None) -> Plan:
 
 
 BYTES_PER_VALUE = 4  # float32, the widest per-pixel value the image stages hold
-DEFAULT_IMAGE = (424, 512)  # (height, width) where a sequence does not state its own: the Kinect v2 depth sensor
 
 
 def check_ceiling(plan: Plan, ceiling: int) -> None:
@@ -168,10 +167,12 @@ def partition_bytes(item: WorkItem, sequences: Mapping[str, SequenceInfo]) -> in
     a whole-sequence task, every sequence for a per-dataset one) x its views x the image size (1 where none of its
     artifacts is an image) x ``BYTES_PER_VALUE``."""
     spec, seq = item.spec, item.sequence
-    pixels = int(np.prod(_image_size(seq))) if _images(item) else 1
+    images = _images(item)
     if spec.partition == "dataset":
         members = [sequences[s] for s in seq.spec.get("sequences", []) if s in sequences]
-        return sum(s.n_frames * max(1, len(s.views)) for s in members) * pixels * BYTES_PER_VALUE
+        return sum(s.n_frames * max(1, len(s.views)) * (int(np.prod(_image_size(s))) if images else 1)
+                   for s in members) * BYTES_PER_VALUE
+    pixels = int(np.prod(_image_size(seq))) if images else 1
     frames = seq.n_frames if spec.whole_sequence else min(seq.n_frames, item.stage.region_frames + sum(spec.halo))
     views = 1 if item.partition.view is not None else max(1, len(seq.views))
     return frames * views * pixels * BYTES_PER_VALUE
@@ -184,13 +185,15 @@ def _images(item: WorkItem) -> bool:
 
 
 def _image_size(seq: SequenceInfo) -> tuple[int, int]:
-    """(height, width) as the sequence's reader states them, else ``DEFAULT_IMAGE``."""
-    spec = seq.spec
-    get = spec.get if isinstance(spec, Mapping) else (lambda name, default=None: getattr(spec, name, default))
-    height, width = get("height", None), get("width", None)
-    if isinstance(height, int) and isinstance(width, int) and height > 0 and width > 0:
-        return height, width
-    return DEFAULT_IMAGE
+    """(height, width) as the sequence's reader states them (``SequenceInfo.image``); (1, 1) where it states none:
+    the sequence holds no images (a schema may allow an image the sequence lacks, as a marker take's video)."""
+    if seq.image is None:
+        return 1, 1
+    height, width = seq.image
+    if not (isinstance(height, int) and isinstance(width, int) and height > 0 and width > 0):
+        raise PlanError(f"sequence {seq.id!r}: image size {seq.image!r} is not two positive integers "
+                        "(height, width); fix its reader")
+    return height, width
 
 
 def _discover_all(catalog: Catalog, sequences: str | None) -> dict[str, list[SequenceInfo]]:

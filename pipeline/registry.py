@@ -1,7 +1,7 @@
 """The one registry of the engine: capture systems, their task implementations, dataset kinds, schemas,
 evaluators, exporters, report sections and weight readers.
 
-The engine knows no system. A system (DeepMoCap, UUO, the checkerboard suit, the studio, or a user's plug-in) is a
+The engine knows no system. A system (DeepMoCap, UUO, the checkerboard suit, the markerless peer, or a user's plug-in) is a
 :class:`System` value that declares everything it adds; it reaches the engine through one path, whichever way it
 is found: an entry point of the group ``mocapflow.systems`` (how the built-in systems are found, as xarray finds
 its backends) or a module named in a catalog's ``plugins:`` that calls :func:`register_system` on import. Either
@@ -154,7 +154,7 @@ class Exporter:
 @dataclass(frozen=True)
 class ReportSection:
     """What `mocapflow report` shows of one system. ``applies(catalog)``; ``takes(catalog, plan, store)`` the
-    sequences as the report's :class:`~mocapflow.pipeline.report.Take` (markers, joints, truth) or [] ;
+    sequences as the report's :class:`~mocapflow.presentation.report.Take` (markers, joints, truth) or [];
     ``figures(folder, catalog, plan, store, result)`` extra images (paths) given the evaluation's result (``{}``
     where the take has no ground truth to evaluate against: draw what needs none);
     ``named_figures``: the evaluation's JSON keys it names on the page, key -> (label, scale, unit)."""
@@ -194,6 +194,23 @@ class Comparer:
 
 
 @dataclass(frozen=True)
+class Command:
+    """A command a system adds to the ``mocapflow`` command line: the click command ``name`` of ``module``,
+    imported only when the command line lists or runs it (so planning never imports it)."""
+
+    module: str
+    name: str
+
+    def load(self) -> Any:
+        try:
+            command = getattr(importlib.import_module(self.module), self.name)
+        except (ImportError, AttributeError) as exc:
+            raise CatalogError(f"command {self.module}:{self.name} cannot be loaded ({exc}); fix the system's "
+                               "commands declaration") from exc
+        return command
+
+
+@dataclass(frozen=True)
 class System:
     """Everything one capture system (or source of data) adds to the engine, declared in one place."""
 
@@ -207,6 +224,7 @@ class System:
     report: tuple[ReportSection, ...] = ()
     weights: Mapping[str, Callable[[Any], dict]] = field(default_factory=dict)  # schema -> tensors of its artifact
     compare: Comparer | None = None  # how `mocapflow compare` reads its captures
+    commands: Mapping[str, Command] = field(default_factory=dict)  # name -> a command it adds to `mocapflow`
 
 
 _REGISTRY: dict[str, TaskSpec] = {}
@@ -291,6 +309,18 @@ def register_system(system: System) -> System:
         register(spec)
     _SYSTEMS[system.name] = system
     return system
+
+
+def commands() -> dict[str, tuple[str, Command]]:
+    """Every command the registered systems add: name -> (system, command); a name two systems add is refused."""
+    found: dict[str, tuple[str, Command]] = {}
+    for system in systems():
+        for name, command in system.commands.items():
+            if name in found:
+                raise CatalogError(f"systems {found[name][0]!r} and {system.name!r} both add the command {name!r}; "
+                                   "rename one")
+            found[name] = (system.name, command)
+    return found
 
 
 def systems() -> list[System]:

@@ -24,7 +24,7 @@ def pytest_sessionstart(session):
     the same time on a fresh machine."""
     if getattr(session.config.option, "numprocesses", None) and not hasattr(session.config, "workerinput"):
         from mocapflow.tasks.shared.mesh_body import Phenotype, mesh_body, pose_mesh
-        from mocapflow.tasks.studio.sight_lines import cameras_seeing
+        from mocapflow.tasks.uuo.sight_lines import cameras_seeing
 
         body = mesh_body(Phenotype())
         posed = pose_mesh(body, np.tile(np.eye(3), (1, len(body.bone_names), 1, 1)), np.zeros((1, 3)))

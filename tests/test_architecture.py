@@ -1,12 +1,17 @@
 """The layers of the house, as import-linter contracts generated from the registered systems: the command line above
-the systems, the systems above the file formats and the engine core, the core above the kernels and the schemas;
-the core and the file formats import no system and no system's kernels; each system (its package systems/S and
-its kernels tasks/S; the studio is one) imports no other system's package or kernels; the shared kernels
-(tasks/shared) import no system's. Checked over every import, those inside functions too.
+the systems, the systems above the presentation (report, compare page, the evaluation's tables, the 3D viewer), the
+presentation above the file formats and the engine core, the core above the kernels and the schemas; the
+presentation, the core and the file formats import no system and no system's kernels; each system (its package
+systems/S and its kernels tasks/S) imports no other system's package or kernels; the shared kernels (tasks/shared)
+import no system's. A package named in FLOORS (systems/F and tasks/F) is a shared floor instead, registered by no
+one: any system may use it (the studio: its takes, generic cameras, lights and renderers; each system films a take
+from its own package and registers that dataset kind itself), and it imports no system's package or kernels.
+Checked over every import, those inside functions too.
 
 The in-repo systems are those of the registry's entry points (pipeline/registry.py) whose module is under
 mocapflow.systems, so a new system is protected as soon as it is registered, with no list to edit here; every
-package under systems/ must be one, and every package under tasks/ one's kernels or the shared ones. pyproject.toml's
+package under systems/ must be one or a floor, and every package under tasks/ one's kernels, a floor's or the shared
+ones. pyproject.toml's
 [tool.importlinter] section (for `lint-imports` by hand) must equal the generated one: `python
 tests/test_architecture.py` prints it. A task's function, `Lazy` ones too (a string no contract sees), must live in
 its own system's kernels or the shared ones. Each contract is shown to bite: a copy of the tree with one forbidden
@@ -32,24 +37,23 @@ from mocapflow.pipeline import registry
 
 ROOT = Path(__file__).parents[1]
 SHARED_KERNELS = "mocapflow.tasks.shared"
-LAYERS = ["mocapflow.cli", "mocapflow.systems", "mocapflow.formats", "mocapflow.pipeline", "mocapflow.tasks",
-          "mocapflow.schemas"]
+LAYERS = ["mocapflow.cli", "mocapflow.systems", "mocapflow.presentation", "mocapflow.formats", "mocapflow.pipeline",
+          "mocapflow.tasks", "mocapflow.schemas"]
 ROOT_PACKAGES = [*LAYERS, "mocapflow.models"]
 
-LAYERS_CONTRACT = "layers: cli > systems > formats > engine core > kernels > schemas"
+LAYERS_CONTRACT = "layers: cli > systems > presentation > formats > engine core > kernels > schemas"
 CORE_CONTRACT = "the engine core imports no system's kernels"
+PRESENTATION_CONTRACT = "the presentation imports no system and no system's kernels"
 FORMATS_CONTRACT = "the file formats import no system and no system's kernels"
 SHARED_CONTRACT = "the shared kernels import no system's kernels"
+# Shared floors of the systems, registered by no one: their package and kernels may be imported by any system
+FLOORS = ("studio",)
 
 # Imports that break generated contracts today, let stand by name until they are moved: each is ignored by every
 # contract that forbids the module it imports and whose modules may import its importer (the layers permitting): the
 # systems that import it through its importer too. Once one is gone, import-linter stops with "No matches for
 # ignored import": delete it here and in pyproject.toml.
-KNOWN_BREAKS = [
-    # the BVH reader of formats/ parses with the studio's kernel (DeepMoCap's and UUO's exporters use that reader):
-    # the parser belongs in formats/ or tasks/shared/
-    "mocapflow.formats.bvh -> mocapflow.tasks.studio.bvh",
-]
+KNOWN_BREAKS: list[str] = []
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,7 +61,7 @@ class InRepoSystem:
     name: str  # the package's last name: systems/<name>, tasks/<name>
     package: str  # mocapflow.systems.<name>
     kernels: str | None  # mocapflow.tasks.<name>, where that package exists
-    system: registry.System
+    system: registry.System | None  # None: a floor
 
     @property
     def modules(self) -> list[str]:
@@ -65,11 +69,26 @@ class InRepoSystem:
 
 
 def system_contract(system: InRepoSystem) -> str:
+    if system.name in FLOORS:
+        return f"the {system.name} floor imports no system's package or kernels"
     return f"system {system.name} imports no other system's package or kernels"
 
 
+def forbidden_for(system: InRepoSystem, systems: list[InRepoSystem]) -> list[str]:
+    """What a system may not import: every other system's package and kernels, a shared floor's excepted (a floor
+    itself may import none)."""
+    return [m for other in systems if other is not system and (system.name in FLOORS or other.name not in FLOORS)
+            for m in other.modules]
+
+
+def kernels_of(name: str) -> str | None:
+    kernels = f"mocapflow.tasks.{name}"
+    return kernels if importlib.util.find_spec(kernels) else None
+
+
 def in_repo_systems() -> list[InRepoSystem]:
-    """The registered systems whose entry point lies under mocapflow.systems, in the registry's order."""
+    """The registered systems whose entry point lies under mocapflow.systems, in the registry's order, then the
+    floors."""
     registered = registry.systems()
     found = []
     for point in sorted(entry_points(group=registry.ENTRY_POINT_GROUP), key=lambda p: p.name):
@@ -78,10 +97,9 @@ def in_repo_systems() -> list[InRepoSystem]:
             continue  # a plug-in installed from elsewhere
         system = point.load()
         assert any(system is s for s in registered), f"entry point {point.name} is not registered"
-        kernels = f"mocapflow.tasks.{parts[2]}"
-        found.append(InRepoSystem(parts[2], ".".join(parts[:3]), kernels if importlib.util.find_spec(kernels) else None,
-                                  system))
-    return found
+        assert parts[2] not in FLOORS, f"{point.name}: the floor systems/{parts[2]} is no system to register"
+        found.append(InRepoSystem(parts[2], ".".join(parts[:3]), kernels_of(parts[2]), system))
+    return found + [InRepoSystem(name, f"mocapflow.systems.{name}", kernels_of(name), None) for name in FLOORS]
 
 
 def subpackages(package: str) -> set[str]:
@@ -106,13 +124,15 @@ def contracts_config(systems: list[InRepoSystem]) -> dict:
         {"name": LAYERS_CONTRACT, "type": "layers", "layers": LAYERS},
         {"name": CORE_CONTRACT, "type": "forbidden", "source_modules": ["mocapflow.pipeline"],
          "forbidden_modules": ["mocapflow.systems", *kernels]},
+        {"name": PRESENTATION_CONTRACT, "type": "forbidden", "source_modules": ["mocapflow.presentation"],
+         "forbidden_modules": ["mocapflow.systems", *kernels]},
         {"name": FORMATS_CONTRACT, "type": "forbidden", "source_modules": ["mocapflow.formats"],
          "forbidden_modules": ["mocapflow.systems", *kernels]},
         {"name": SHARED_CONTRACT, "type": "forbidden", "source_modules": [SHARED_KERNELS], "forbidden_modules": kernels},
     ]
     for system in systems:
         contracts.append({"name": system_contract(system), "type": "forbidden", "source_modules": system.modules,
-                          "forbidden_modules": [m for other in systems if other is not system for m in other.modules]})
+                          "forbidden_modules": forbidden_for(system, systems)})
     for contract in contracts:
         ignored = [known for known in KNOWN_BREAKS for importer, imported in [known.split(" -> ")]
                    if any(within(imported, m) for m in contract.get("forbidden_modules", ()))
@@ -215,7 +235,7 @@ def test_every_system_package_is_a_registered_system(systems):
     names = {s.name for s in systems}
     assert {"deepmocap", "uuo", "suit", "studio"} <= names
     unregistered = subpackages("mocapflow.systems") - names
-    assert not unregistered, (f"systems/{sorted(unregistered)} are not registered systems: add each to "
+    assert not unregistered, (f"systems/{sorted(unregistered)} are not registered systems (nor FLOORS): add each to "
                               "[project.entry-points.\"mocapflow.systems\"] in pyproject.toml and pip install -e . "
                               "(its contracts are generated from the registry)")
     strays = subpackages("mocapflow.tasks") - names - {SHARED_KERNELS.rsplit(".", 1)[1]}
@@ -244,11 +264,14 @@ def plants(systems: list[InRepoSystem]) -> list[tuple[str, str, str]]:
     first = systems[0]
     planted = [(LAYERS_CONTRACT, "mocapflow.schemas._planted", "mocapflow.pipeline"),
                (CORE_CONTRACT, "mocapflow.pipeline._planted", first.kernels or first.package),
+               (PRESENTATION_CONTRACT, "mocapflow.presentation._planted", first.kernels or first.package),
                (FORMATS_CONTRACT, "mocapflow.formats._planted", first.kernels or first.package),
                (FORMATS_CONTRACT, "mocapflow.formats._planted_system", first.package),
                (SHARED_CONTRACT, f"{SHARED_KERNELS}._planted", first.kernels)]
+    peers = [s for s in systems if s.name not in FLOORS]  # a floor is anyone's to import: plant a peer instead
     for i, system in enumerate(systems):
-        other = systems[i - 1]
+        others = [p for p in peers if p is not system]
+        other = others[i % len(others)]
         planted.append((system_contract(system), f"{system.package}._planted", other.kernels or other.package))
         planted.append((system_contract(system), f"{system.package}._planted_system", other.package))
         if system.kernels:
@@ -283,7 +306,7 @@ def task_home_problems(system: InRepoSystem) -> list[str]:
     where its module does not import or lacks the name)."""
     homes = [f"mocapflow.tasks.{system.name}", SHARED_KERNELS]
     problems = []
-    for spec in system.system.tasks:
+    for spec in system.system.tasks if system.system else ():
         if spec.fn is None:
             continue
         if isinstance(spec.fn, registry.Lazy):
@@ -308,14 +331,14 @@ def task_home_problems(system: InRepoSystem) -> list[str]:
 
 
 def test_every_task_function_lives_in_its_own_systems_kernels(systems):
-    lazy = [spec for s in systems for spec in s.system.tasks if isinstance(spec.fn, registry.Lazy)]
+    lazy = [spec for s in systems if s.system for spec in s.system.tasks if isinstance(spec.fn, registry.Lazy)]
     assert lazy  # DeepMoCap's and the suit's keep torch out of planning
     problems = [p for s in systems for p in task_home_problems(s)]
     assert not problems, "\n".join(problems)
 
 
 def test_a_task_naming_another_systems_kernels_is_found(systems):
-    system = next(s for s in systems if s.system.tasks)
+    system = next(s for s in systems if s.system and s.system.tasks)
     other = next(s for s in systems if s is not system and s.kernels)
     spec = next(t for t in system.system.tasks if t.fn is not None)
     strays = [registry.Lazy(f"{other.kernels}.anything", "fn"), registry.Lazy(f"{system.kernels}.no_such_module", "fn"),

@@ -78,3 +78,15 @@ def test_without_its_distribution_the_system_is_unknown(tmp_path):
     assert proc.returncode != 0
     assert "unknown dataset kind 'toy_walk'" in proc.stderr
 
+
+
+def test_its_command_joins_the_command_line(tmp_path):
+    env = installed(tmp_path)
+    listed = mocapflow(env, tmp_path, "--help")
+    assert "toy-walk" in listed and "synth" in listed  # the toy's command and DeepMoCap's, beside the engine's
+    rows = np.loadtxt(mocapflow(env, tmp_path, "toy-walk", "--frames", "4", "--speed", "3").splitlines()[1:],
+                      delimiter=",")
+    np.testing.assert_allclose(rows, [[0, 0.0], [1, 0.1], [2, 0.2], [3, 0.3]], atol=1e-6)
+    plain = subprocess.run([sys.executable, "-m", "mocapflow.cli.commands", "toy-walk"], cwd=tmp_path,
+                           capture_output=True, text=True, timeout=300)
+    assert plain.returncode != 0 and "No such command 'toy-walk'" in plain.stderr  # not installed: not there

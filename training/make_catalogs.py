@@ -115,7 +115,7 @@ def main() -> None:
     varied = np.random.default_rng(2026)  # its own stream: the sequences above and validation stay as they were
     shipped += "\n".join(sequences(TRAIN_EXERCISES, 64, 164, varied, variation=(0.5, 1.0))) + "\n"
     train = HEADER.format(root="training", extra="", title="Training set of the two-stream FCN", name="train", frames=32,
-                          usage="mocapflow train   (writes models/deepmocap_fcn_capsule.pt)")
+                          usage="mocapflow train --catalog training/catalog.yaml --out models/deepmocap_fcn_capsule.pt")
     (HERE / "catalog.yaml").write_text(train + shipped + STAGES.format(name="train") + TRAIN_STAGES)
     athletic = np.random.default_rng(2036)  # their own streams: the groups above stay as they were
     broad = "\n".join(sequences(tuple(ATHLETIC), 56, 300, athletic, speed=(0.8, 1.2), amplitude=(0.85, 1.05),

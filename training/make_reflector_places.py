@@ -2,7 +2,7 @@
 body fit (tasks/deepmocap/body_poses.py) poses the body by.
 
 The places are the nominal ones: the paper's placement (tasks/shared/reflectors.py, no per-subject jitter) carried
-onto the default phenotype's mesh as the studio carries each subject's (tasks/studio/mesh_reflectors.py). A patch
+onto the default phenotype's mesh as the studio carries each subject's (tasks/deepmocap/film/mesh_reflectors.py). A patch
 is its centre's point of the skin (a face and its barycentric blend); a strap, whose fused 3D point is the limb's
 centre, is the convex blend of three of its band's vertices whose rest position lies nearest the band's mean. Vertex indices are the mesh's topology, the same for every phenotype. Regenerate with
 ``python training/make_reflector_places.py``.
@@ -16,7 +16,7 @@ import numpy as np
 from mocapflow.tasks.deepmocap.body_poses import nearest_blend
 from mocapflow.tasks.shared import body, reflectors
 from mocapflow.tasks.shared.mesh_body import Phenotype, mesh_body
-from mocapflow.tasks.studio.mesh_reflectors import place_on_mesh
+from mocapflow.tasks.deepmocap.film.mesh_reflectors import place_on_mesh
 from mocapflow.tasks.studio.take import HEIGHT_RANGE_M
 
 OUT = Path(__file__).parents[1] / "tasks" / "deepmocap" / "reflector_places.py"

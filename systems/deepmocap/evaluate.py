@@ -17,10 +17,10 @@ import numpy as np
 
 from mocapflow.pipeline.catalog import stage_writing
 from mocapflow.pipeline.errors import PlanError
-from mocapflow.pipeline.evaluate import format_rows, pct
 from mocapflow.pipeline.plan import Plan
 from mocapflow.pipeline.registry import Evaluator
 from mocapflow.pipeline.storage import Store
+from mocapflow.presentation.evaluate import format_rows, pct
 from mocapflow.tasks.deepmocap.consistency import (CHECKS, ConsistencyConfig, add_counts, summarize,
                                                    true_on_reflector, view_counts)
 from mocapflow.tasks.deepmocap.evaluation import (TABLE8_JOINTS, Matches2D, flow_errors, jitter, joint_errors, match_2d,

@@ -47,7 +47,8 @@ class ZarrReader:
             files = sorted((p.relative_to(store).as_posix(), p.stat().st_size, p.stat().st_mtime_ns)
                            for p in store.rglob("*") if p.is_file())
             out.append(SequenceInfo(store.name.removesuffix(".zarr"), tuple(str(v) for v in ds["view"].values),
-                                    ds.sizes["frame"], digest(files), {"path": str(store)}))
+                                    ds.sizes["frame"], digest(files), {"path": str(store)},
+                                    image=(ds.sizes["y"], ds.sizes["x"])))
         if not out:
             raise InputError(f"{dataset.where}: no raw-sequence stores match {pattern!r} in {folder}")
         return out
@@ -119,8 +120,9 @@ class ImageFolderReader:
                                  "same frame numbers")
             files = sorted((p.relative_to(seq_dir).as_posix(), p.stat().st_size, p.stat().st_mtime_ns)
                            for p in seq_dir.rglob("*") if p.is_file())
+            sizes = {(calib["cameras"][v].height, calib["cameras"][v].width) for v in views}
             out.append(SequenceInfo(seq_dir.name, views, counts[views[0]] if views else 0, digest(files),
-                                    {"path": str(seq_dir)}))
+                                    {"path": str(seq_dir)}, image=max(sizes, key=lambda s: s[0] * s[1])))
         if not out:
             raise InputError(f"{dataset.where}: no sequence folders with calibration.yaml in {folder}")
         return out
@@ -268,7 +270,9 @@ class DeepMoCapReader:
             views, n_frames, fingerprint = dmc_files.describe(dataset, seq_dir)
             check_names(dataset.where, seq_dir.name, list(views), f" ({seq_dir})")
             out.append(SequenceInfo(seq_dir.name, tuple(views), n_frames, fingerprint,
-                                    {"path": str(seq_dir), "views": views}))
+                                    {"path": str(seq_dir), "views": views},
+                                    image=max(((c["height"], c["width"]) for c in views.values()),
+                                              key=lambda size: size[0] * size[1])))
         if not out:
             raise InputError(f"{dataset.where}: no DeepMoCap recordings in {folder} (folders matching {pattern!r} "
                              "with <view>.extrinsics files and <view>/ folders of numbered depth.pgm and mc_blob.png "

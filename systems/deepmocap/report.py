@@ -14,9 +14,9 @@ import xarray as xr
 
 from mocapflow.pipeline.catalog import final_stage, stage_writing
 from mocapflow.pipeline.registry import ReportSection
+from mocapflow.presentation.report import (FONT, SOLVED, TRUTH, WHITE, Take, bar_chart, base_takes, colour,
+                                           line_plot, write_png)
 from mocapflow.systems.deepmocap.evaluate import evaluate_plausibility, plausibility_stages, poses_stage
-from mocapflow.pipeline.report import (FONT, SOLVED, TRUTH, WHITE, Take, bar_chart, base_takes, colour, line_plot,
-                                       write_png)
 from mocapflow.tasks.shared.body import JOINT_NAMES, PARENTS
 
 MARKER_SCHEMAS = ("smoothed_markers", "markers3d")  # the first a catalog writes is reported

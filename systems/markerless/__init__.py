@@ -3,7 +3,8 @@ view, triangulated with Pose2Sim's outlier rule and read as the template's 20 jo
 
 Everything the system adds to the engine, declared in one place: its task specs (tasks.py: a source of multi-view
 images, the keypoints per view, their triangulation), schemas (schemas.py) and compare hook (compare.py). Its takes
-come from the studio's ring of cameras (systems/studio, kind ``studio_suit``). The kernels are in tasks/markerless.
+come from the studio's ring of cameras (kind ``studio_suit``: systems/suit/film.py films the studio's take). The
+kernels are in tasks/markerless.
 """
 
 from mocapflow.pipeline.registry import System

@@ -1,6 +1,7 @@
 """The studio's sequences as the catalog and the CLI give them: specs checked, motion files read, fingerprints, and
 the take of each sequence (tasks/studio/take.py) made once per worker. The filming modules beside this one turn a
-take into one system's raw dataset (film_deepmocap.py, film_uuo.py, film_suit.py).
+take into one system's raw dataset from that system's package (systems/deepmocap/film.py, systems/uuo/film.py,
+systems/suit/film.py).
 
 A studio sequence in a catalog::
 
@@ -11,9 +12,10 @@ A studio sequence in a catalog::
 ``motion`` is an exercise name, a .bvh path or an .amc take with ``skeleton: subject.asf`` beside it
 (``amc_fps``: its frame rate, 120 by default as in the CMU database), paths inside ``data_roots``;
 ``motion_map: my_map.yaml`` gives a skeleton no known naming fits a joint map (YAML ``{template joint:
-BVH joint}``). Files are read here (an AMC take is carried as the BVH text of tasks/studio/asf_amc.py);
-the studio itself (tasks/studio) only sees parsed values. The realism switches ``tape``, ``cloth_cm`` and
-``tof_artefacts`` (all off by default) film DeepMoCap's reflectors and sensors as they really are.
+BVH joint}``). Files are read here and parsed by formats/ (bvh.py; asf_amc.py reads an AMC take and its skeleton
+straight into the same clip); the studio itself (tasks/studio, retarget.py) only sees the parsed clip. The
+realism switches ``tape``, ``cloth_cm`` and ``tof_artefacts`` (all off by default) film DeepMoCap's reflectors and
+sensors as they really are.
 ``time_base_fps`` puts a take on a clock (tasks/studio/take.py): every dataset of a catalog's ``joint_take``
 films on one (120 fps unless given), so all its systems sample the same motion.
 """
@@ -31,18 +33,20 @@ from typing import Any, Callable, Mapping
 
 import yaml
 
+from mocapflow.formats.asf_amc import CMU_FPS, ASFError, read_asf_amc
+from mocapflow.formats.bvh import parse_bvh
 from mocapflow.pipeline.errors import CatalogError, InputError, InputWarning
 from mocapflow.pipeline.hashing import digest
 from mocapflow.pipeline.registry import coerce, did_you_mean
+from mocapflow.tasks.shared.bvh_clip import BVHClip, BVHError
 from mocapflow.tasks.shared.cache import BoundedCache
-from mocapflow.tasks.studio import asf_amc
-from mocapflow.tasks.studio import bvh as bvh_mod
+from mocapflow.tasks.studio import retarget
 from mocapflow.tasks.studio.cameras import layout as camera_layout
 from mocapflow.tasks.studio.cameras import outside_share
 from mocapflow.tasks.studio import motion as motion_mod
 from mocapflow.tasks.studio.motion import EXERCISES
-from mocapflow.tasks.studio.mesh_synth import MESH_STUDIO_VERSION
-from mocapflow.tasks.studio.synth import REALISM_FIELDS, REALISM_VERSION, STUDIO_VERSION, SequenceSpec
+from mocapflow.tasks.studio.spec import (MESH_STUDIO_VERSION, REALISM_FIELDS, REALISM_VERSION, STUDIO_VERSION,
+                                         SequenceSpec)
 from mocapflow.tasks.studio.take import TIME_BASE_FPS, Take, make_take, realism
 
 SPEC_FIELDS = {f.name: f for f in dataclasses.fields(SequenceSpec)}
@@ -65,13 +69,22 @@ class MotionSource:
         return self.path if self.skeleton is None else f"{self.path} (skeleton {self.skeleton})"
 
 
+@dataclass(frozen=True)
+class MotionFile:
+    """A sequence's motion file as read: the parsed clip, and the digest of the text it was parsed from."""
+
+    clip: BVHClip
+    digest: str  # sha256 of the BVH text; of the ASF, the AMC and the rate for an AMC take (fingerprint's "bvh")
+
+
 def make_spec(raw: Mapping[str, Any], where: str, resolve: Callable[[str], Path],
               layout: Mapping | None = None,
               origin: Mapping[str, str] | None = None,
-              skeleton_hint: str = "add skeleton: subject.asf") -> tuple[SequenceSpec, str | None, MotionSource | None]:
-    """A validated SequenceSpec, the clip's BVH text (or None) and where the clip comes from, from a mapping of
-    spec fields (and MOTION_FILE_KEYS). ``origin``: where each field was given (its catalog line), for its errors
-    (else ``where.<field>``)."""
+              skeleton_hint: str = "add skeleton: subject.asf"
+              ) -> tuple[SequenceSpec, MotionFile | None, MotionSource | None]:
+    """A validated SequenceSpec, the motion file read (or None for an exercise) and where it comes from, from a
+    mapping of spec fields (and MOTION_FILE_KEYS). ``origin``: where each field was given (its catalog line), for its
+    errors (else ``where.<field>``)."""
     raw = dict(raw)
     at = {k: (origin or {}).get(k, f"{where}.{k}") for k in raw}
     files = {k: raw.pop(k) for k in MOTION_FILE_KEYS if k in raw}
@@ -84,9 +97,9 @@ def make_spec(raw: Mapping[str, Any], where: str, resolve: Callable[[str], Path]
                            "clip or an .amc take (with skeleton: its .asf)")
     motion = str(raw["motion"])
     source = motion_source(motion, files, where, resolve, skeleton_hint)
-    text = None
+    motion_file = None
     if source is not None:
-        text = read_motion(source, where)
+        motion_file = load_motion(source, where)
         raw["motion"] = "bvh"
         raw.setdefault("label", Path(source.path).stem)
         raw.setdefault("frames", None)
@@ -111,9 +124,9 @@ def make_spec(raw: Mapping[str, Any], where: str, resolve: Callable[[str], Path]
             camera_layout(spec.layout, views=spec.views)
     except (ValueError, TypeError) as exc:
         raise InputError(f"{where}: {exc}") from exc
-    if text is not None:
-        check_clip(spec, text, source, where)
-    return spec, text, source
+    if motion_file is not None:
+        check_clip(spec, motion_file.clip, source, where)
+    return spec, motion_file, source
 
 
 def motion_source(motion: str, files: Mapping[str, Any], where: str, resolve: Callable[[str], Path],
@@ -131,48 +144,58 @@ def motion_source(motion: str, files: Mapping[str, Any], where: str, resolve: Ca
         return MotionSource(str(resolve(motion))) if suffix == ".bvh" else None
     if "skeleton" not in files:
         raise CatalogError(f"{where}: the AMC take {motion} needs its ASF skeleton: {skeleton_hint}")
-    fps = coerce(files.get("amc_fps", asf_amc.CMU_FPS), float, f"{where}.amc_fps")
+    fps = coerce(files.get("amc_fps", CMU_FPS), float, f"{where}.amc_fps")
     if not fps > 0:
         raise CatalogError(f"{where}: amc_fps must be positive (the take's frame rate; CMU's is 120), got {fps}")
     return MotionSource(str(resolve(motion)), str(resolve(str(files["skeleton"]))), fps)
 
 
-def read_motion(source: MotionSource, where: str) -> str:
-    """The clip's BVH text: the BVH file's, or an AMC take with its skeleton written as BVH."""
-    def read(path: str, what: str) -> str:
-        try:
-            return Path(path).read_text()
-        except OSError as exc:
-            raise InputError(f"{where}: cannot read {what} {path}: {exc.strerror}") from exc
-        except UnicodeDecodeError as exc:
-            raise InputError(f"{where}: {what} {path} is not text (byte {exc.start} is not UTF-8); give the motion "
-                             "file as the BVH, ASF or AMC text it should be") from exc
+def read_motion(source: MotionSource, where: str) -> BVHClip:
+    """The sequence's motion as a parsed clip (what a worker makes its take from)."""
+    return load_motion(source, where).clip
 
+
+def load_motion(source: MotionSource, where: str) -> MotionFile:
+    """The motion file read and parsed by formats/ (a BVH clip, or an AMC take with its ASF skeleton read straight
+    into a clip) with the digest its fingerprint hashes; InputError names the file, what is wrong and the fix."""
     if source.skeleton is None:
-        return read(source.path, "BVH")
-    asf_text, amc_text = read(source.skeleton, "ASF skeleton"), read(source.path, "AMC take")
+        text = _read_text(source.path, "BVH", where)
+        try:
+            clip = parse_bvh(text)
+        except BVHError as exc:
+            raise InputError(f"{where}: {source} is not a valid BVH file: {exc}") from exc
+        return MotionFile(clip, hashlib.sha256(text.encode()).hexdigest())
+    asf_text, amc_text = _read_text(source.skeleton, "ASF skeleton", where), _read_text(source.path, "AMC take", where)
     try:
-        return bvh_mod.format_bvh(asf_amc.read_asf_amc(asf_text, amc_text, source.amc_fps))
-    except asf_amc.ASFError as exc:
+        clip = read_asf_amc(asf_text, amc_text, source.amc_fps)
+    except ASFError as exc:
         raise InputError(f"{where}: {source} cannot be read: {exc}") from exc
+    texts = {"asf": hashlib.sha256(asf_text.encode()).hexdigest(), "amc": hashlib.sha256(amc_text.encode()).hexdigest()}
+    return MotionFile(clip, digest({**texts, "amc_fps": source.amc_fps}, length=64))
 
 
-def check_clip(spec: SequenceSpec, bvh_text: str, source: MotionSource, where: str) -> None:
-    """Everything a worker would find wrong with a BVH clip, found now: its syntax, its skeleton (a joint map that
-    fits it) and its length at the sequence's fps, start and frames."""
+def _read_text(path: str, what: str, where: str) -> str:
     try:
-        clip = bvh_mod.parse_bvh(bvh_text)
-    except bvh_mod.BVHError as exc:
-        raise InputError(f"{where}: {source} is not a valid BVH file: {exc}") from exc
+        return Path(path).read_text()
+    except OSError as exc:
+        raise InputError(f"{where}: cannot read {what} {path}: {exc.strerror}") from exc
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{where}: {what} {path} is not text (byte {exc.start} is not UTF-8); give the motion "
+                         "file as the BVH, ASF or AMC text it should be") from exc
+
+
+def check_clip(spec: SequenceSpec, clip: BVHClip, source: MotionSource, where: str) -> None:
+    """Everything a worker would find wrong with a parsed clip, found now: its skeleton (a joint map that fits it)
+    and its length at the sequence's fps, start and frames (its syntax was checked as it was read)."""
     try:
-        bvh_mod.joint_map(clip, spec.motion_map)
-    except bvh_mod.BVHError as exc:
+        retarget.joint_map(clip, spec.motion_map)
+    except BVHError as exc:
         fix = ("fix the map" if spec.motion_map is not None else
                "write that map as YAML and name it in the sequence or its dataset's defaults, motion_map: my_map.yaml "
                "(mocapflow synth: --motion-map my_map.yaml)")
         raise InputError(f"{where}: the skeleton of {source} cannot be retargeted onto the template: {exc}; "
                          f"{fix} (see docs/studio.md, 'Motion files')") from exc
-    available = bvh_mod.available_frames(clip, spec.fps, spec.start_s)
+    available = retarget.available_frames(clip, spec.fps, spec.start_s)
     needed = 2 if spec.frames is None else spec.frames + 1  # one more frame gives the last one's scene flow
     if spec.start_s < 0 or available < needed:
         duration = (clip.data.shape[0] - 1) * clip.frame_time
@@ -182,7 +205,7 @@ def check_clip(spec: SequenceSpec, bvh_text: str, source: MotionSource, where: s
 
 
 def read_motion_map(path: Path, where: str) -> dict[str, str]:
-    """A BVH joint map file: YAML ``{template joint: BVH joint}`` (tasks/studio/bvh.py, joint_map)."""
+    """A BVH joint map file: YAML ``{template joint: BVH joint}`` (tasks/studio/retarget.py, joint_map)."""
     try:
         data = yaml.safe_load(path.read_text())
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
@@ -204,11 +227,11 @@ def read_layout(path: Path, where: str) -> dict:
     return data
 
 
-def frame_count(spec: SequenceSpec, bvh_text: str | None) -> int:
-    """Frames the sequence will have (a BVH clip's length at the studio's fps, less one for scene flow)."""
+def frame_count(spec: SequenceSpec, motion_file: MotionFile | None) -> int:
+    """Frames the sequence will have (a clip's length at the studio's fps, less one for scene flow)."""
     if spec.frames is not None:
         return spec.frames
-    return bvh_mod.available_frames(bvh_mod.parse_bvh(bvh_text), spec.fps, spec.start_s) - 1
+    return retarget.available_frames(motion_file.clip, spec.fps, spec.start_s) - 1
 
 
 # Spec fields added after a studio version enter the fingerprint only when set, so caches of sequences
@@ -216,12 +239,14 @@ def frame_count(spec: SequenceSpec, bvh_text: str | None) -> int:
 LATER_FIELDS = ("variation", "body", "motion_map", "camera_roll_deg", "ir_bloom_px", "time_base_fps") + REALISM_FIELDS
 
 
-def fingerprint(spec: SequenceSpec, bvh_text: str | None) -> str:
-    bvh_hash = hashlib.sha256(bvh_text.encode()).hexdigest() if bvh_text else None
+def fingerprint(spec: SequenceSpec, motion_file: MotionFile | None) -> str:
+    """What the sequence's take is made of: its spec, its motion file's digest (a BVH clip's is its text's sha256,
+    as before clips were parsed in formats/) and the studio's versions."""
+    bvh_hash = motion_file.digest if motion_file is not None else None
     fields = {k: v for k, v in dataclasses.asdict(spec).items()
               if k not in LATER_FIELDS or v != SPEC_FIELDS[k].default}
     content = {"spec": fields, "bvh": bvh_hash, "studio": STUDIO_VERSION}
-    if bvh_text and (spec.frames is not None or spec.start_s):  # a clip cut to a window is centred on it (bvh.py)
+    if bvh_hash and (spec.frames is not None or spec.start_s):  # a clip cut to a window is centred on it (retarget)
         content["centred_on"] = "window"
     if spec.variation:
         content["variation"] = variation_ranges()
@@ -250,7 +275,7 @@ def take_for(seq) -> Take:
 
 def sequence_specs(catalog, dataset, kind: str, *, mesh_only: bool = False, forced: Mapping[str, Any] | None = None,
                    layout: Mapping | None = None) -> list[tuple[str, str, dict, tuple]]:
-    """Per sequence of a studio dataset: (id, where, its ``EXTRA_KEYS`` fields, (spec, BVH text, motion source)).
+    """Per sequence of a studio dataset: (id, where, its ``EXTRA_KEYS`` fields, (spec, motion file, its source)).
     A sequence's fields are the dataset's ``defaults`` and its own; ``mesh_only``: the take is filmed on the mesh
     body (another ``body`` is refused); ``forced`` fields are set whatever was given. A dataset that films the
     catalog's joint take samples each take on the joint clock (``time_base_fps``: TIME_BASE_FPS unless given), so

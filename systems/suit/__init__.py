@@ -3,13 +3,15 @@ corners -> triangulated, holes filled.
 
 Everything the system adds to the engine, declared in one place: its task specs (tasks.py), schemas, evaluator
 (evaluate.py), exporters (export.py: c3d, ply), report section (report.py: its corners as the report's takes, its
-figures) and the reader of its trained networks. Its takes come from the studio (systems/studio, kind
-``studio_suit``). The kernels are in tasks/suit.
+figures), the reader of its trained networks and its filming of the studio's takes (film.py: the dataset kind
+``studio_suit``, the suit printed on the posed body of a take of systems/studio and filmed by its grey cameras).
+The kernels are in tasks/suit.
 """
 
 from mocapflow.pipeline.registry import System
 from mocapflow.schemas import suit
 from mocapflow.systems.suit import compare, evaluate, export, report, tasks
+from mocapflow.systems.suit.film import StudioSuitReader
 from mocapflow.tasks.shared.weights import unpack
 
 SYSTEM = System(
@@ -24,4 +26,5 @@ SYSTEM = System(
     report=(report.SECTION,),
     weights={"suit_net_weights": unpack},
     compare=compare.COMPARER,
+    dataset_kinds={"studio_suit": StudioSuitReader},
 )

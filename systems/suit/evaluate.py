@@ -13,10 +13,10 @@ import numpy as np
 
 from mocapflow.pipeline.catalog import final_stage, stage_writing
 from mocapflow.pipeline.errors import PlanError
-from mocapflow.pipeline.evaluate import format_rows
 from mocapflow.pipeline.registry import Evaluator
+from mocapflow.presentation.evaluate import format_rows
 from mocapflow.tasks.suit import metrics
-from mocapflow.tasks.shared.suit_pattern import ALPHABET
+from mocapflow.tasks.suit.pattern import ALPHABET
 
 TRUTH = ("gt_corners2d", "gt_visible", "gt_readable", "gt_corners", "square_corners", "code")
 

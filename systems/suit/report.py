@@ -17,7 +17,7 @@ import numpy as np
 
 from mocapflow.pipeline.catalog import stage_writing
 from mocapflow.pipeline.registry import ReportSection
-from mocapflow.pipeline.report import Take, write_png
+from mocapflow.presentation.report import Take, write_png
 from mocapflow.systems.suit.export import corner_names
 
 GREEN, ORANGE, WHITE, GREY, RED = (60, 200, 60), (0, 140, 255), (255, 255, 255), (120, 120, 120), (40, 40, 230)

@@ -22,8 +22,8 @@ from scipy.spatial.transform import Rotation
 
 from mocapflow.pipeline.catalog import stage_writing
 from mocapflow.pipeline.errors import PlanError
-from mocapflow.pipeline.evaluate import format_rows
 from mocapflow.pipeline.registry import Evaluator
+from mocapflow.presentation.evaluate import format_rows
 from mocapflow.tasks.shared.mesh_body import Phenotype, mesh_body, part_of_bone, pose_mesh
 from mocapflow.tasks.uuo import metrics
 from mocapflow.tasks.uuo.labelled import base_label

@@ -28,7 +28,7 @@ from mocapflow.formats import bvh, c3d
 from mocapflow.pipeline.catalog import stage_writing
 from mocapflow.pipeline.export import UNIT_SCALE, target, write_atomically
 from mocapflow.pipeline.registry import ExportJob, Exporter
-from mocapflow.pipeline.report import FONT, WHITE, bar_chart, colour, line_plot, write_html, write_png
+from mocapflow.presentation.report import FONT, WHITE, bar_chart, colour, line_plot, write_html, write_png
 from mocapflow.tasks.shared.body import JOINT_NAMES
 from mocapflow.tasks.shared.mesh_body import PARTS, Phenotype, mesh_body, pose_mesh
 

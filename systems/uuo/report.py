@@ -12,7 +12,7 @@ import numpy as np
 
 from mocapflow.pipeline.catalog import final_stage, stage_writing
 from mocapflow.pipeline.registry import ReportSection
-from mocapflow.pipeline.report import Take, base_takes
+from mocapflow.presentation.report import Take, base_takes
 from mocapflow.systems.uuo.export import default_stage, report_figures, solve_markers, solve_truth
 from mocapflow.tasks.shared.body import JOINT_NAMES, PARENTS
 

@@ -1,14 +1,16 @@
-"""The synthetic capture studio: an articulated reflector-wearing body filmed by Kinect-v2-like IR-D sensors.
+"""The synthetic capture studio, a shared floor of the systems: a posed body filmed with generic cameras and lights.
 
-DeepMoCap's datasets (DMC2.5D, DMC3D; Chatzitofis et al., Sensors 2019, §4) are available only on
-request, so the studio renders faithful stand-ins with ground truth for every stage:
+DeepMoCap's datasets (DMC2.5D, DMC3D; Chatzitofis et al., Sensors 2019, §4) are available only on request, nor are
+UUO's or the suit's recordings ours, so the studio makes takes with ground truth for every stage:
 
+- ``spec``        what a sequence films (SequenceSpec) and the versions its fingerprint names
 - ``motion``      DMC3D's 15 exercises, procedurally
-- ``bvh``         BVH import and retargeting of real (CMU) motion onto the template
-- ``cameras``     Kinect-v2-like intrinsics, distortion and layouts
-- ``render``      ray-cast depth and IR with Kinect-like artifacts, reflector ids and scene flow
-- ``synth``       one sequence's frame region as a raw-sequence Dataset
+- ``retarget``    real (CMU) motion, a BVH clip or ASF/AMC take parsed by formats/, retargeted onto the template
+- ``take``        a subject performing the motion on the mesh body (``mesh_motion``: the skinning)
+- ``cameras``     intrinsics, distortion and layouts; ``mesh_render``: ray casting the mesh, its lights and shading
 
-The body (the 20-joint template and its surface), the reflector table, the Camera type and the kinematics
-are the shared floor's (``mocapflow.tasks.shared``): the studio uses them, the stages never import the studio.
+Each system films a take with these from its own kernels: DeepMoCap's IR-depth sensors and reflectors
+(tasks/deepmocap/film), UUO's markers and video (tasks/uuo/takes.py, video.py), the suit's cameras
+(tasks/suit/takes.py). The body (the 20-joint template and its surface), the reflector table, the Camera type and
+the kinematics are the shared kernels' (``mocapflow.tasks.shared``); the studio imports no system's kernels.
 """

@@ -4,8 +4,8 @@ A take is a subject, a motion and the posed mesh of every frame, with the ground
 ``make_take`` draws the Anny body from the sequence's seed (its own random stream, ``[seed, 2]``), makes the
 template subject of the same height perform the motion (an exercise, or a BVH clip retargeted onto it) and
 skins the whole motion onto the mesh. Each system's filming module then turns a take into that system's raw
-dataset: the DeepMoCap sensors (synth.py, mesh_synth.py), a UUO marker layout (uuo_takes.py), the suit's grey
-cameras (suit_takes.py). Nothing here places reflectors or cameras.
+dataset: the DeepMoCap sensors (tasks/deepmocap/film), a UUO marker layout (tasks/uuo/takes.py), the suit's grey
+cameras (tasks/suit/takes.py). Nothing here places reflectors or cameras.
 
 A joint take (one performance filmed by several systems at their own rates, pipeline/compare.py) has a clock:
 ``spec.time_base_fps`` (TIME_BASE_FPS, set by systems/studio/specs.py for every dataset of a catalog's
@@ -26,8 +26,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from mocapflow.tasks.shared import body
+from mocapflow.tasks.shared.bvh_clip import BVHClip
 from mocapflow.tasks.shared.mesh_body import HEIGHT_RANGE_M, MeshBody, mesh_body, random_phenotype
-from mocapflow.tasks.studio import bvh, mesh_motion, motion
+from mocapflow.tasks.studio import mesh_motion, motion, retarget
 
 
 TIME_BASE_FPS = 120.0  # a joint take's clock: CMU's rate, which 5, 10, 15, 20, 24, 30, 40 and 60 fps all sample
@@ -41,9 +42,10 @@ class RealismError(ValueError):
 class Realism:
     """How real the DeepMoCap studio's reflectors and sensors are (every switch off: the studio as it was).
 
-    tape: the reflectors drawn as 2-inch tape of their real size, unevenly saturating and flaring (tape.py);
-    cloth_cm: a cloth layer 0 to this many cm thick over the skin, carrying, moving and partly hiding the tape
-    (cloth.py; 0: bare skin); tof: the Kinect v2's time-of-flight artefacts (tof.py).
+    Filmed by tasks/deepmocap/film: tape: the reflectors drawn as 2-inch tape of their real size, unevenly
+    saturating and flaring (tape.py); cloth_cm: a cloth layer 0 to this many cm thick over the skin, carrying,
+    moving and partly hiding the tape (cloth.py; 0: bare skin); tof: the Kinect v2's time-of-flight artefacts
+    (tof.py).
     """
 
     tape: bool = False
@@ -68,7 +70,7 @@ def realism(spec) -> Realism:
 
 @dataclass(frozen=True)
 class Take:
-    spec: object  # synth.SequenceSpec: the motion, frames, fps and seed of the take
+    spec: object  # spec.SequenceSpec: the motion, frames, fps and seed of the take
     body: MeshBody  # the subject's mesh body
     subject: body.Subject  # the template body of the same height that performs the motion
     motion: motion.Motion  # the template's motion, n_frames + 1 frames (the extra one gives the last frame's flow)
@@ -86,41 +88,42 @@ def mesh_subject(spec) -> tuple[MeshBody, body.Subject]:
     return body_, body.Subject(height=float(np.clip(body_.height, *HEIGHT_RANGE_M)))
 
 
-def performed_motion(spec, subject: body.Subject, bvh_text: str | None) -> motion.Motion:
-    """The motion ``subject`` performs, n_frames + 1 frames: the BVH clip retargeted (``spec.motion == "bvh"``),
-    else the procedural exercise; with a clock (``spec.time_base_fps``) sampled from the motion at that rate."""
+def performed_motion(spec, subject: body.Subject, clip: BVHClip | None) -> motion.Motion:
+    """The motion ``subject`` performs, n_frames + 1 frames: the parsed clip (a BVH file's or an AMC take's, read
+    by formats/) retargeted (``spec.motion == "bvh"``), else the procedural exercise; with a clock
+    (``spec.time_base_fps``) sampled from the motion at that rate."""
     if getattr(spec, "time_base_fps", None) is not None:
-        base, times = clocked_motion(spec, subject, bvh_text)
+        base, times = clocked_motion(spec, subject, clip)
         return sample_motion(base, times, spec.fps)
-    return _motion(spec, subject, bvh_text)
+    return _motion(spec, subject, clip)
 
 
-def _motion(spec, subject: body.Subject, bvh_text: str | None) -> motion.Motion:
+def _motion(spec, subject: body.Subject, clip: BVHClip | None) -> motion.Motion:
     if spec.motion == "bvh":
-        if bvh_text is None:
-            raise ValueError("motion 'bvh' needs the clip's text")
+        if clip is None:
+            raise ValueError("motion 'bvh' needs the parsed clip (formats/bvh.py parse_bvh, formats/asf_amc.py)")
         frames = None if spec.frames is None else spec.frames + 1
-        return bvh.retarget(bvh.parse_bvh(bvh_text), subject, fps=spec.fps, n_frames=frames, start_s=spec.start_s,
-                            label=spec.label or "bvh", user_map=spec.motion_map)
+        return retarget.retarget(clip, subject, fps=spec.fps, n_frames=frames, start_s=spec.start_s,
+                                 label=spec.label or "bvh", user_map=spec.motion_map)
     return motion.exercise(spec.motion, subject, n_frames=(spec.frames or 90) + 1, fps=spec.fps, speed=spec.speed,
                            amplitude=spec.amplitude, repetitions=spec.repetitions, heading_deg=spec.heading_deg,
                            variation=spec.variation, seed=spec.seed)
 
 
-def clocked_motion(spec, subject: body.Subject, bvh_text: str | None) -> tuple[motion.Motion, np.ndarray]:
+def clocked_motion(spec, subject: body.Subject, clip: BVHClip | None) -> tuple[motion.Motion, np.ndarray]:
     """A take with a clock: the motion resampled (and centred, and put on the floor) once at ``spec.time_base_fps``
     over the take's window, whatever its own fps, and the instants of its n_frames + 1 frames (s from the window's
     start: ``frame / fps``)."""
     rate = float(spec.time_base_fps)
-    clip = bvh.parse_bvh(bvh_text) if spec.motion == "bvh" and bvh_text is not None else None
+    clip = clip if spec.motion == "bvh" else None
     if spec.frames is None and clip is not None:  # the clip from start_s to its end, on the clock as far as it goes
-        samples, frames = bvh.available_frames(clip, spec.fps, spec.start_s), None
+        samples, frames = retarget.available_frames(clip, spec.fps, spec.start_s), None
     else:
         samples = (spec.frames or 90) + 1
         frames = int(np.ceil((samples - 1) / spec.fps * rate - 1e-6))  # the window's length on the clock
         if clip is not None:  # a window that does not end on the clock ends in its last step (< 1 / rate)
-            frames = min(frames, bvh.available_frames(clip, rate, spec.start_s) - 1)
-    base = _motion(dataclasses.replace(spec, fps=rate, frames=frames, time_base_fps=None), subject, bvh_text)
+            frames = min(frames, retarget.available_frames(clip, rate, spec.start_s) - 1)
+    base = _motion(dataclasses.replace(spec, fps=rate, frames=frames, time_base_fps=None), subject, clip)
     return base, np.arange(samples) / spec.fps
 
 
@@ -160,14 +163,14 @@ def sample_motion(base: motion.Motion, times: np.ndarray, fps: float) -> motion.
     return motion.Motion(local, sample_values(base.root_pos, base.fps, times), fps, base.label)
 
 
-def make_take(spec, bvh_text: str | None = None) -> Take:
+def make_take(spec, clip: BVHClip | None = None) -> Take:
     """The take ``spec`` describes, on the mesh body (with a clock: sampled from the motion on the clock, the mesh
     lifted as the clock's stance frames say)."""
     body_, subject = mesh_subject(spec)
     if getattr(spec, "time_base_fps", None) is None:
-        mot = performed_motion(spec, subject, bvh_text)
+        mot = performed_motion(spec, subject, clip)
         return Take(spec, body_, subject, mot, mesh_motion.retarget(body_, subject, mot))
-    base, times = clocked_motion(spec, subject, bvh_text)
+    base, times = clocked_motion(spec, subject, clip)
     mot = sample_motion(base, times, spec.fps)
     lift = sample_values(mesh_motion.stance_lift(body_, subject, base), base.fps, times)
     return Take(spec, body_, subject, mot, mesh_motion.retarget(body_, subject, mot, lift))

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from mocapflow.tasks.shared.suit_pattern import ALPHABET
+from mocapflow.tasks.suit.pattern import ALPHABET
 from mocapflow.tasks.suit.quads import CROP
 
 N_CHARS = len(ALPHABET)

@@ -1,5 +1,5 @@
 """Every reading checked against the print (beyond Chen et al. 2021, who trust RecogNet alone): the suit's print —
-its checkerboard and each coded square's glyph pair (tasks/shared/suit_pattern.py ``print_code``) — is known
+its checkerboard and each coded square's glyph pair (tasks/suit/pattern.py ``print_code``) — is known
 exactly, so what the networks and the growth claim can be compared with what the print shows there.
 
 *Codes* (``verify_codes``). Each accepted quad is rectified onto the canonical square of ``square_px`` pixels by
@@ -41,7 +41,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from mocapflow.tasks.shared.suit_pattern import BLACK, SUITS, WHITE, level, print_code
+from mocapflow.tasks.suit.pattern import BLACK, SUITS, WHITE, level, print_code
 
 
 class VerifyError(ValueError):

@@ -14,9 +14,9 @@ import pytest
 
 from conftest import mocapflow
 from mocapflow.formats.c3d import write_points
-from mocapflow.pipeline.report_viewer import MARKER_COLOUR_JS
 from mocapflow.pipeline.runlog import run_log
 from mocapflow.pipeline.storage import Store
+from mocapflow.presentation.viewer import VIEWER_JS
 
 
 def test_a_run_that_logs_nothing_still_leaves_the_log_it_names(tmp_path):
@@ -95,7 +95,7 @@ def test_every_marker_of_a_take_gets_its_own_colour(count):
     if shutil.which("node") is None:
         pytest.skip("node is not installed: the 3D view's colour function is not run")
     palette = [f"#{i:02x}0000" for i in range(20)]
-    script = (MARKER_COLOUR_JS + f"\nvar p = {json.dumps(palette)}, out = [];\n"
+    script = (VIEWER_JS + f"\nvar p = {json.dumps(palette)}, out = [];\n"
               f"for (var m = 0; m < {count}; m++) out.push(markerColour(m, {count}, p));\n"
               "console.log(JSON.stringify(out));\n")
     colours = json.loads(subprocess.run(["node", "-e", script], capture_output=True, text=True, check=True).stdout)

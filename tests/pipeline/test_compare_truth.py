@@ -9,13 +9,14 @@ import numpy as np
 import pytest
 
 from conftest import SHARED
+from mocapflow.formats.bvh import parse_bvh
 from mocapflow.pipeline import registry
 from mocapflow.pipeline.catalog import load_catalog
 from mocapflow.pipeline.compare import TRUTH_TOLERANCE_M, CompareError, score_take
 from mocapflow.pipeline.datasets import discover
 from mocapflow.pipeline.registry import Capture
 from mocapflow.tasks.shared.body import JOINT_NAMES
-from mocapflow.tasks.studio.synth import SequenceSpec
+from mocapflow.tasks.studio.spec import SequenceSpec
 from mocapflow.tasks.studio.take import TIME_BASE_FPS, make_take
 
 WALK = SHARED / "motions" / "cmu_12_01_walk.bvh"  # the clip whose truths differed most (9.6 mm) when sampled per rate
@@ -95,11 +96,11 @@ def _spread(truth: np.ndarray, fps: float) -> np.ndarray:
 def test_a_take_sampled_at_each_rate_is_refused_naming_take_instant_systems_and_gap():
     """The walk sampled at 30 and at 5 fps without a clock (each rate centring and lifting on its own instants):
     the gap the clock removes, refused by the compare check."""
-    text = WALK.read_text()
+    clip = parse_bvh(WALK.read_text())
     truths = {}
     for system, fps in (("deepmocap", 30.0), ("suit", 5.0)):
         shot = make_take(SequenceSpec(motion="bvh", frames=int(0.6 * fps), fps=fps, seed=9401, start_s=0.5,
-                                      body="mesh"), text)
+                                      body="mesh"), clip)
         joints = shot.mesh.posed.heads[:shot.n_frames][:, shot.body.joint_bones()]
         truths[system] = Capture(stage="raw", fps=fps, joints=joints, truth=joints)
     gap = np.linalg.norm(truths["deepmocap"].truth[::6] - truths["suit"].truth, axis=-1).max()

@@ -11,7 +11,7 @@ from conftest import PLUGINS, ROOT, write_raw_zarr
 from mocapflow.pipeline import registry
 from mocapflow.pipeline.catalog import load_catalog
 from mocapflow.pipeline.errors import PlanError
-from mocapflow.pipeline.plan import build_plan, cache_params
+from mocapflow.pipeline.plan import build_plan, cache_params, partition_bytes
 
 
 @pytest.fixture(autouse=True)
@@ -109,3 +109,23 @@ def test_an_unknown_partition_names_the_nearest(toy_project):
     plan = build_plan(load_catalog(toy_project() / "catalog.yaml"))
     with pytest.raises(PlanError, match=r"no partition 'scaled/seqA/cam9' .*did you mean 'scaled/seqA/cam[01]'"):
         plan.item("scaled", "seqA", "cam9")
+
+
+def test_a_partition_is_sized_by_the_image_its_reader_states(tmp_path):
+    """The suit's grey cameras (1536 x 2048 here) size its image partitions, not another sensor's."""
+    (tmp_path / "catalog.yaml").write_text(
+        "storage: {root: storage/}\n"
+        "datasets:\n"
+        "  suit: {kind: studio_suit, cameras: {count: 2}, defaults: {frames: 6}, sequences: {s1: {motion: side_steps}}}\n"
+        "stages:\n"
+        "  images: {task: ingest_suit, dataset: suit}\n"
+        "  corners: {task: find_corners, inputs: [images]}\n")
+    catalog = load_catalog(tmp_path / "catalog.yaml")
+    plan = build_plan(catalog)
+    sequences = {s.id: s for s in plan.sequences}
+    assert sequences["s1"].image == (2048, 1536)
+    corners = [i for pid, i in plan.items.items() if pid.startswith("corners/")]
+    assert corners and all(partition_bytes(i, sequences) == min(6, i.stage.region_frames) * 1 * 2048 * 1536 * 4
+                           for i in corners)
+    with pytest.raises(PlanError, match="the biggest of"):
+        build_plan(load_catalog(tmp_path / "catalog.yaml", ("storage.max_partition_bytes=1000000",)))

@@ -140,3 +140,17 @@ def test_a_checkpointing_task_takes_checkpoint_and_only_a_training_may_stream_or
     for extra in ({"checkpoints": True}, {"streams": {"frames": ("image",)}}):
         with pytest.raises(CatalogError, match="partitioned per 'view' but declares .* only a per-dataset task"):
             registry.register(spec(trains, **extra))
+
+
+def test_two_systems_adding_one_command_are_refused_and_a_command_loads_on_demand(monkeypatch):
+    registry.systems()  # the built-ins first, then the two
+    monkeypatch.setattr(registry, "_SYSTEMS", dict(registry._SYSTEMS))
+    registry.register_system(registry.System(name="one", commands={"hello": registry.Command("json", "dumps")}))
+    assert registry.commands()["hello"] == ("one", registry.Command("json", "dumps"))
+    assert registry.commands()["hello"][1].load()([1]) == "[1]"
+    assert registry.commands()["synth"][0] == "deepmocap"
+    registry.register_system(registry.System(name="two", commands={"hello": registry.Command("json", "loads")}))
+    with pytest.raises(CatalogError, match="systems 'one' and 'two' both add the command 'hello'"):
+        registry.commands()
+    with pytest.raises(CatalogError, match="command json:no_such cannot be loaded"):
+        registry.Command("json", "no_such").load()

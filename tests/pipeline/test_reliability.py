@@ -269,8 +269,9 @@ def test_a_partition_over_the_ceiling_is_refused_before_any_worker_starts(toy_pr
     proc = mocapflow("run", "--json", "--set", "storage.max_partition_bytes=1000", cwd=project, check=False)
     assert proc.returncode == 2 and "(storage.max_partition_bytes)" in proc.stderr
     need = int(re.search(r"--set storage\.max_partition_bytes=(\d+)", proc.stderr).group(1))
-    # the biggest partition: a region of 4 frames of both views of a 424 x 512 image (the raw zarr states no size)
-    assert need == 4 * 2 * 424 * 512 * 4 and "partition frames/seqA (the biggest of 6 over the ceiling)" in proc.stderr
+    # the biggest partition: a region of 4 frames of both views of the raw stores' 12 x 16 images, as the reader
+    # states their size
+    assert need == 4 * 2 * 12 * 16 * 4 and "partition frames/seqA (the biggest of 6 over the ceiling)" in proc.stderr
     assert not (project / "storage").exists()
     assert mocapflow("run", "--json", "--set", f"storage.max_partition_bytes={need}", cwd=project).returncode == 0
 

@@ -6,7 +6,7 @@ import re
 import cv2
 import numpy as np
 
-from mocapflow.pipeline.report import PALETTE, Take, write_report
+from mocapflow.presentation.report import PALETTE, Take, write_report
 from mocapflow.systems.deepmocap.report import overlay
 
 

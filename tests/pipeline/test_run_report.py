@@ -12,7 +12,7 @@ import pytest
 
 from browser import run_browser
 from conftest import mocapflow
-from mocapflow.pipeline.report import gaps
+from mocapflow.presentation.report import gaps
 
 FPS, FRAMES = 60, 60
 MISSING = {"RASI": [range(10, 20), range(50, 55)], "LASI": [], "STRN": [range(0, 3)]}  # frames without a sample

@@ -3,7 +3,8 @@
 
 One marker walks along x at a constant speed, recorded with seeded noise (the dataset kind ``toy_walk``, with its
 truth); ``toy_record`` is its source stage, ``toy_smooth`` a moving average; the evaluator scores the smoothed
-positions against the truth (``toy_rmse_mm``); the exporter writes ``<sequence>.csv``.
+positions against the truth (``toy_rmse_mm``); the exporter writes ``<sequence>.csv``; its command
+``mocapflow toy-walk`` prints the true walk (cli.py).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from mocapflow.pipeline.datasets import SequenceInfo
 from mocapflow.pipeline.errors import CatalogError
 from mocapflow.pipeline.export import target, write_atomically
 from mocapflow.pipeline.hashing import digest
-from mocapflow.pipeline.registry import Evaluator, ExportJob, Exporter, NoParams, System, TaskSpec
+from mocapflow.pipeline.registry import Command, Evaluator, ExportJob, Exporter, NoParams, System, TaskSpec
 from mocapflow.schemas import ArtifactSchema, VarSpec
 
 COORDS = {"frame": VarSpec(("frame",), "int64"), "marker": VarSpec(("marker",), "str")}
@@ -129,4 +130,5 @@ SYSTEM = System(
     schemas=(TOY_WALK, TOY_SMOOTHED),
     evaluators=(Evaluator("toy", applies, evaluate, headline, table),),
     exporters=(Exporter("csv", ("toy_smoothed",), write_csv),),
+    commands={"toy-walk": Command("toy_system.cli", "toy_walk")},
 )

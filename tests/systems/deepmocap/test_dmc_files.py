@@ -20,7 +20,8 @@ from mocapflow.cli.scaffold import DEFAULT_STAGES
 from mocapflow.tasks.deepmocap.masks import MaskConfig, masks
 from mocapflow.tasks.shared.cameras import calibrated_camera
 from mocapflow.tasks.shared.kinematics import Y_UP_TO_Z_UP
-from mocapflow.tasks.studio.synth import SequenceSpec, build_rig, synthesize
+from mocapflow.tasks.deepmocap.film.synth import build_rig, synthesize
+from mocapflow.tasks.studio.spec import SequenceSpec
 
 FIRST = 5433  # the dataset's numbers do not start at 0
 PREFIX = "03-18-11-27-03_3V_completed_{view}_"

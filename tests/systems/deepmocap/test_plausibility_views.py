@@ -16,7 +16,8 @@ from mocapflow.pipeline.catalog import load_catalog
 from mocapflow.pipeline.evaluate import evaluate
 from mocapflow.pipeline.plan import build_plan
 from mocapflow.pipeline.storage import Store
-from mocapflow.tasks.studio.synth import SequenceSpec, build_rig, synthesize
+from mocapflow.tasks.deepmocap.film.synth import build_rig, synthesize
+from mocapflow.tasks.studio.spec import SequenceSpec
 from test_dmc_files import write_dmc
 
 CATALOG = """\

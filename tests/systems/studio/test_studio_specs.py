@@ -11,18 +11,20 @@ import pytest
 import xarray as xr
 
 from conftest import SHARED, last_json, mocapflow, read_artifacts
+from mocapflow.formats.bvh import parse_bvh
 from mocapflow.pipeline.errors import CatalogError, InputError, InputWarning
 from mocapflow.pipeline.hashing import digest
-from mocapflow.systems.studio.film_uuo import marker_options
-from mocapflow.systems.studio.specs import LATER_FIELDS, check_in_view, fingerprint, make_spec
+from mocapflow.systems.uuo.film import marker_options
+from mocapflow.systems.studio.specs import LATER_FIELDS, check_in_view, fingerprint, load_motion, make_spec
 from mocapflow.tasks.studio.cameras import layout as camera_layout
 from mocapflow.tasks.shared.body import JOINT_INDEX, Subject
-from mocapflow.tasks.studio import bvh
-from mocapflow.tasks.studio.uuo_takes import MarkerFaults
+from mocapflow.tasks.studio import retarget
+from mocapflow.tasks.uuo.takes import MarkerFaults
 from motion_files import USER_MAP, mixamo_text
-from mocapflow.tasks.studio.synth import STUDIO_VERSION, SequenceSpec, build_rig, synthesize
+from mocapflow.tasks.deepmocap.film.synth import build_rig, synthesize
 
 # 3 frames in regions of 2: a sequence still spans more than one region (and the clip's own frames count is kept)
+from mocapflow.tasks.studio.spec import STUDIO_VERSION, SequenceSpec
 CATALOG = """\
 data_roots: [., {shared}]
 storage: {{root: storage/, region_frames: 2}}
@@ -128,11 +130,13 @@ def test_later_fields_enter_the_fingerprint_only_when_set():
     assert fingerprint(SequenceSpec("classic_squat", seed=3, time_base_fps=120.0), None) != fingerprint(plain, None)
 
 
-def test_a_clip_cut_to_a_window_is_fingerprinted_as_centred_on_it():
-    clip = "HIERARCHY ..."  # only its hash enters the fingerprint
+def test_a_clip_cut_to_a_window_is_fingerprinted_as_centred_on_it(tmp_path):
+    (tmp_path / "take.bvh").write_text(mixamo_text())
+    _, clip, _ = make_spec({"motion": "take.bvh"}, "seq", lambda p: tmp_path / p)
+    bvh_hash = hashlib.sha256(mixamo_text().encode()).hexdigest()  # a BVH clip's digest is its text's: caches stand
+    assert clip.digest == bvh_hash
     whole = SequenceSpec("bvh", frames=None)
     fields = {k: v for k, v in dataclasses.asdict(whole).items() if k not in LATER_FIELDS}
-    bvh_hash = hashlib.sha256(clip.encode()).hexdigest()
     assert fingerprint(whole, clip) == digest({"spec": fields, "bvh": bvh_hash, "studio": STUDIO_VERSION})
     for cut in (SequenceSpec("bvh", frames=40), SequenceSpec("bvh", frames=None, start_s=1.0)):
         fields = {k: v for k, v in dataclasses.asdict(cut).items() if k not in LATER_FIELDS}
@@ -238,12 +242,12 @@ def test_marker_options_default_to_an_optical_systems_faults_and_keep_the_all_vi
 def test_a_joint_map_file_is_read_into_the_spec_and_drives_the_retargeting(tmp_path):
     (tmp_path / "take.bvh").write_text(mixamo_text("rig_"))
     (tmp_path / "rig.yaml").write_text("".join(f"{k}: rig_{v}\n" for k, v in USER_MAP.items()))
-    spec, text, path = make_spec({"motion": "take.bvh", "motion_map": "rig.yaml"}, "seq", lambda p: tmp_path / p)
+    spec, clip, path = make_spec({"motion": "take.bvh", "motion_map": "rig.yaml"}, "seq", lambda p: tmp_path / p)
     assert spec.motion == "bvh" and spec.motion_map == {k: f"rig_{v}" for k, v in USER_MAP.items()}
-    motion = bvh.retarget(bvh.parse_bvh(text), Subject(1.7), user_map=spec.motion_map)
-    known = bvh.retarget(bvh.parse_bvh(mixamo_text()), Subject(1.7))
+    motion = retarget.retarget(clip.clip, Subject(1.7), user_map=spec.motion_map)
+    known = retarget.retarget(parse_bvh(mixamo_text()), Subject(1.7))
     np.testing.assert_allclose(motion.local_rot, known.local_rot, atol=1e-12)
-    assert fingerprint(spec, text) != fingerprint(dataclasses.replace(spec, motion_map=None), text)
+    assert fingerprint(spec, clip) != fingerprint(dataclasses.replace(spec, motion_map=None), clip)
     (tmp_path / "bad.yaml").write_text("- Hips\n- Spine\n")
     with pytest.raises(InputError, match="seq.motion_map: the joint map .*bad.yaml must be a YAML mapping"):
         make_spec({"motion": "take.bvh", "motion_map": "bad.yaml"}, "seq", lambda p: tmp_path / p)
@@ -285,20 +289,22 @@ def test_a_skeleton_no_map_fits_is_refused_at_planning_with_the_fix(tmp_path):
 
 def test_an_amc_take_with_its_asf_skeleton_is_a_studio_motion(tmp_path):
     from mocapflow.pipeline.errors import CatalogError
-    from mocapflow.systems.studio.specs import read_motion
     from motion_files import cmu_amc_text, cmu_asf_text
 
     (tmp_path / "subject.asf").write_text(cmu_asf_text())
     (tmp_path / "take.amc").write_text(cmu_amc_text())
     resolve = lambda p: tmp_path / p  # noqa: E731
-    spec, text, source = make_spec({"motion": "take.amc", "skeleton": "subject.asf", "amc_fps": 30, "views": 1},
-                                   "seq", resolve)
+    spec, motion_file, source = make_spec({"motion": "take.amc", "skeleton": "subject.asf", "amc_fps": 30,
+                                           "views": 1}, "seq", resolve)
     assert spec.motion == "bvh" and spec.label == "take" and source.amc_fps == 30.0
-    assert read_motion(source, "seq") == text  # what a worker reads is what the fingerprint hashed
-    clip = bvh.parse_bvh(text)
+    again = load_motion(source, "seq")  # what a worker reads is what the fingerprint hashed
+    assert again.digest == motion_file.digest and np.array_equal(again.clip.data, motion_file.clip.data)
+    faster = make_spec({"motion": "take.amc", "skeleton": "subject.asf", "amc_fps": 60, "views": 1}, "seq", resolve)
+    assert faster[1].digest != motion_file.digest  # the rate is the take's too: it enters the fingerprint
+    clip = motion_file.clip  # read straight from the ASF and AMC: no BVH text in between
     assert clip.fps == pytest.approx(30.0) and clip.data.shape[0] == 5
-    assert bvh.joint_map(clip)["LeftKnee"] == ("ltibia", "ltibia", "lfoot")
-    rig = build_rig(dataclasses.replace(spec, frames=2), text)
+    assert retarget.joint_map(clip)["LeftKnee"] == ("ltibia", "ltibia", "lfoot")
+    rig = build_rig(dataclasses.replace(spec, frames=2), clip)
     knee, ankle = JOINT_INDEX["LeftKnee"], JOINT_INDEX["LeftAnkle"]
     shin = rig.joint_pos[1, ankle] - rig.joint_pos[1, knee]  # the left knee bent in the take's 3rd frame: backward
     np.testing.assert_allclose(shin / np.linalg.norm(shin), [0, -1, 0], atol=1e-9)

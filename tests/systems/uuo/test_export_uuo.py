@@ -14,13 +14,13 @@ from conftest import mocapflow, read_artifacts
 from shared_runs import copy_run, shared_run
 from studio_catalogs import UUO_CATALOG
 from mocapflow.systems.uuo import export as export_uuo
-from mocapflow.formats.bvh import read_bvh_joints
+from mocapflow.formats.bvh import parse_bvh, read_bvh_joints
 from mocapflow.systems.uuo.marker_files import read_markers
 from mocapflow.tasks.shared.kinematics import local_rotations
 from mocapflow.tasks.shared.mesh_body import PHENOTYPE_NAMES
-from mocapflow.tasks.studio import uuo_takes as uuo
-from mocapflow.tasks.studio.bvh import parse_bvh
-from mocapflow.tasks.studio.synth import SequenceSpec, build_rig
+from mocapflow.tasks.uuo import takes as uuo
+from mocapflow.tasks.deepmocap.film.synth import build_rig
+from mocapflow.tasks.studio.spec import SequenceSpec
 from mocapflow.tasks.uuo import solve
 from mocapflow.tasks.shared.solver_body import BodyFit
 

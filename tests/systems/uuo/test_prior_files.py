@@ -92,8 +92,9 @@ def _trc(path, positions, fps):
 
 
 def test_a_takes_prior_file_becomes_a_body_prior_through_the_engine(tmp_path):
-    from mocapflow.tasks.studio import uuo_takes as uuo
-    from mocapflow.tasks.studio.synth import SequenceSpec, build_rig
+    from mocapflow.tasks.uuo import takes as uuo
+    from mocapflow.tasks.deepmocap.film.synth import build_rig
+    from mocapflow.tasks.studio.spec import SequenceSpec
 
     rig = build_rig(SequenceSpec("side_reaches", frames=24, seed=34, body="mesh", views=1))
     layout = uuo.layout(rig.body, np.random.default_rng(1), 20)

@@ -112,7 +112,8 @@ def test_a_ring_rolls_each_sensor_about_its_own_viewing_axis():
 
 
 def test_a_studio_sequence_rolls_its_random_ring_and_keeps_every_other_draw():
-    from mocapflow.tasks.studio.synth import SequenceSpec, build_rig
+    from mocapflow.tasks.deepmocap.film.synth import build_rig
+    from mocapflow.tasks.studio.spec import SequenceSpec
 
     plain = build_rig(SequenceSpec("elbow_flexion", frames=2, seed=7, random_layout=True))
     rolled = build_rig(SequenceSpec("elbow_flexion", frames=2, seed=7, random_layout=True, camera_roll_deg=3.0))

@@ -9,7 +9,8 @@ from conftest import SHARED
 from mocapflow.tasks.shared import mesh_body as mb
 from mocapflow.tasks.shared.body import JOINT_INDEX, PARENTS, Subject, rest_offsets
 from mocapflow.tasks.shared.kinematics import forward_kinematics
-from mocapflow.tasks.studio import bvh, mesh_motion, motion
+from mocapflow.formats.bvh import parse_bvh
+from mocapflow.tasks.studio import mesh_motion, motion, retarget
 
 WALK = SHARED / "motions" / "cmu_12_01_walk.bvh"
 pytestmark = pytest.mark.needs_shared  # every test reads the clip
@@ -19,7 +20,7 @@ pytestmark = pytest.mark.needs_shared  # every test reads the clip
 def walk():
     body = mb.mesh_body(mb.random_phenotype(np.random.default_rng(21), 1.80))
     subject = Subject(height=body.height)
-    clip = bvh.retarget(bvh.parse_bvh(WALK.read_text()), subject, fps=30.0, n_frames=40)
+    clip = retarget.retarget(parse_bvh(WALK.read_text()), subject, fps=30.0, n_frames=40)
     return body, subject, clip, mesh_motion.retarget(body, subject, clip)
 
 
@@ -66,13 +67,13 @@ def test_the_same_clip_gives_the_same_bytes(walk):
 
 
 def test_the_mesh_bones_point_where_the_source_bvh_bones_point():
-    clip = bvh.parse_bvh(WALK.read_text())
+    clip = parse_bvh(WALK.read_text())
     body = mb.mesh_body(mb.random_phenotype(np.random.default_rng(22), 1.65))
     subject = Subject(height=body.height)
-    take = mesh_motion.retarget(body, subject, bvh.retarget(clip, subject, fps=clip.fps, n_frames=60))
-    source = bvh.world_positions(clip)[:60]
+    take = mesh_motion.retarget(body, subject, retarget.retarget(clip, subject, fps=clip.fps, n_frames=60))
+    source = retarget.world_positions(clip)[:60]
     index = {n: i for i, n in enumerate(clip.names)}
-    mapping = bvh.joint_map(clip)
+    mapping = retarget.joint_map(clip)
     followed = 0
     for bone, (joint, end_bone, _) in mesh_motion.SEGMENTS.items():
         m = mapping.get(joint)

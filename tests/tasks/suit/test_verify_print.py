@@ -15,16 +15,16 @@ from mocapflow.tasks.suit import verify as vf
 @pytest.fixture(scope="module")
 def studio():
     """One studio view of the small suit on the reference body (the suit is sewn once: about 15 s)."""
-    from mocapflow.systems.studio.film_suit import reference_suit
+    from mocapflow.systems.suit.film import reference_suit
     from mocapflow.tasks.shared.mesh_body import Phenotype, mesh_body
-    from mocapflow.tasks.studio import suit_takes
+    from mocapflow.tasks.suit import takes
 
     suit = reference_suit("small")
     body = mesh_body(Phenotype())
-    cameras = suit_takes.SuitCameras(count=1, width=384, height=512, view_height_m=0.6, heights=(1.2, 1.2),
-                                     target=(0.0, 0.0, 1.2))
-    rig = suit_takes.suit_rig(body, suit, cameras, suit_takes.SuitLook(), 5)
-    shot = suit_takes.film(rig, body.vertices[None], range(1))
+    cameras = takes.SuitCameras(count=1, width=384, height=512, view_height_m=0.6, heights=(1.2, 1.2),
+                                target=(0.0, 0.0, 1.2))
+    rig = takes.suit_rig(body, suit, cameras, takes.SuitLook(), 5)
+    shot = takes.film(rig, body.vertices[None], range(1))
     return suit, shot.image[0, 0], shot.corners2d[0, 0].astype(np.float64), shot.readable[0, 0]
 
 

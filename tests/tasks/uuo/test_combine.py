@@ -10,8 +10,9 @@ from scipy.spatial.transform import Rotation
 from mocapflow.tasks.shared.body import JOINT_NAMES
 from mocapflow.tasks.shared.kinematics import forward_kinematics, local_rotations, rigid_fit
 from mocapflow.tasks.shared.mesh_body import Phenotype, mesh_body
-from mocapflow.tasks.studio import uuo_takes as uuo
-from mocapflow.tasks.studio.synth import SequenceSpec, build_rig
+from mocapflow.tasks.uuo import takes as uuo
+from mocapflow.tasks.deepmocap.film.synth import build_rig
+from mocapflow.tasks.studio.spec import SequenceSpec
 from mocapflow.tasks.uuo import prior
 from mocapflow.tasks.uuo.combine import CombineError, CombinePriorsConfig, combine_priors
 

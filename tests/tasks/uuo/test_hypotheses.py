@@ -10,7 +10,8 @@ from mocapflow.tasks.shared import mesh_body as mb
 from mocapflow.tasks.shared.body import JOINT_NAMES
 from mocapflow.tasks.shared.kinematics import world_rotations
 from mocapflow.tasks.shared.solver_body import BodyFit, SolverBody, posed_heads
-from mocapflow.tasks.studio.synth import SequenceSpec, build_rig
+from mocapflow.tasks.deepmocap.film.synth import build_rig
+from mocapflow.tasks.studio.spec import SequenceSpec
 from mocapflow.tasks.uuo import hypotheses as hyp, metrics
 
 

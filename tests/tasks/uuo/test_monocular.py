@@ -94,8 +94,9 @@ def test_the_estimator_refuses_missing_networks_and_markers_without_video():
 @pytest.fixture(scope="module")
 def filmed():
     """A procedural exercise on the mesh body, 12 frames, filmed by the studio's video camera."""
-    from mocapflow.tasks.studio.synth import SequenceSpec, build_rig
-    from mocapflow.tasks.studio.video import VideoSpec, film
+    from mocapflow.tasks.deepmocap.film.synth import build_rig
+    from mocapflow.tasks.studio.spec import SequenceSpec
+    from mocapflow.tasks.uuo.video import VideoSpec, film
 
     rig = build_rig(SequenceSpec("side_reaches", frames=12, seed=3, body="mesh", views=1))
     n = rig.n_frames

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from mocapflow.tasks.studio import uuo_takes as uuo
-from mocapflow.tasks.studio.synth import SequenceSpec, build_rig
+from mocapflow.tasks.uuo import takes as uuo
+from mocapflow.tasks.deepmocap.film.synth import build_rig
+from mocapflow.tasks.studio.spec import SequenceSpec
 from mocapflow.tasks.shared.kinematics import local_rotations
 from mocapflow.tasks.shared.mesh_body import Phenotype, mesh_body
 from mocapflow.tasks.uuo import prior

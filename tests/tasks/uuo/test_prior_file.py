@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mocapflow.tasks.studio import uuo_takes as uuo
-from mocapflow.tasks.studio.synth import SequenceSpec, build_rig
+from mocapflow.tasks.uuo import takes as uuo
+from mocapflow.tasks.deepmocap.film.synth import build_rig
+from mocapflow.tasks.studio.spec import SequenceSpec
 from mocapflow.tasks.uuo import prior
 
 

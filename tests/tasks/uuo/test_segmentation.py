@@ -7,8 +7,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from mocapflow.tasks.shared.mesh_body import PARTS, part_of_bone
-from mocapflow.tasks.studio import uuo_takes as uuo
-from mocapflow.tasks.studio.synth import SequenceSpec, build_rig
+from mocapflow.tasks.uuo import takes as uuo
+from mocapflow.tasks.deepmocap.film.synth import build_rig
+from mocapflow.tasks.studio.spec import SequenceSpec
 from mocapflow.tasks.uuo import segmentation as seg
 
 

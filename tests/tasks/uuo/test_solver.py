@@ -9,8 +9,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from mocapflow.tasks.shared import mesh_body as mb
-from mocapflow.tasks.studio import uuo_takes as uuo
-from mocapflow.tasks.studio.synth import SequenceSpec, build_rig
+from mocapflow.tasks.uuo import takes as uuo
+from mocapflow.tasks.deepmocap.film.synth import build_rig
+from mocapflow.tasks.studio.spec import SequenceSpec
 from mocapflow.tasks.uuo import correspondence, hypotheses, matching, prior, segmentation, solve
 from mocapflow.tasks.shared.solver_body import BodyFit, SolverBody, posed_vertices
 
