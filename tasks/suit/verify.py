@@ -71,14 +71,14 @@ class PrintCanvas:
 
 @dataclass(frozen=True)
 class VerifyCodesConfig:
-    # chosen on one held-out take (suit_heldout.yaml's jog_a, 4 frames, 3,117 accepted quads; docs/suit.md): the
-    # print's best is right on 95.9 % of the true squares (RecogNet 91.3 %)
+    # decided on the tuning split of training takes (benchmarks/suit_verify_tune.py on
+    # benchmarks/suit_verify_tuning.yaml; docs/suit.md), with VerifyLabelsConfig's thresholds
     canvas: PrintCanvas = field(default_factory=PrintCanvas)
-    agree_ncc: float = 0.75  # the network's reading kept when the print scores it at least this, best of all ...
+    agree_ncc: float = 0.65  # the network's reading kept when the print scores it at least this, best of all ...
     agree_margin: float = 0.005  # ... and this much above every other (code, rotation)
     correct: bool = True  # a decisive print replaces the network's reading (False: refused instead)
     correct_ncc: float = 0.75  # the print's best taken when at least this ...
-    correct_margin: float = 0.05  # ... and this much above the second best (36 of 36 right there)
+    correct_margin: float = 0.05  # ... and this much above the second best
 
     def __post_init__(self):
         if not (-1 <= self.agree_ncc <= 1 and -1 <= self.correct_ncc <= 1 and self.agree_margin >= 0
@@ -90,9 +90,9 @@ class VerifyCodesConfig:
 
 @dataclass(frozen=True)
 class VerifyLabelsConfig:
-    # chosen on the same take: of the grown labels, 43 wrong -> 6 and 1,290 right -> 835
+    # decided with VerifyCodesConfig's on the tuning split (benchmarks/suit_verify_tune.py; docs/suit.md)
     canvas: PrintCanvas = field(default_factory=PrintCanvas)
-    min_ncc: float = 0.2  # the print's four squares must match the image at least this well (masked NCC, best shift)
+    min_ncc: float = 0.3  # the print's four squares must match the image at least this well (masked NCC, best shift)
     min_centre_ncc: float = 0.75  # ... and the print's corner (half a square each way) this well
     max_offset_px: float = 4.0  # the label within this of where the print's corner fits best (image px)
     search: float = 0.3  # share of a square the print's four squares are slid each way around the label
