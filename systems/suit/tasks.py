@@ -7,7 +7,7 @@ from mocapflow.tasks.shared.cameras import CALIBRATION_VARIABLES as CALIBRATION
 from mocapflow.tasks.suit import training as suit_training
 from mocapflow.tasks.suit.codes import ReadCodesConfig
 from mocapflow.tasks.suit.corners import FindCornersConfig
-from mocapflow.tasks.suit.fill import FillSuitConfig
+from mocapflow.tasks.suit.fill import FillDetectionsConfig, FillSuitConfig
 from mocapflow.tasks.suit.grow import GrowConfig
 from mocapflow.tasks.suit.holdout import HoldoutConfig
 from mocapflow.tasks.suit.labels import LabelConfig
@@ -133,6 +133,15 @@ TASKS = (
         inputs={"points": "suit_points", "images": "suit_images"},
         reads={"points": ("position",), "images": ("corner_face", "corner_bary", "cells")},
         description="the body fitted to the observed corners, their displacements filled by Eq. 8 and reposed (§5)",
+    ),
+    TaskSpec(
+        name="fill_suit_detections", fn=Lazy("mocapflow.tasks.suit.fill", "fill_suit_detections"), version="1",
+        params=FillDetectionsConfig, output="suit_filled", partition="sequence", whole_sequence=True,
+        inputs={"points": "suit_points", "images": "suit_images", "corners": "suit_corners", "labels": "suit_labels"},
+        reads={"points": ("position",), "images": ("corner_face", "corner_bary", "cells") + CALIBRATION,
+               "corners": ("x", "y"), "labels": ("x", "y")},
+        description="fill_suit with the limbs no observed corner holds turned onto the corner detections no label "
+                    "claims, their corners triangulated there and the body fitted again (beyond the paper)",
     ),
     TaskSpec(
         name="hide_corners", fn=Lazy("mocapflow.tasks.suit.holdout", "hide_corners"), version="1",

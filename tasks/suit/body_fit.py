@@ -37,6 +37,8 @@ class SuitBody:
     weights: np.ndarray  # (corner, bone) skinning weights
     rest: np.ndarray  # (corner, 3) rest positions on the fitted body, the frame of bone_transforms
     borrowed: np.ndarray  # (frame,) bool: posed from its neighbours (too few corners observed)
+    heads: np.ndarray  # (frame, bone, 3) each bone's posed head
+    normals: np.ndarray  # (corner, 3) unit normals of the corners' faces on the fitted rest body
 
 
 # --- corners on the body ---------------------------------------------------------------------------------------------
@@ -65,27 +67,38 @@ def corner_weights(body: SolverBody, face: np.ndarray, barycentric: np.ndarray) 
 
 
 def fit_body(body: SolverBody, points: np.ndarray, face: np.ndarray, barycentric: np.ndarray,
-             config: BodyFitConfig = BodyFitConfig()) -> SuitBody:
+             config: BodyFitConfig = BodyFitConfig(), confidence: np.ndarray | None = None) -> SuitBody:
     """Fit Anny to a take's corners (§5, Chen et al. 2021; see the module's text).
 
     points (frame, corner, 3) NaN where unobserved; face (corner,) index into ``body.body.faces``; barycentric
-    (corner, 2), the corner at (1-u-v) V0 + u V1 + v V2 of its face on the rest body.
+    (corner, 2), the corner at (1-u-v) V0 + u V1 + v V2 of its face on the rest body; confidence (frame, corner)
+    >= 0 each point's weight (1 where not given).
     """
     points = np.asarray(points, np.float64)
     face, barycentric = np.asarray(face), np.asarray(barycentric, np.float64)
     _check_places(body, points, face, barycentric)
     places = lm.Places.of_faces(body.body, face, barycentric)
     try:
-        placed = fit_places(body, points, places, config)
+        placed = fit_places(body, points, places, config, confidence)
     except PlaceFitError as e:
         raise BodyFitError(f"the suit's corners: {e}") from e
-    transforms, rest_corners = _rest_frame(body, placed.fit, lm.rest_of(body, placed.fit.phenotype, (places,)))
+    transforms, rest_corners, heads, vertices = _rest_frame(body, placed.fit,
+                                                            lm.rest_of(body, placed.fit.phenotype, (places,)))
     return SuitBody(fit=placed.fit, bone_transforms=transforms, weights=placed.weights, rest=rest_corners,
-                    borrowed=~placed.fitted)
+                    borrowed=~placed.fitted, heads=heads, normals=face_normals(vertices, body.body.faces[face]))
 
 
-def _rest_frame(body: SolverBody, fit: BodyFit, rest: lm.Rest) -> tuple[np.ndarray, np.ndarray]:
-    """Bone transforms (frame, bone, 4, 4) and rest corners (corner, 3) in the rest body's frame, feet at z = 0."""
+def face_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Unit normals of triangles (counter-clockwise seen from outside).  vertices (vertex, 3), triangles (n, 3)
+    -> (n, 3)"""
+    p = vertices[triangles]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+
+
+def _rest_frame(body: SolverBody, fit: BodyFit, rest: lm.Rest):
+    """Bone transforms (frame, bone, 4, 4) and rest corners (corner, 3) in the rest body's frame, feet at z = 0;
+    the posed heads (frame, bone, 3) and the rest vertices (vertex, 3)."""
     import torch
 
     with torch.no_grad():
@@ -97,4 +110,4 @@ def _rest_frame(body: SolverBody, fit: BodyFit, rest: lm.Rest) -> tuple[np.ndarr
     transforms[..., :3, :3] = rots.numpy()
     transforms[..., :3, 3] = shift.numpy()
     transforms[..., 3, 3] = 1.0
-    return transforms, (rest.points[0] + lift).numpy()
+    return transforms, (rest.points[0] + lift).numpy(), heads.numpy(), vertices.numpy()

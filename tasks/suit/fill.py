@@ -28,7 +28,7 @@ their own trajectory alone (the temporal term: a cubic-spline-like curve through
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -36,10 +36,12 @@ import xarray as xr
 from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import splu
 
-from mocapflow.tasks.shared.mesh_body import PHENOTYPE_NAMES
+from mocapflow.tasks.shared.cameras import camera_of
+from mocapflow.tasks.shared.mesh_body import PHENOTYPE_NAMES, Phenotype, part_of_bone
 from mocapflow.tasks.shared.place_fit import reference_body
 from mocapflow.tasks.shared.solver_body import SolverBody
 from mocapflow.tasks.suit.body_fit import BodyFitConfig, fit_body
+from mocapflow.tasks.suit.limbs import LimbConfig, limb_pixels, limb_points, limbs_of, unclaimed, views_of
 
 
 METHODS = ("reduced", "kkt")
@@ -372,6 +374,20 @@ class FillSuitConfig:
     body: BodyFitConfig = BodyFitConfig()
 
 
+@dataclass(frozen=True)
+class FillDetectionsConfig:
+    fill: FillConfig = FillConfig()
+    body: BodyFitConfig = BodyFitConfig()
+    limbs: LimbConfig = LimbConfig()
+    limb_confidence: float = 1.0  # weight of the corners placed on unclaimed detections in the second body fit
+    refit_shape_sigma: float = 0.001  # sigma_beta of the second fit, about the first fit's phenotype (held)
+
+    def __post_init__(self):
+        if not self.limb_confidence >= 0 or not self.refit_shape_sigma > 0:
+            raise FillError(f"limb_confidence must be >= 0 and refit_shape_sigma > 0 (got {self.limb_confidence}, "
+                            f"{self.refit_shape_sigma})")
+
+
 def fill_suit(points: xr.Dataset, images: xr.Dataset, config: FillSuitConfig) -> xr.Dataset:
     """Task: a take's triangulated corners (suit_points) -> every corner in every frame (suit_filled): the body
     fitted to the observed corners, their non-articulated displacements unposed, filled by Eq. (8) and reposed.
@@ -379,11 +395,60 @@ def fill_suit(points: xr.Dataset, images: xr.Dataset, config: FillSuitConfig) ->
     observed_xyz = points["position"].transpose("frame", "corner", "xyz").values.astype(np.float64)
     body = fit_body(_solver_body(), observed_xyz, images["corner_face"].values, images["corner_bary"].values,
                     config.body)
+    return _filled(points, observed_xyz, body, images["cells"].values, config.fill)
+
+
+def fill_suit_detections(points: xr.Dataset, images: xr.Dataset, corners: xr.Dataset, labels: xr.Dataset,
+                         config: FillDetectionsConfig) -> xr.Dataset:
+    """Task: ``fill_suit`` with the limbs no observed corner holds posed on the detections no label claims
+    (suit_corners, suit_labels; tasks/suit/limbs): the body fitted to the observed corners, each searched bone with
+    too few of them turned onto the unclaimed detections, the corners matched there triangulated and the body
+    fitted again with them (weight ``limb_confidence``); Eq. (8) fills the displacements of the observed corners
+    alone, as ``fill_suit``."""
+    observed_xyz = points["position"].transpose("frame", "corner", "xyz").values.astype(np.float64)
+    face, bary = images["corner_face"].values, images["corner_bary"].values
+    solver = _solver_body()
+    body = fit_body(solver, observed_xyz, face, bary, config.body)
+    placed = _limb_corners(solver, body, observed_xyz, images, corners, labels, config.limbs)
+    extra = np.isfinite(placed).all(-1) & ~np.isfinite(observed_xyz).all(-1)
+    if extra.any():  # the second fit: the first's phenotype held, the placed corners added
+        held = replace(config.body, shape_sigma=config.refit_shape_sigma,
+                       start=Phenotype(**dict(zip(PHENOTYPE_NAMES, np.clip(body.fit.phenotype, 0.0, 1.0).tolist()))))
+        both = np.where(extra[..., None], placed, observed_xyz)
+        body = fit_body(solver, both, face, bary, held, np.where(extra, config.limb_confidence, 1.0))
+    return _filled(points, observed_xyz, body, images["cells"].values, config.fill)
+
+
+def _limb_corners(solver: SolverBody, body, observed_xyz: np.ndarray, images: xr.Dataset, corners: xr.Dataset,
+                  labels: xr.Dataset, config: LimbConfig) -> np.ndarray:
+    """Corners of the searched limbs placed on the unclaimed detections (tasks/suit/limbs).  -> (frame, corner, 3)"""
+    views = [str(v) for v in labels["view"].values]
+    cameras = [camera_of(images, v) for v in views]
+    lab = np.stack([labels["x"].transpose("view", "frame", "corner").values,
+                    labels["y"].transpose("view", "frame", "corner").values], -1).astype(np.float64)
+    det = corners.sel(view=views)
+    det = np.stack([det["x"].transpose("view", "frame", "detection").values,
+                    det["y"].transpose("view", "frame", "detection").values], -1).astype(np.float64)
+    free = [unclaimed(det[v], lab[v], config.claimed_px) for v in range(len(views))]  # [view][frame]
+    scene = [views_of(cameras, [free[v][f] for v in range(len(views))]) for f in range(len(observed_xyz))]
+    mesh = solver.body
+    corner_bone = mesh.vertex_bone[mesh.faces[images["corner_face"].values][:, 0]]
+    limbs = limbs_of(mesh.bone_names, mesh.bone_parents, corner_bone, part_of_bone, config.bones)
+    transforms = skinning_transforms(body.weights, body.bone_transforms)
+    posed = repose(np.broadcast_to(body.rest, observed_xyz.shape), transforms)
+    normals = (transforms[..., :3, :3] @ body.normals[..., None])[..., 0]
+    observed = np.isfinite(observed_xyz).all(-1)
+    xy = limb_pixels(posed, normals, body.heads, observed, limbs, scene, config)
+    return limb_points(xy, cameras)
+
+
+def _filled(points: xr.Dataset, observed_xyz: np.ndarray, body, cells: np.ndarray, config: FillConfig) -> xr.Dataset:
+    """Eq. (8) on the observed corners' displacements from ``body``, reposed (``fill_suit``)."""
     transforms = skinning_transforms(body.weights, body.bone_transforms)  # (frame, corner, 4, 4)
     rest = np.broadcast_to(body.rest, observed_xyz.shape)
     displacement = unpose(observed_xyz, transforms) - rest  # Δṽ of the observed corners, NaN elsewhere
-    laplacian = cotangent_laplacian(body.rest, images["cells"].values)
-    filled, observed = fill_sequence(displacement, laplacian, config.fill)
+    laplacian = cotangent_laplacian(body.rest, cells)
+    filled, observed = fill_sequence(displacement, laplacian, config)
     position = repose(rest + np.nan_to_num(filled, nan=0.0), transforms)
     position[observed] = observed_xyz[observed]  # the observations themselves, to the bit
     return xr.Dataset({"position": (("frame", "corner", "xyz"), position.astype(np.float32)),
