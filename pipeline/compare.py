@@ -2,23 +2,24 @@
 
 A joint take is one studio performance (subject, motion, seed) filmed by several datasets, one per system, from
 the same posed mesh (pipeline/catalog.py, JointTake). Each system's compare hook (registry.Comparer) reads its
-capture of a sequence as a registry.Capture: the 20 template joints per frame, the studio's truth of those frames,
-and the surface where the system gives one. This module knows no system: it matches the captures' frames on the
-take's clock, checks that they hold the same truth, and scores them alike.
+capture of a sequence as a registry.Capture: its joints per frame, named by the skeleton the system declares, the
+studio's truth of those frames, and the surface where the system gives one. This module knows no system and no
+skeleton: it matches the captures' frames on the take's clock, checks that they give the same joints and hold the
+same truth, and scores them alike.
 
 Frames are matched by time: a frame ``f`` of a sequence filmed at ``fps`` is at ``f / fps`` s from the take's start
 (every dataset films the same window: the joint take's ``start_s``); the frames compared are the instants every
 system filmed (a 30 fps and a 10 fps capture meet at every third 30 fps frame). The studio samples a joint take's
 clip once, on one clock whatever each system's rate (tasks/studio/take.py, ``time_base_fps``): one retargeting,
-root centring, floor height, stance lift and subject body, so every system's truth of an instant (its 20 joints) is
+root centring, floor height, stance lift and subject body, so every system's truth of an instant (its joints) is
 the same (measured: 0 mm on the CMU clips of benchmarks/compare.yaml, where sampling at each rate gave up to 9.6 mm).
 The check: at every instant compared, every joint of each system's truth lies within TRUTH_TOLERANCE_M (2 mm) of the
 first system's; else the takes are not one performance and nothing is scored (CompareError, naming the take, the
 instant, the systems, the joint and the gap). Each system is scored against its own truth of those instants, and
 the largest gap is reported.
 
-Figures per system: MPJPE (mean over the joints it gives, per frame and over the take, mm), per body part
-(BODY_PARTS), the surface error (per frame the median distance of the given surface from the true skin, mm),
+Figures per system: MPJPE (mean over the joints it gives, per frame and over the take, mm), per body part (the
+skeleton's parts), the surface error (per frame the median distance of the given surface from the true skin, mm),
 completeness (the share of truth joint-frames given) and the cost: the CPU seconds the engine recorded for the
 system's stages of the sequence (each region's worker CPU time, summed; the studio's filming, a source stage, left
 out) per captured second. The comparison's table, JSON figures and page are presentation/compare.py's.
@@ -34,18 +35,8 @@ from mocapflow.pipeline import registry
 from mocapflow.pipeline.errors import PlanError
 from mocapflow.pipeline.plan import Plan
 from mocapflow.pipeline.storage import Store
-from mocapflow.tasks.shared.body import JOINT_NAMES
 
 TRUTH_TOLERANCE_M = 2e-3  # the systems' truths at a shared instant: one clip sampled once, so they agree (0 mm)
-BODY_PARTS = {  # the template's 20 joints in six parts, for the per-part figures
-    "torso": ("Hips", "SpineBase", "Neck"),
-    "head": ("Head",),
-    "upper arms": ("LeftShoulder", "RightShoulder", "LeftElbow", "RightElbow"),
-    "wrists, hands": ("LeftWrist", "RightWrist", "LeftHand", "RightHand"),
-    "upper legs": ("LeftHip", "RightHip", "LeftKnee", "RightKnee"),
-    "ankles, feet": ("LeftAnkle", "RightAnkle", "LeftFoot", "RightFoot"),
-}
-PART_INDEX = {part: [JOINT_NAMES.index(j) for j in joints] for part, joints in BODY_PARTS.items()}
 
 
 class CompareError(PlanError):
@@ -102,10 +93,10 @@ def compare_plan(catalog, plan: Plan, store: Store) -> dict:
                                                                   captures[f.system]) for f in filmed})
     if not takes:
         raise PlanError("no joint take is selected; check --sequences (a take's sequences are <take>.<dataset>)")
-    systems = [f.system for f in filmed]
-    return {"systems": systems, "takes": takes,
+    systems, skeleton = [f.system for f in filmed], next(iter(takes.values()))["skeleton"]
+    return {"systems": systems, "takes": takes, "skeleton": skeleton,
             "requirements": {f.system: f.comparer.requirements for f in filmed},
-            "overall": {s: overall([t["systems"][s] for t in takes.values()]) for s in systems}}
+            "overall": {s: overall([t["systems"][s] for t in takes.values()], skeleton) for s in systems}}
 
 
 def matched_frames(captures: dict[str, registry.Capture]) -> dict[str, np.ndarray]:
@@ -121,6 +112,7 @@ def matched_frames(captures: dict[str, registry.Capture]) -> dict[str, np.ndarra
 
 def score_take(take: str, captures: dict[str, registry.Capture], costs: dict[str, float]) -> dict:
     """One take: the instants compared, the truth there, per system its figures on those instants."""
+    skeleton = shared_skeleton(take, captures)
     frames = matched_frames(captures)
     first = next(iter(captures))
     truth = captures[first].truth[frames[first]].astype(np.float64)
@@ -136,12 +128,25 @@ def score_take(take: str, captures: dict[str, registry.Capture], costs: dict[str
                 f"take {take!r}: at {times[i]:.3f} s (frame {frames[first][i]} of {first!r} at {captures[first].fps:g} "
                 f"fps, frame {frames[system][i]} of {system!r} at {capture.fps:g} fps) the truth of {system!r} differs "
                 f"from that of {first!r} by {gaps[system] * 1000:.1f} mm at the same instant: not one performance "
-                f"(joint {JOINT_NAMES[j]}; one take's truths agree within {TRUTH_TOLERANCE_M * 1000:g} mm); film every "
+                f"(joint {skeleton.names[j]}; one take's truths agree within {TRUTH_TOLERANCE_M * 1000:g} mm); film every "
                 "dataset of the joint take over the same window (start_s, frames / fps) on one clock (time_base_fps) "
                 "and leave subject, motion and seed to the take")
-    return {"times": times, "truth": truth, "truth_gap_mm": 1000 * max(gaps.values()),
+    return {"times": times, "truth": truth, "truth_gap_mm": 1000 * max(gaps.values()), "skeleton": skeleton,
             "systems": {s: score_capture(c, frames[s], c.truth[frames[s]].astype(np.float64), costs[s])
                         for s, c in captures.items()}}
+
+
+def shared_skeleton(take: str, captures: dict[str, registry.Capture]) -> registry.Skeleton:
+    """The skeleton every system's capture of ``take`` gives (names, tree and parts alike), or a CompareError."""
+    first, skeleton = next(iter(captures.items()))
+    skeleton = skeleton.skeleton
+    for system, capture in captures.items():
+        if capture.skeleton != skeleton:
+            raise CompareError(
+                f"take {take!r}: {system!r} gives the joints {list(capture.skeleton.names)} and {first!r} gives "
+                f"{list(skeleton.names)} (or their trees or parts differ); systems are compared on one skeleton: make "
+                "their compare hooks give the same joints")
+    return skeleton
 
 
 def score_capture(capture: registry.Capture, frames: np.ndarray, truth: np.ndarray, cpu_s_per_s: float) -> dict:
@@ -153,7 +158,7 @@ def score_capture(capture: registry.Capture, frames: np.ndarray, truth: np.ndarr
     surface = None if capture.surface_error_mm is None else np.asarray(capture.surface_error_mm, float)[frames]
     return {"stage": capture.stage, "frames": int(len(frames)), "joints": joints, "error_mm": error,
             "mpjpe_per_frame_mm": per_frame, "mpjpe_mm": _mean(error[given]),
-            "parts_mm": {p: _mean(error[:, i][given[:, i]]) for p, i in PART_INDEX.items()},
+            "parts_mm": {p: _mean(error[:, i][given[:, i]]) for p, i in capture.skeleton.part_index().items()},
             "surface_per_frame_mm": surface, "surface_mm": None if surface is None else float(np.nanmedian(surface)),
             "surface": None if capture.surface is None else capture.surface[frames],
             "completeness": float(given.mean()), "cpu_s_per_s": cpu_s_per_s, "needs": dict(capture.needs)}
@@ -172,7 +177,7 @@ def cost(catalog, plan: Plan, store: Store, stage: str, sequence: str, capture: 
     return seconds / (len(capture.joints) / capture.fps)
 
 
-def overall(rows: list[dict]) -> dict:
+def overall(rows: list[dict], skeleton: registry.Skeleton) -> dict:
     """A system over the takes: MPJPE over every joint-frame, its median and p90 over takes, per part, surface,
     completeness and cost (means over takes)."""
     error = np.concatenate([r["error_mm"].ravel() for r in rows])
@@ -181,7 +186,7 @@ def overall(rows: list[dict]) -> dict:
     return {"takes": len(rows), "frames": sum(r["frames"] for r in rows), "mpjpe_mm": _mean(error[np.isfinite(error)]),
             "take_median_mm": float(np.nanmedian(takes)), "take_p90_mm": float(np.nanpercentile(takes, 90)),
             "parts_mm": {p: _mean(np.concatenate([r["error_mm"][:, i].ravel() for r in rows])) for p, i in
-                         PART_INDEX.items()},
+                         skeleton.part_index().items()},
             "surface_mm": float(np.median(surface)) if surface else None,
             "completeness": float(np.mean([r["completeness"] for r in rows])),
             "cpu_s_per_s": float(np.mean([r["cpu_s_per_s"] for r in rows])), "needs": rows[0]["needs"]}

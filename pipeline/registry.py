@@ -157,25 +157,50 @@ class ReportSection:
     sequences as the report's :class:`~mocapflow.presentation.report.Take` (markers, joints, truth) or [];
     ``figures(folder, catalog, plan, store, result)`` extra images (paths) given the evaluation's result (``{}``
     where the take has no ground truth to evaluate against: draw what needs none);
-    ``named_figures``: the evaluation's JSON keys it names on the page, key -> (label, scale, unit)."""
+    ``named_figures``: the evaluation's JSON keys it names on the page, key -> (label, scale, unit);
+    ``truth(catalog, plan, store)``: whether every sequence's recording carries the system's ground truth (then the
+    page says what an evaluation against it found, or why none was made), None where its recordings never do."""
 
     name: str
     applies: Callable[[Any], bool]
     takes: Callable[..., list] | None = None
     figures: Callable[..., list] | None = None
     named_figures: Mapping[str, tuple[str, float, str]] = field(default_factory=dict)
+    truth: Callable[..., bool] | None = None
+
+
+@dataclass(frozen=True)
+class Skeleton:
+    """The joints a capture gives, as the system declares them: their names, each one's parent (-1 at a root) and
+    the body parts `mocapflow compare` reports its error by (part -> joint names)."""
+
+    names: tuple[str, ...]
+    parents: tuple[int, ...]
+    parts: Mapping[str, tuple[str, ...]]
+
+    def __post_init__(self):
+        unknown = sorted({j for joints in self.parts.values() for j in joints} - set(self.names))
+        if len(self.parents) != len(self.names) or unknown:
+            raise CatalogError(f"a skeleton of {len(self.names)} joints has {len(self.parents)} parents and parts "
+                               f"naming joints it lacks ({unknown}); declare one parent per joint and parts of its "
+                               "own joints")
+
+    def part_index(self) -> dict[str, list[int]]:
+        """Per part the indices of its joints."""
+        return {part: [self.names.index(j) for j in joints] for part, joints in self.parts.items()}
 
 
 @dataclass(frozen=True)
 class Capture:
-    """One system's capture of one sequence, as `mocapflow compare` scores it: the 20 template joints
-    (tasks/shared/body.py JOINT_NAMES order) per frame, the studio's truth of the same frames, and the surface where
-    the system gives one. Frames are the sequence's own; ``fps`` puts them on the take's clock (frame / fps)."""
+    """One system's capture of one sequence, as `mocapflow compare` scores it: its joints per frame (``skeleton``
+    names them), the studio's truth of the same joints and frames, and the surface where the system gives one.
+    Frames are the sequence's own; ``fps`` puts them on the take's clock (frame / fps)."""
 
     stage: str  # the stage whose output is compared
     fps: float
-    joints: Any  # (frame, 20, 3) m, NaN where the system gives none
-    truth: Any  # (frame, 20, 3) m, the studio's
+    joints: Any  # (frame, joint, 3) m, NaN where the system gives none
+    truth: Any  # (frame, joint, 3) m, the studio's
+    skeleton: Skeleton = field(kw_only=True)  # the joints' names, tree and parts, as the system declares them
     surface_error_mm: Any = None  # (frame,) median distance of the surface given from the true skin, or None
     surface: Any = None  # (frame, point, 3) m, a few points of the surface for the 3D view, or None
     needs: Mapping[str, str] = field(default_factory=dict)  # what the capture needs: cameras, markers, a prior

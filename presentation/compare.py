@@ -18,11 +18,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from mocapflow.pipeline.compare import BODY_PARTS
 from mocapflow.presentation import viewer
 from mocapflow.presentation.evaluate import format_rows
 from mocapflow.presentation.report import BLACK, FONT, PALETTE, html_table, line_plot, write_png
-from mocapflow.tasks.shared.body import PARENTS
 
 
 def viewer_sequence(take: str, t: dict) -> dict:
@@ -31,7 +29,7 @@ def viewer_sequence(take: str, t: dict) -> dict:
     times = [round(float(x), 4) for x in t["times"]]
     step = float(np.median(np.diff(t["times"]))) if len(times) > 1 else 0.0
     seq = {"id": take, "fps": 1.0 / step if step > 0 else 10.0, "frames": len(times), "times": times,
-           "parents": [int(p) for p in PARENTS], "truth": viewer.mm(t["truth"])}
+           "parents": [int(p) for p in t["skeleton"].parents], "truth": viewer.mm(t["truth"])}
     views, surfaces = [], False
     for k, (name, r) in enumerate(t["systems"].items()):
         seq[f"joints_{k}"], seq[f"surface_{k}"] = viewer.mm(r["joints"]), viewer.mm(r["surface"])
@@ -54,9 +52,9 @@ def part_chart(result: dict, size=(900, 460)) -> np.ndarray:
     """MPJPE per body part over every take, one bar per system in each part's group."""
     w, h = size
     img = np.full((h, w, 3), 255, np.uint8)
-    systems = result["systems"]
+    systems, parts = result["systems"], list(result["skeleton"].parts)
     left, right, top, bottom = 60, w - 20, 60, h - 60
-    values = np.array([[result["overall"][s]["parts_mm"][p] for s in systems] for p in BODY_PARTS], float)
+    values = np.array([[result["overall"][s]["parts_mm"][p] for s in systems] for p in parts], float)
     top_value = float(np.nanmax(values)) if np.isfinite(values).any() else 1.0
     step = 10 ** np.floor(np.log10(max(top_value, 1e-9)))
     y_max = float(np.ceil(top_value / step) * step)
@@ -66,9 +64,9 @@ def part_chart(result: dict, size=(900, 460)) -> np.ndarray:
         y = int(bottom - v / y_max * (bottom - top))
         cv2.line(img, (left, y), (right, y), (225, 225, 225), 1)
         cv2.putText(img, f"{v:g}", (8, y + 4), FONT, 0.4, BLACK, 1, cv2.LINE_AA)
-    group = (right - left) / len(BODY_PARTS)
+    group = (right - left) / len(parts)
     bar = group * 0.8 / len(systems)
-    for g, part in enumerate(BODY_PARTS):
+    for g, part in enumerate(parts):
         x0 = left + g * group + group * 0.1
         for k in range(len(systems)):
             v = values[g, k]
@@ -164,12 +162,12 @@ def _num(v, fmt="{:.1f}") -> str:
 
 def table(result: dict) -> str:
     """The comparison as text: one row per system, then per take, then what each needs."""
-    systems = result["systems"]
-    rows = [("system", "MPJPE mm", "takes median / p90", *BODY_PARTS, "surface mm", "complete", "CPU s / s")]
+    systems, parts = result["systems"], list(result["skeleton"].parts)
+    rows = [("system", "MPJPE mm", "takes median / p90", *parts, "surface mm", "complete", "CPU s / s")]
     for s in systems:
         o = result["overall"][s]
         rows.append((s, _num(o["mpjpe_mm"]), f"{_num(o['take_median_mm'])} / {_num(o['take_p90_mm'])}",
-                     *(_num(o["parts_mm"][p]) for p in BODY_PARTS), _num(o["surface_mm"]),
+                     *(_num(o["parts_mm"][p]) for p in parts), _num(o["surface_mm"]),
                      f"{o['completeness']:.1%}", _num(o["cpu_s_per_s"])))
     per_take = [("take", "frames", "truth gap mm", *(f"{s} MPJPE mm" for s in systems))]
     for take, t in result["takes"].items():

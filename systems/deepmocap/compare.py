@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocapflow.pipeline.registry import Capture, Comparer
-from mocapflow.tasks.shared.body import JOINT_NAMES
+from mocapflow.pipeline.registry import Capture, Comparer, Skeleton
+from mocapflow.tasks.shared.body import BODY_PARTS, JOINT_NAMES, PARENTS
+
+SKELETON = Skeleton(JOINT_NAMES, tuple(int(p) for p in PARENTS), BODY_PARTS)  # the template's, in its order
 
 
 def compared_stage(catalog, stages: list[str]) -> str | None:
@@ -36,7 +38,8 @@ def capture(catalog, plan, store, stage: str, sequence: str) -> Capture:
              "prior": "none (the FCN, trained on studio renders)"}
     return Capture(stage=stage, fps=float(raw.attrs["fps"]),
                    joints=in_template_order(poses["joint"].values, poses["position"].values),
-                   truth=in_template_order(raw["joint"].values, raw["gt_joints"].values), needs=needs)
+                   truth=in_template_order(raw["joint"].values, raw["gt_joints"].values), needs=needs,
+                   skeleton=SKELETON)
 
 
 COMPARER = Comparer("deepmocap", compared_stage, capture,

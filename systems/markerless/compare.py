@@ -5,7 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocapflow.pipeline.registry import Capture, Comparer
+from mocapflow.pipeline.registry import Capture, Comparer, Skeleton
+from mocapflow.tasks.shared.body import BODY_PARTS, JOINT_NAMES, PARENTS
+
+SKELETON = Skeleton(JOINT_NAMES, tuple(int(p) for p in PARENTS), BODY_PARTS)  # the template's, in its order
 
 
 def compared_stage(catalog, stages: list[str]) -> str | None:
@@ -24,7 +27,7 @@ def capture(catalog, plan, store, stage: str, sequence: str) -> Capture:
     return Capture(stage=stage, fps=float(images.attrs["fps"]),
                    joints=joints["joints"].transpose("frame", "joint", "xyz").values.astype(np.float64),
                    truth=truth["gt_joints"].values.astype(np.float64),  # the studio writes them in JOINT_NAMES order
-                   needs=needs)
+                   needs=needs, skeleton=SKELETON)
 
 
 COMPARER = Comparer("markerless", compared_stage, capture,

@@ -5,11 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocapflow.pipeline.registry import Capture, Comparer
+from mocapflow.pipeline.registry import Capture, Comparer, Skeleton
+from mocapflow.tasks.shared.body import BODY_PARTS, JOINT_NAMES, PARENTS
 from mocapflow.tasks.shared.mesh_body import Phenotype, mesh_body
 from mocapflow.tasks.suit import joints as suit_joints
 
 SURFACE_POINTS = 150  # corners shown in the comparison's 3D view
+
+SKELETON = Skeleton(JOINT_NAMES, tuple(int(p) for p in PARENTS), BODY_PARTS)  # the template's, in its order
 
 
 def compared_stage(catalog, stages: list[str]) -> str | None:
@@ -39,7 +42,8 @@ def capture(catalog, plan, store, stage: str, sequence: str) -> Capture:
              f"{position.shape[1]} coded corners", "prior": "none (the corner networks, trained on studio renders)"}
     return Capture(stage=stage, fps=float(images.attrs["fps"]), joints=joints,
                    truth=truth["gt_joints"].values.astype(np.float64),  # the studio writes them in JOINT_NAMES order
-                   surface_error_mm=1000 * np.nanmedian(error, axis=1), surface=position[:, ::step], needs=needs)
+                   surface_error_mm=1000 * np.nanmedian(error, axis=1), surface=position[:, ::step], needs=needs,
+                   skeleton=SKELETON)
 
 
 COMPARER = Comparer("suit", compared_stage, capture,

@@ -6,11 +6,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocapflow.pipeline.registry import Capture, Comparer
-from mocapflow.tasks.shared.body import JOINT_NAMES
+from mocapflow.pipeline.registry import Capture, Comparer, Skeleton
+from mocapflow.tasks.shared.body import BODY_PARTS, JOINT_NAMES, PARENTS
 from mocapflow.tasks.shared.mesh_body import Phenotype, mesh_body, pose_mesh
 
 SURFACE_POINTS = 150  # skin vertices shown in the comparison's 3D view
+
+SKELETON = Skeleton(JOINT_NAMES, tuple(int(p) for p in PARENTS), BODY_PARTS)  # the template's, in its order
 
 
 def compared_stage(catalog, stages: list[str]) -> str | None:
@@ -63,7 +65,7 @@ def capture(catalog, plan, store, stage: str, sequence: str) -> Capture:
                    joints=in_template_order(solved["joint"].values, solved["joints"].values),
                    truth=in_template_order(markers["joint"].values, markers["gt_joints"].values),
                    surface_error_mm=1000 * np.median(np.linalg.norm(vertices - true_vertices, axis=-1), axis=1),
-                   surface=vertices[:, ::step], needs=needs)
+                   surface=vertices[:, ::step], needs=needs, skeleton=SKELETON)
 
 
 COMPARER = Comparer("uuo", compared_stage, capture,

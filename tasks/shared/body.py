@@ -42,6 +42,14 @@ PARENTS = np.array([JOINT_INDEX[p] if p else -1 for _, p, _, _ in JOINTS])
 LEVELS = np.array([lvl for _, _, lvl, _ in JOINTS])
 DOF = np.array([d for _, _, _, d in JOINTS])
 assert DOF.sum() == 40 and LEVELS.max() == 6
+BODY_PARTS = {  # the 20 joints in six parts, for figures per part (`mocapflow compare`)
+    "torso": ("Hips", "SpineBase", "Neck"),
+    "head": ("Head",),
+    "upper arms": ("LeftShoulder", "RightShoulder", "LeftElbow", "RightElbow"),
+    "wrists, hands": ("LeftWrist", "RightWrist", "LeftHand", "RightHand"),
+    "upper legs": ("LeftHip", "RightHip", "LeftKnee", "RightKnee"),
+    "ankles, feet": ("LeftAnkle", "RightAnkle", "LeftFoot", "RightFoot"),
+}
 
 # Rest offsets from the parent, as fractions of body height (x right, y forward, z up).
 # Segment proportions after Drillis & Contini's anthropometric table.

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from mocapflow.pipeline.catalog import load_catalog
-from mocapflow.pipeline.compare import BODY_PARTS, matched_frames, score_take
+from mocapflow.pipeline.compare import CompareError, matched_frames, score_take
 from mocapflow.pipeline.errors import CatalogError, PlanError
-from mocapflow.pipeline.registry import Capture
+from mocapflow.pipeline.registry import Capture, Skeleton
 
 JOINT = """\
 data_roots: [.]
@@ -55,11 +55,16 @@ def test_a_wrong_joint_take_is_refused_naming_the_fix(tmp_path, edit, message):
     assert message in str(err.value)
 
 
-def _capture(fps: float, truth: np.ndarray, offset: float, missing=()) -> Capture:
+# Not the template: compare scores whatever joints the systems declare, by the parts they declare
+CHAIN = Skeleton(tuple(f"j{k}" for k in range(20)), (-1, *range(19)),
+                 {"first": tuple(f"j{k}" for k in range(5)), "rest": tuple(f"j{k}" for k in range(5, 20))})
+
+
+def _capture(fps: float, truth: np.ndarray, offset: float, missing=(), skeleton: Skeleton = CHAIN) -> Capture:
     joints = truth + offset
     for f, j in missing:
         joints[f, j] = np.nan
-    return Capture(stage="s", fps=fps, joints=joints, truth=truth)
+    return Capture(stage="s", fps=fps, joints=joints, truth=truth, skeleton=skeleton)
 
 
 def _truth(times: np.ndarray) -> np.ndarray:
@@ -82,8 +87,21 @@ def test_systems_at_30_and_10_fps_are_scored_on_the_instants_both_filmed():
     np.testing.assert_allclose(a["mpjpe_mm"], 10 * np.sqrt(3), rtol=1e-9)  # an offset of 10 mm on each axis
     np.testing.assert_allclose(b["mpjpe_per_frame_mm"], 2 * np.sqrt(3), rtol=1e-9)
     assert a["completeness"] == pytest.approx(1 - 1 / 200)  # joint 0 missing at the second instant (frame 3)
-    assert np.isnan(a["error_mm"][1, 0]) and set(a["parts_mm"]) == set(BODY_PARTS)
+    assert np.isnan(a["error_mm"][1, 0]) and list(a["parts_mm"]) == ["first", "rest"]
+    b_parts = take["systems"]["b"]["parts_mm"]
+    np.testing.assert_allclose([b_parts["first"], b_parts["rest"]], 2 * np.sqrt(3), rtol=1e-9)
+    assert take["skeleton"] == CHAIN
     assert a["cpu_s_per_s"] == 1.5 and a["surface_mm"] is None
+
+
+def test_systems_giving_other_joints_are_not_compared_and_a_skeleton_must_be_whole():
+    times = np.arange(10) / 10.0
+    renamed = Skeleton(tuple(f"k{k}" for k in range(20)), CHAIN.parents, {"all": tuple(f"k{k}" for k in range(20))})
+    with pytest.raises(CompareError, match=r"take 't': 'b' gives the joints \['k0'.*compared on one skeleton"):
+        score_take("t", {"a": _capture(10.0, _truth(times), 0.0), "b": _capture(10.0, _truth(times), 0.0,
+                                                                               skeleton=renamed)}, {"a": 0, "b": 0})
+    with pytest.raises(CatalogError, match=r"2 joints has 1 parents and parts naming joints it lacks \(\['c'\]\)"):
+        Skeleton(("a", "b"), (-1,), {"p": ("a", "c")})
 
 
 def test_captures_of_different_performances_are_not_compared():

@@ -14,8 +14,8 @@ from mocapflow.pipeline import registry
 from mocapflow.pipeline.catalog import load_catalog
 from mocapflow.pipeline.compare import TRUTH_TOLERANCE_M, CompareError, score_take
 from mocapflow.pipeline.datasets import discover
-from mocapflow.pipeline.registry import Capture
-from mocapflow.tasks.shared.body import JOINT_NAMES
+from mocapflow.pipeline.registry import Capture, Skeleton
+from mocapflow.tasks.shared.body import BODY_PARTS, JOINT_NAMES, PARENTS
 from mocapflow.tasks.studio.spec import SequenceSpec
 from mocapflow.tasks.studio.take import TIME_BASE_FPS, make_take
 
@@ -46,6 +46,7 @@ stages:
   single: {{task: ingest_markers, dataset: alone}}
 """
 SHARED_FRAMES = {"dmc": (0, 6), "uuo": (0, 3), "suit": (0, 1)}  # the instants all three film: 0 and 0.2 s
+TEMPLATE = Skeleton(JOINT_NAMES, tuple(int(p) for p in PARENTS), BODY_PARTS)
 
 
 def _in_template_order(ds) -> np.ndarray:
@@ -80,7 +81,7 @@ def test_every_system_of_a_joint_take_holds_one_truth_per_instant(tmp_path):
         assert gap < 1e-3, (name, gap)  # measured 0 mm (sampled at each rate, up to 9.6 mm apart)
     assert np.linalg.norm(truths["dmc"][1] - truths["dmc"][0], axis=-1).max() > 0.05  # 0.2 s of walk apart
     rates = {"dmc": 30.0, "uuo": 15.0, "suit": 5.0}
-    captures = {s: Capture("raw", rates[s], _spread(t, rates[s]), _spread(t, rates[s])) for s, t in truths.items()}
+    captures = {s: Capture("raw", rates[s], _spread(t, rates[s]), _spread(t, rates[s]), skeleton=TEMPLATE) for s, t in truths.items()}
     take = score_take("walk", captures, {s: 0.0 for s in captures})
     assert take["truth_gap_mm"] < 1 and len(take["times"]) == 2
     np.testing.assert_allclose(take["times"], [0.0, 0.2])
@@ -102,7 +103,7 @@ def test_a_take_sampled_at_each_rate_is_refused_naming_take_instant_systems_and_
         shot = make_take(SequenceSpec(motion="bvh", frames=int(0.6 * fps), fps=fps, seed=9401, start_s=0.5,
                                       body="mesh"), clip)
         joints = shot.mesh.posed.heads[:shot.n_frames][:, shot.body.joint_bones()]
-        truths[system] = Capture(stage="raw", fps=fps, joints=joints, truth=joints)
+        truths[system] = Capture(stage="raw", fps=fps, joints=joints, truth=joints, skeleton=TEMPLATE)
     gap = np.linalg.norm(truths["deepmocap"].truth[::6] - truths["suit"].truth, axis=-1).max()
     assert gap > TRUTH_TOLERANCE_M, gap  # measured 7.6 mm on this 0.6 s window (9.6 mm on the benchmark's 2 s)
     with pytest.raises(CompareError) as err:
@@ -121,7 +122,7 @@ def test_a_gap_just_over_2_mm_is_refused_and_one_under_is_scored():
     with pytest.raises(CompareError, match=r"take 't': at 0\.200 s \(frame 2 of 'a' at 10 fps, frame 2 of 'b' at 10 "
                                            r"fps\) the truth of 'b' differs from that of 'a' by 2\.1 mm at the same "
                                            rf"instant: not one performance \(joint {JOINT_NAMES[5]};"):
-        score_take("t", {"a": Capture("s", 10.0, truth, truth), "b": Capture("s", 10.0, off, off)}, {"a": 0, "b": 0})
+        score_take("t", {"a": Capture("s", 10.0, truth, truth, skeleton=TEMPLATE), "b": Capture("s", 10.0, off, off, skeleton=TEMPLATE)}, {"a": 0, "b": 0})
     off[2, 5, 1] = truth[2, 5, 1] + 0.0019
-    take = score_take("t", {"a": Capture("s", 10.0, truth, truth), "b": Capture("s", 10.0, off, off)}, {"a": 0, "b": 0})
+    take = score_take("t", {"a": Capture("s", 10.0, truth, truth, skeleton=TEMPLATE), "b": Capture("s", 10.0, off, off, skeleton=TEMPLATE)}, {"a": 0, "b": 0})
     assert take["truth_gap_mm"] == pytest.approx(1.9)

@@ -12,11 +12,12 @@ import numpy as np
 
 from browser import run_browser
 from mocapflow.pipeline.compare import overall, score_take
-from mocapflow.pipeline.registry import Capture
+from mocapflow.pipeline.registry import Capture, Skeleton
 from mocapflow.presentation.compare import headline, table, write_compare_page
-from mocapflow.tasks.shared.body import PARENTS, Subject, rest_offsets
+from mocapflow.tasks.shared.body import BODY_PARTS, JOINT_NAMES, PARENTS, Subject, rest_offsets
 
 SYSTEMS = ("alpha", "beta", "gamma")
+TEMPLATE = Skeleton(JOINT_NAMES, tuple(int(p) for p in PARENTS), BODY_PARTS)
 
 
 def walk(frames: int) -> np.ndarray:
@@ -42,10 +43,10 @@ def comparison() -> dict:
             joints[2, 3] = np.nan
             surface = np.repeat(seen, 3, axis=1) + rng.normal(0.0, 0.05, (len(seen), 60, 3))
         captures[name] = Capture(f"{name}_stage", fps, joints, seen, surface_error_mm=None if surface is None else
-                                 np.full(len(seen), 6.0), surface=surface, needs={"cameras": "2"})
+                                 np.full(len(seen), 6.0), surface=surface, needs={"cameras": "2"}, skeleton=TEMPLATE)
     takes = {"squat": score_take("squat", captures, dict.fromkeys(SYSTEMS, 1.5))}
-    return {"systems": list(SYSTEMS), "takes": takes, "requirements": dict.fromkeys(SYSTEMS, ""),
-            "overall": {s: overall([t["systems"][s] for t in takes.values()]) for s in SYSTEMS}}
+    return {"systems": list(SYSTEMS), "takes": takes, "requirements": dict.fromkeys(SYSTEMS, ""), "skeleton": TEMPLATE,
+            "overall": {s: overall([t["systems"][s] for t in takes.values()], TEMPLATE) for s in SYSTEMS}}
 
 
 def test_the_text_table_and_the_json_figures_name_every_system():
