@@ -22,7 +22,8 @@ this module only sees the parsed clip.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
+from functools import cached_property
 from typing import Any, Mapping
 
 import numpy as np
@@ -95,16 +96,49 @@ CMU_ASF_NAMES = _sided({"Hips": ("root",), "SpineBase": ("upperback",), "Neck": 
                         "{side}Ankle": ("{s}foot",), "{side}Foot": ("{s}toes",)})
 
 
+@dataclass(frozen=True, eq=False)
+class _Arrays:
+    """A clip with what retargeting reads of it computed once, on first use: its rest positions and the forward
+    kinematics of all its frames (the T-pose frame some files add included; ``motion`` drops it). One is made per
+    call of a public function here and handed down, so no helper calls back into bvh_clip's kinematics."""
+
+    clip: BVHClip
+
+    @cached_property
+    def index(self) -> dict[str, int]:
+        """joint name -> index in the clip."""
+        return {n: i for i, n in enumerate(self.clip.names)}
+
+    @cached_property
+    def rest(self) -> np.ndarray:
+        """Every joint's position at zero rotation (bvh_clip.rest_positions).  # (joint, 3)"""
+        return rest_positions(self.clip)
+
+    @cached_property
+    def size(self) -> float:
+        """The zero pose's largest extent, the scale "of zero length" is measured against (_without_empty_end)."""
+        return max(float(np.ptp(self.rest, axis=0).max()), 1e-9)
+
+    @cached_property
+    def frames(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every frame's global rotations and positions, file axes.  # (frame, joint, 3, 3), (frame, joint, 3)"""
+        return self.clip.forward_kinematics()
+
+    @cached_property
+    def motion(self) -> tuple[np.ndarray, np.ndarray]:
+        """``frames`` without the added T-pose frame: the frames retargeted (views, never written to)."""
+        rot, pos = self.frames
+        return (rot[1:], pos[1:]) if _starts_with_tpose(self.clip) else (rot, pos)
+
+
 def world_positions(clip: BVHClip, user_map: Mapping[str, str] | None = None,
                     rest_frame: RestFrame = "auto") -> np.ndarray:
     """The clip's joint positions in the studio's axes (Z up, facing +Y), in the file's units, its added T-pose
     frame dropped, as ``retarget`` sees them.  # (frame, joint, 3)"""
-    mapping = joint_map(clip, user_map, rest_frame)
-    index = {n: i for i, n in enumerate(clip.names)}
-    data = clip.data[1:] if _starts_with_tpose(clip) else clip.data
-    _, pos = replace(clip, data=data).forward_kinematics()
-    _, rest = rest_pose(clip, mapping, rest_frame)
-    world = _facing(rest, index[mapping["LeftHip"][1]], index[mapping["RightHip"][1]]) @ Y_UP_TO_Z_UP
+    arrays = _Arrays(clip)
+    mapping, _, rest = _mapped(arrays, user_map, rest_frame)
+    _, pos = arrays.motion
+    world = _facing(rest, arrays.index[mapping["LeftHip"][1]], arrays.index[mapping["RightHip"][1]]) @ Y_UP_TO_Z_UP
     return pos @ world.T
 
 
@@ -131,13 +165,20 @@ def joint_map(clip: BVHClip, user_map: Mapping[str, str] | None = None, rest_fra
     else from the first of KNOWN_SKELETONS the file's joints satisfy. Raises BVHError naming the joints missing, a
     bone without length, or a rest pose (see rest_pose) that does not stand.
     """
-    mapping = _from_user_map(clip, user_map) if user_map is not None else _known(clip)
-    _, rest = rest_pose(clip, mapping, rest_frame)
-    _check_lengths(clip, mapping, rest)
-    return mapping
+    return _mapped(_Arrays(clip), user_map, rest_frame)[0]
 
 
-def _known(clip: BVHClip) -> dict:
+def _mapped(arrays: _Arrays, user_map: Mapping[str, str] | None,
+            rest_frame: RestFrame) -> tuple[dict, np.ndarray | None, np.ndarray]:
+    """joint_map's map, checked, and the rest pose it was checked in (rest_pose's rotations and positions)."""
+    mapping = _from_user_map(arrays, user_map) if user_map is not None else _known(arrays)
+    rest_rot, rest = _rest_pose(arrays, mapping, rest_frame)
+    _check_lengths(arrays.clip, mapping, rest)
+    return mapping, rest_rot, rest
+
+
+def _known(arrays: _Arrays) -> dict:
+    clip = arrays.clip
     closest = []
     for order, skeleton in enumerate(KNOWN_SKELETONS):
         if skeleton.triples is not None:
@@ -148,7 +189,7 @@ def _known(clip: BVHClip) -> dict:
             missing = [names[0] for names in needed.values() if _find(names, clip.names) is None]
         missing += [n for n in skeleton.signature if n not in clip.names and n not in missing]
         if not missing:
-            return dict(skeleton.triples) if skeleton.triples is not None else _triples(clip, skeleton.names)
+            return dict(skeleton.triples) if skeleton.triples is not None else _triples(arrays, skeleton.names)
         closest.append((len(missing) / (len(needed) + len(skeleton.signature)), order, missing))
     share, order, missing = min(closest)
     labels = ", ".join(s.label for s in KNOWN_SKELETONS)
@@ -158,7 +199,8 @@ def _known(clip: BVHClip) -> dict:
                    f"{{template joint: BVH joint}} naming a joint of the file for each of {list(REQUIRED_KEYS)}")
 
 
-def _from_user_map(clip: BVHClip, user_map: Mapping[str, str]) -> dict:
+def _from_user_map(arrays: _Arrays, user_map: Mapping[str, str]) -> dict:
+    clip = arrays.clip
     unknown = sorted(set(user_map) - set(MAP_KEYS))
     if unknown:
         raise BVHError(f"the joint map names unknown template joints {unknown}; its keys are {list(MAP_KEYS)}")
@@ -170,7 +212,7 @@ def _from_user_map(clip: BVHClip, user_map: Mapping[str, str]) -> dict:
     if lacking:
         raise BVHError(f"the joint map names joints the file lacks: {lacking}; its joints are "
                        f"{[n for n in clip.names if not n.endswith('_End')]}")
-    return _triples(clip, {k: (v,) for k, v in user_map.items()})
+    return _triples(arrays, {k: (v,) for k, v in user_map.items()})
 
 
 def _find(candidates, names) -> int | None:
@@ -184,9 +226,10 @@ def _find(candidates, names) -> int | None:
     return None
 
 
-def _triples(clip: BVHClip, table: Mapping[str, tuple[str, ...]]) -> dict:
+def _triples(arrays: _Arrays, table: Mapping[str, tuple[str, ...]]) -> dict:
     """A name table's triples: each rotating template joint follows the BVH joint just above its bone's end
     (the whole chain from the bone's start, e.g. every spine joint below the neck); the hips follow the root."""
+    clip = arrays.clip
     found = {key: _find(names, clip.names) for key, names in table.items()}
     out: dict[str, tuple[str, str, str] | str] = {"Neck": "inherit"}
     for joint, end in BONE_END.items():
@@ -197,16 +240,16 @@ def _triples(clip: BVHClip, table: Mapping[str, tuple[str, ...]]) -> dict:
             raise BVHError(f"{end} ({clip.names[stop]}) is not below {joint} ({clip.names[start]}) in the skeleton; "
                            "map them to a joint and one of its descendants")
         follow = start if joint == "Hips" else int(clip.parents[stop])
-        out[joint] = _without_empty_end(clip, (follow, start, stop))
+        out[joint] = _without_empty_end(clip, (follow, start, stop), arrays.size)
     return out
 
 
-def _without_empty_end(clip: BVHClip, triple: tuple[int, int, int]) -> tuple[str, str, str]:
+def _without_empty_end(clip: BVHClip, triple: tuple[int, int, int], size: float) -> tuple[str, str, str]:
     """The triple's names; where its bone ends at an End Site of zero length (Bandai Namco's set has only such), the
     bone points instead to the start's one child joint of some length, else along the bone into the start (the
-    head continues the neck, the hand the forearm), still following the start's rotation."""
+    head continues the neck, the hand the forearm), still following the start's rotation. ``size``: the zero
+    pose's extent (_Arrays.size), what "zero" is relative to."""
     follow, start, stop = triple
-    size = max(float(np.ptp(rest_positions(clip), axis=0).max()), 1e-9)
     if clip.channels[stop] or np.any(clip.parents == stop) or np.linalg.norm(clip.offsets[stop]) > 1e-6 * size:
         return clip.names[follow], clip.names[start], clip.names[stop]
     children = [int(c) for c in np.flatnonzero(clip.parents == start)
@@ -252,25 +295,32 @@ RestFrame = int | str | None
 def rest_pose(clip: BVHClip, mapping: dict, rest_frame: RestFrame = "auto") -> tuple[np.ndarray | None, np.ndarray]:
     """The rest pose's global rotations (None for the zero pose: the identity) and joint positions, in the file's
     axes; BVHError when it does not stand upright along +Y, saying what would.  # (joint, 3, 3), (joint, 3)"""
+    return _rest_pose(_Arrays(clip), mapping, rest_frame)
+
+
+def _rest_pose(arrays: _Arrays, mapping: dict, rest_frame: RestFrame) -> tuple[np.ndarray | None, np.ndarray]:
+    """rest_pose from the clip's arrays: the zero pose's positions or a frame's kinematics, computed once."""
+    clip = arrays.clip
     if rest_frame is None or rest_frame == "auto":
-        zero = rest_positions(clip)
-        if _stands(_up(clip, mapping, zero[None]))[0]:
+        zero = arrays.rest
+        if _stands(_up(arrays, mapping, zero[None]))[0]:
             return None, zero
         if rest_frame is None:
-            raise BVHError(_not_upright(clip, mapping, "the zero pose (every rotation channel at zero)", zero))
-        return _frame_rest(clip, mapping, 0, "frame 0 ('auto': the zero pose does not stand either)")
+            raise BVHError(_not_upright(arrays, mapping, "the zero pose (every rotation channel at zero)", zero))
+        return _frame_rest(arrays, mapping, 0, "frame 0 ('auto': the zero pose does not stand either)")
     if isinstance(rest_frame, str) or not 0 <= rest_frame < clip.data.shape[0]:
         raise BVHError(f"rest_frame {rest_frame!r} is none of None (the zero pose), 'auto' or a frame of the clip "
                        f"(0-{clip.data.shape[0] - 1})")
-    return _frame_rest(clip, mapping, int(rest_frame), f"frame {rest_frame}")
+    return _frame_rest(arrays, mapping, int(rest_frame), f"frame {rest_frame}")
 
 
-def _frame_rest(clip: BVHClip, mapping: dict, k: int, what: str) -> tuple[np.ndarray, np.ndarray]:
-    """Frame ``k``'s global rotations and positions as the rest pose, or BVHError when it does not stand."""
-    rot, pos = replace(clip, data=clip.data[k:k + 1]).forward_kinematics()
-    if not _stands(_up(clip, mapping, pos))[0]:
-        raise BVHError(_not_upright(clip, mapping, what, pos[0]))
-    return rot[0], pos[0]
+def _frame_rest(arrays: _Arrays, mapping: dict, k: int, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """Frame ``k``'s global rotations and positions (of all the clip's frames, T-pose frame included) as the rest
+    pose, or BVHError when it does not stand."""
+    rot, pos = arrays.frames
+    if not _stands(_up(arrays, mapping, pos[k:k + 1]))[0]:
+        raise BVHError(_not_upright(arrays, mapping, what, pos[k]))
+    return rot[k], pos[k]
 
 
 UPRIGHT = 0.7  # a pose stands when its head is above its ankles within about 45 degrees of +Y (cos 45.6 = 0.7)
@@ -281,20 +331,20 @@ def _stands(up: np.ndarray) -> np.ndarray:
     return up[:, 1] > UPRIGHT * np.linalg.norm(up, axis=1)
 
 
-def _up(clip: BVHClip, mapping: dict, pos: np.ndarray) -> np.ndarray:
+def _up(arrays: _Arrays, mapping: dict, pos: np.ndarray) -> np.ndarray:
     """Head minus the ankles' midpoint per pose.  # (pose, joint, 3) -> (pose, 3)"""
-    index = {n: i for i, n in enumerate(clip.names)}
+    index = arrays.index
     head = mapping["Head"]
     head = head[2] if head[2] == head[0] else head[1]  # a bone continued from the neck ends at the head
     ankles = np.mean([pos[:, index[mapping[f"{side}Ankle"][1]]] for side in SIDES], axis=0)
     return pos[:, index[head]] - ankles
 
 
-def _not_upright(clip: BVHClip, mapping: dict, what: str, rest: np.ndarray) -> str:
+def _not_upright(arrays: _Arrays, mapping: dict, what: str, rest: np.ndarray) -> str:
     """Why the rest pose cannot be used, and the fix: a frame where the clip stands, or exporting it Y up."""
-    up = _up(clip, mapping, rest[None])[0]
-    _, pos = clip.forward_kinematics()
-    ups = _up(clip, mapping, pos)
+    up = _up(arrays, mapping, rest[None])[0]
+    _, pos = arrays.frames
+    ups = _up(arrays, mapping, pos)
     standing = np.flatnonzero(_stands(ups))
     head = f"the rest pose, {what}, is not upright along +Y (head minus ankles: {np.round(up, 2).tolist()})"
     if 2 * len(standing) >= len(ups):  # a clip that stands most of the time is Y up; its rest pose is not
@@ -314,12 +364,11 @@ def retarget(clip: BVHClip, subject: Subject, *, fps: float = 30.0, n_frames: in
              rest_frame: RestFrame = "auto") -> Motion:
     """``bvh``'s motion on the template body of ``subject``, resampled to ``fps``; ``user_map``: see joint_map;
     ``rest_frame``: the pose rotations are measured from (see rest_pose)."""
-    index = {n: i for i, n in enumerate(clip.names)}
-    mapping = joint_map(clip, user_map, rest_frame)
+    arrays = _Arrays(clip)  # the clip's rest positions and kinematics, each computed once for all that follows
+    index = arrays.index
+    mapping, rest_rot, rest = _mapped(arrays, user_map, rest_frame)
     hip, knee, ankle = (mapping[j][1] for j in ("LeftHip", "LeftKnee", "LeftAnkle"))
-    data = clip.data[1:] if _starts_with_tpose(clip) else clip.data
-    rot, pos = replace(clip, data=data).forward_kinematics()
-    rest_rot, rest = rest_pose(clip, mapping, rest_frame)
+    rot, pos = arrays.motion
     if rest_rot is not None:  # each joint's turn from the rest frame, in world axes: G_f G_r^T
         rot = rot @ np.swapaxes(rest_rot, -1, -2)
     world = _facing(rest, index[hip], index[mapping["RightHip"][1]]) @ Y_UP_TO_Z_UP
