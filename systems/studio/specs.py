@@ -268,7 +268,8 @@ def take_for(seq) -> Take:
     per worker process."""
     def make() -> Take:
         source = seq.spec["source"]
-        return make_take(seq.spec["spec"], read_motion(source, f"sequence {seq.id}") if source else None)
+        clip = read_motion(source, f"sequence {seq.id}") if source else None
+        return make_take(seq.spec["spec"], clip)
 
     return _TAKES.get_or_make(seq.fingerprint, make)
 

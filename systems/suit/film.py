@@ -99,9 +99,8 @@ def rig_for(seq) -> tuple[Take, takes.SuitRig]:
     """The take and the suit's cameras filming it, made once per worker process."""
     def build():
         info = seq.spec
-        shot = take_for(seq)
-        rig = takes.suit_rig(shot.body, reference_suit(info["suit"]), info["cameras"], info["look"],
-                                  info["spec"].seed)
+        shot, suit = take_for(seq), reference_suit(info["suit"])
+        rig = takes.suit_rig(shot.body, suit, info["cameras"], info["look"], info["spec"].seed)
         check_in_view(seq.id, rig.cameras, shot.mesh.posed.heads[:shot.n_frames, shot.body.joint_bones()],
                       info.get("out_of_view", "warn"))
         return shot, rig

@@ -171,6 +171,18 @@ def grey_image(rad: np.ndarray, rng: np.random.Generator, noise: float = 1.0, ga
     return np.clip(np.rint(signal), 0, 255).astype(np.uint8)
 
 
+def film_view(scene: MeshScene, cam: Camera, rays: np.ndarray, vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray,
+              texture: np.ndarray, lighting: Lighting, rng: np.random.Generator, *, blur_px: float | None = None,
+              noise: float = 1.0) -> np.ndarray:
+    """One camera's 8-bit image of the posed, textured body of ``scene``: a ray through every pixel (cast_view),
+    shaded (radiance), blurred by the optics (a Gaussian of ``blur_px``, where given) and read by the sensor
+    (grey_image).  rays: the camera's pixel rays; vertices (vertex, 3) and faces as posed -> (y, x) uint8"""
+    rad = radiance(cast_view(scene, cam, rays), vertices, faces, uv, texture, lighting)
+    if blur_px is not None:
+        rad = cv2.GaussianBlur(rad, (0, 0), float(blur_px))
+    return grey_image(rad, rng, noise)
+
+
 def surface_points(vertices: np.ndarray, faces: np.ndarray, face: np.ndarray, bary: np.ndarray,
                    offset: np.ndarray | float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Points on a posed mesh given as (face, barycentric), moved ``offset`` metres along the surface normal.
@@ -191,11 +203,11 @@ def visibility(scene: MeshScene, cam: Camera, points: np.ndarray, normals: np.nd
     into the image, faces the camera, and the body hides no part of the ray to it (a hit more than
     ``tolerance_m`` before the point).  points, normals (n, 3) -> xy (n, 2), visible (n,) bool
     """
-    xy, z = cam.project(points)
     origin = cam.cam_to_world[:3, 3]
     to_point = points - origin
     dist = np.linalg.norm(to_point, axis=1)
     _, _, t = scene.cast(np.broadcast_to(origin, points.shape), to_point / dist[:, None])
+    xy, z = cam.project(points)
     inside = (np.isfinite(xy).all(axis=1) & (z > 0) & (xy[:, 0] >= -0.5) & (xy[:, 0] < cam.width - 0.5)
               & (xy[:, 1] >= -0.5) & (xy[:, 1] < cam.height - 0.5))
     facing = np.einsum("ni,ni->n", normals, -to_point) > 0

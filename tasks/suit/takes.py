@@ -22,8 +22,7 @@ import numpy as np
 from mocapflow.tasks.shared.cameras import Camera
 from mocapflow.tasks.shared.mesh_body import MeshBody
 from mocapflow.tasks.studio.cameras import look_at, ring_positions
-from mocapflow.tasks.studio.mesh_render import (Lighting, MeshScene, cast_view, grey_image, radiance, surface_points,
-                                                 visibility)
+from mocapflow.tasks.studio.mesh_render import Lighting, MeshScene, film_view, surface_points, visibility
 from mocapflow.tasks.suit.pattern import Suit, texture
 
 SUIT_STUDIO_VERSION = "2+panels"
@@ -85,6 +84,7 @@ def camera_names(count: int) -> list[str]:
 
 def suit_cameras(spec: SuitCameras, rng: np.random.Generator) -> tuple[Camera, ...]:
     """The ring of grey cameras, the first facing the subject's front (+Y)."""
+    names = camera_names(spec.count)
     pos = ring_positions(spec.count, spec.radius, 0.0)
     pos[:, 2] = np.resize(np.asarray(spec.heights, float), spec.count)
     f = spec.height * spec.radius / spec.view_height_m  # the volume's height fills the image at the ring
@@ -94,7 +94,7 @@ def suit_cameras(spec: SuitCameras, rng: np.random.Generator) -> tuple[Camera, .
         cx = (spec.width - 1) / 2 + rng.uniform(-8, 8)
         cy = (spec.height - 1) / 2 + rng.uniform(-8, 8)
         fi = f * rng.uniform(0.99, 1.01)
-        cams.append(Camera(camera_names(spec.count)[i], fi, fi, cx, cy, (k1, 0.0, 0.0, 0.0, 0.0), look_at(p, spec.target),
+        cams.append(Camera(names[i], fi, fi, cx, cy, (k1, 0.0, 0.0, 0.0, 0.0), look_at(p, spec.target),
                            spec.width, spec.height))
     return tuple(cams)
 
@@ -105,11 +105,11 @@ def suit_texture(suit: Suit, resolution: int) -> np.ndarray:
 
 
 def suit_rig(body: MeshBody, suit: Suit, cameras: SuitCameras, look: SuitLook, seed: int) -> SuitRig:
+    printed = suit_texture(suit, look.texture_px)
     rng = np.random.default_rng([seed, 33])
     cams = suit_cameras(cameras, rng)
     return SuitRig(body, suit, cams, tuple(c.pixel_rays() for c in cams),
-                   rng.uniform(*look.blur_px, len(cams)), rng.uniform(*look.light, len(cams)),
-                   suit_texture(suit, look.texture_px), look)
+                   rng.uniform(*look.blur_px, len(cams)), rng.uniform(*look.light, len(cams)), printed, look)
 
 
 @dataclass(frozen=True)
@@ -129,6 +129,7 @@ def film(rig: SuitRig, vertices: np.ndarray, frames: range) -> SuitFrames:
     out = SuitFrames(np.zeros((nv, n, rig.cameras[0].height, rig.cameras[0].width), np.uint8),
                      np.zeros((n, nc, 3)), np.zeros((nv, n, nc, 2)), np.zeros((nv, n, nc), bool),
                      np.zeros((nv, n, nc), bool))
+    lights = [_softboxes(float(k)) for k in rig.light]
     for i, f in enumerate(frames):
         verts = vertices[f]
         scene = MeshScene(verts, rig.body.faces)
@@ -138,22 +139,19 @@ def film(rig: SuitRig, vertices: np.ndarray, frames: range) -> SuitFrames:
             if cam.width != rig.cameras[0].width or cam.height != rig.cameras[0].height:
                 raise SuitTakeError(f"camera {cam.name!r} is {cam.width} x {cam.height}; every camera of a take "
                                     "films the same image size")
-            out.image[v, i] = _image(rig, v, scene, verts, np.random.default_rng([f, v, 7]))
+            out.image[v, i] = film_view(scene, cam, rig.rays[v], verts, rig.body.faces, rig.suit.face_uv, rig.texture,
+                                        lights[v], np.random.default_rng([f, v, 7]), blur_px=float(rig.blur[v]),
+                                        noise=rig.look.noise)
             xy, seen = visibility(scene, cam, points, normals)
             out.corners2d[v, i], out.visible[v, i] = xy, seen
             out.readable[v, i] = _readable(rig, cam, points, seen)
     return out
 
 
-def _image(rig: SuitRig, v: int, scene: MeshScene, verts: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    cam = rig.cameras[v]
-    hits = cast_view(scene, cam, rig.rays[v])
-    k = rig.light[v]
-    light = Lighting(SOFTBOXES.directions, tuple(x * k for x in SOFTBOXES.intensities), SOFTBOXES.ambient * k,
-                     SOFTBOXES.background)
-    rad = radiance(hits, verts, rig.body.faces, rig.suit.face_uv, rig.texture, light)
-    rad = cv2.GaussianBlur(rad, (0, 0), float(rig.blur[v]))
-    return grey_image(rad, rng, rig.look.noise)
+def _softboxes(k: float) -> Lighting:
+    """The softboxes at a camera's light level ``k`` (its exposure: the background stays dark)."""
+    return Lighting(SOFTBOXES.directions, tuple(x * k for x in SOFTBOXES.intensities), SOFTBOXES.ambient * k,
+                    SOFTBOXES.background)
 
 
 def _readable(rig: SuitRig, cam: Camera, points: np.ndarray, seen: np.ndarray) -> np.ndarray:
