@@ -11,6 +11,7 @@ from mocapflow.tasks.shared import mesh_body as mb
 from mocapflow.tasks.shared.cameras import calibrated_camera
 from mocapflow.tasks.shared.kinematics import world_rotations
 from mocapflow.tasks.shared.place_fit import reference_body
+from mocapflow.tasks.studio.cameras import look_at
 from mocapflow.tasks.suit.body_fit import corner_weights, face_normals
 from mocapflow.tasks.suit.fill import FillDetectionsConfig, FillSuitConfig, fill_suit, fill_suit_detections
 from mocapflow.tasks.suit.limbs import (LimbConfig, LimbError, limb_pixels, limb_points, limbs_of, matched_pixels,
@@ -25,15 +26,9 @@ def ring(count: int, radius: float = 3.0, height: float = 1.2, target=(0.0, 0.0,
     for k in range(count):
         a = 2 * np.pi * k / count
         centre = np.array([radius * np.cos(a), radius * np.sin(a), height + 0.3 * (k % 2)])
-        z = np.asarray(target) - centre
-        z /= np.linalg.norm(z)
-        x = np.cross(z, [0.0, 0.0, 1.0])
-        x /= np.linalg.norm(x)
-        pose = np.eye(4)
-        pose[:3, :3] = np.column_stack([x, np.cross(z, x), z])
-        pose[:3, 3] = centre
         out.append(calibrated_camera(f"cam{k:02d}", fx=900.0, fy=900.0, cx=WIDTH / 2, cy=HEIGHT / 2,
-                                     dist=[0.02, -0.01, 0.0, 0.0, 0.0], cam_to_world=pose, width=WIDTH, height=HEIGHT))
+                                     dist=[0.02, -0.01, 0.0, 0.0, 0.0], cam_to_world=look_at(centre, target),
+                                     width=WIDTH, height=HEIGHT))
     return out
 
 
