@@ -158,15 +158,16 @@ class ReportSection:
     ``figures(folder, catalog, plan, store, result)`` extra images (paths) given the evaluation's result (``{}``
     where the take has no ground truth to evaluate against: draw what needs none);
     ``named_figures``: the evaluation's JSON keys it names on the page, key -> (label, scale, unit);
-    ``truth(catalog, plan, store)``: whether every sequence's recording carries the system's ground truth (then the
-    page says what an evaluation against it found, or why none was made), None where its recordings never do."""
+    ``truth``: the variable of a recording (the catalog's source stage) that holds the system's ground truth, where
+    its recordings may carry one (the studio's takes do): with it in every sequence, the page says what an evaluation
+    against it found, or why none was made."""
 
     name: str
     applies: Callable[[Any], bool]
     takes: Callable[..., list] | None = None
     figures: Callable[..., list] | None = None
     named_figures: Mapping[str, tuple[str, float, str]] = field(default_factory=dict)
-    truth: Callable[..., bool] | None = None
+    truth: str | None = None
 
 
 @dataclass(frozen=True)

@@ -366,8 +366,8 @@ def _worst_section(folder: Path, take: Take, heading: str) -> str:
 
 
 def recordings_hold(catalog, plan, store, variable: str) -> bool:
-    """Whether every sequence's recording (the catalog's source stage) holds ``variable``: a system's test of its
-    own ground truth (ReportSection.truth) names the variable its recordings carry it in."""
+    """Whether every sequence's recording (the catalog's source stage) holds ``variable`` (a system's ground truth:
+    ReportSection.truth)."""
     source = next((s.name for s in catalog.stages.values() if s.spec.source), None)
     return source is not None and bool(plan.sequences) and all(
         variable in plan.open(store, source, seq.id).data_vars for seq in plan.sequences)
@@ -403,7 +403,7 @@ def build_report(catalog, plan, store, folder: Path, *, title: str, summary: dic
                         "a stage writing markers (see catalog.yaml)")
     images, accuracy, figures_ = [], None, {}
     if result is None:
-        truth = any(r.truth is not None and r.truth(catalog, plan, store) for r in sections)
+        truth = any(r.truth is not None and recordings_hold(catalog, plan, store, r.truth) for r in sections)
         try:  # without truth, what a system checks of a take by itself (DeepMoCap's per-view plausibility)
             result = evaluate(catalog, plan, store, thorough=False)  # the slowest figures (scene flow) left out
         except PlanError as exc:  # no stage the evaluation scores (or, without truth, nothing to check): say so

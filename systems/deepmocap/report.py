@@ -15,7 +15,7 @@ import xarray as xr
 from mocapflow.pipeline.catalog import final_stage, stage_writing
 from mocapflow.pipeline.registry import ReportSection
 from mocapflow.presentation.report import (FONT, SOLVED, TRUTH, WHITE, Take, bar_chart, base_takes, colour,
-                                           line_plot, recordings_hold, write_png)
+                                           line_plot, write_png)
 from mocapflow.systems.deepmocap.evaluate import evaluate_plausibility, plausibility_stages, poses_stage
 from mocapflow.tasks.shared.body import JOINT_NAMES, PARENTS
 
@@ -213,9 +213,6 @@ NAMED_FIGURES = {
 }
 
 
-def has_truth(catalog, plan, store) -> bool:
-    """The studio's takes carry the true joints (``gt_joints``); a Kinect recording does not."""
-    return recordings_hold(catalog, plan, store, "gt_joints")
-
-
-SECTION = ReportSection("deepmocap", applies, takes, accuracy_figures, NAMED_FIGURES, truth=has_truth)
+# The studio's takes carry the true joints (``gt_joints``); a recording does not.
+SECTION = ReportSection("deepmocap", applies, takes, accuracy_figures, NAMED_FIGURES,
+                        truth="gt_joints")

@@ -17,7 +17,7 @@ import numpy as np
 
 from mocapflow.pipeline.catalog import stage_writing
 from mocapflow.pipeline.registry import ReportSection
-from mocapflow.presentation.report import Take, recordings_hold, write_png
+from mocapflow.presentation.report import Take, write_png
 from mocapflow.systems.suit.export import corner_names
 
 GREEN, ORANGE, WHITE, GREY, RED = (60, 200, 60), (0, 140, 255), (255, 255, 255), (120, 120, 120), (40, 40, 230)
@@ -245,9 +245,6 @@ NAMED_FIGURES = {
 }
 
 
-def has_truth(catalog, plan, store) -> bool:
-    """The studio's takes carry the true corners (``gt_corners``); a recorded take does not."""
-    return recordings_hold(catalog, plan, store, "gt_corners")
-
-
-SECTION = ReportSection("suit", applies, takes, figures, NAMED_FIGURES, truth=has_truth)
+# The studio's takes carry the true corners (``gt_corners``); a recording does not.
+SECTION = ReportSection("suit", applies, takes, figures, NAMED_FIGURES,
+                        truth="gt_corners")

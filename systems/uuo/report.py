@@ -12,7 +12,7 @@ import numpy as np
 
 from mocapflow.pipeline.catalog import final_stage, stage_writing
 from mocapflow.pipeline.registry import ReportSection
-from mocapflow.presentation.report import Take, base_takes, recordings_hold
+from mocapflow.presentation.report import Take, base_takes
 from mocapflow.systems.uuo.export import default_stage, report_figures, solve_markers, solve_truth
 from mocapflow.tasks.shared.body import JOINT_NAMES, PARENTS
 
@@ -75,9 +75,6 @@ NAMED_FIGURES = {
 }
 
 
-def has_truth(catalog, plan, store) -> bool:
-    """The studio's marker takes carry the true joints (``gt_joints``); a C3D recording does not."""
-    return recordings_hold(catalog, plan, store, "gt_joints")
-
-
-SECTION = ReportSection("uuo", applies, takes, figures, NAMED_FIGURES, truth=has_truth)
+# The studio's takes carry the true joints (``gt_joints``); a recording does not.
+SECTION = ReportSection("uuo", applies, takes, figures, NAMED_FIGURES,
+                        truth="gt_joints")
