@@ -205,7 +205,7 @@ def version_of(s3: S3, prefix: str, partition: str) -> str:
 
 # ---- (a) a run, and a second that computes nothing -----------------------------------------------------------------
 def test_run_on_s3_writes_the_local_bytes_and_a_second_run_computes_nothing(s3, toy_run):
-    project, _ = toy_run()
+    project, _ = toy_run(frames=8)  # two regions a partition: fewer objects for the S3 server to serve
     on_s3(s3, project, "plain")
     first = last_json(mocapflow_s3(s3, "run", "--json", cwd=project))
     assert first["failed"] == [] and len(first["executed"]) == STAGES_TOTAL
@@ -220,7 +220,7 @@ def test_run_on_s3_writes_the_local_bytes_and_a_second_run_computes_nothing(s3, 
 
 # ---- (b) kill -9 part-way, resume --------------------------------------------------------------------------------
 def test_run_killed_after_its_first_artifact_resumes_to_the_same_keys_and_bytes(s3, toy_run, tmp_path):
-    project, _ = toy_run()
+    project, _ = toy_run(frames=8)  # two regions a partition: fewer objects for the S3 server to serve
     on_s3(s3, project, "killed")
     hold = tmp_path / "hold"  # while it exists, every scale task waits inside its partition, holding its lock
     hold.write_text("")
@@ -250,7 +250,7 @@ def test_run_killed_after_its_first_artifact_resumes_to_the_same_keys_and_bytes(
 
 # ---- (c) verify ---------------------------------------------------------------------------------------------------
 def test_verify_on_s3_passes_then_reports_a_corrupted_chunk_and_the_run_repairs_it(s3, toy_run):
-    project, _ = toy_run()
+    project, _ = toy_run(frames=8)  # two regions a partition: fewer objects for the S3 server to serve
     upload(s3, project, "verify")
     on_s3(s3, project, "verify")
     assert "12 intact, 0 damaged" in mocapflow_s3(s3, "verify", cwd=project).stdout
@@ -273,7 +273,7 @@ def test_verify_on_s3_passes_then_reports_a_corrupted_chunk_and_the_run_repairs_
 
 # ---- (d) gc -------------------------------------------------------------------------------------------------------
 def test_gc_on_s3_deletes_an_orphaned_version_and_keeps_the_live_ones(s3, toy_run):
-    project, _ = toy_run()
+    project, _ = toy_run(frames=8)  # two regions a partition: fewer objects for the S3 server to serve
     upload(s3, project, "gc")
     on_s3(s3, project, "gc")
     live = s3.complete("gc")
