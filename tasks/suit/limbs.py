@@ -68,8 +68,6 @@ class View:
 
     camera: Camera
     tree: cKDTree | None  # over the unclaimed detections (n, 2); None where there is none
-    centre: np.ndarray  # (3,) the camera's centre, world
-    world_to_cam: np.ndarray  # (4, 4)
 
 
 @dataclass(frozen=True)
@@ -101,8 +99,7 @@ def unclaimed(detections: np.ndarray, labels: np.ndarray, claimed_px: float) -> 
 
 def views_of(cameras: Sequence[Camera], free: Sequence[np.ndarray]) -> list[View]:
     """One frame's views.  free: per view the unclaimed detections (n, 2)"""
-    return [View(cam, cKDTree(d) if len(d) else None, cam.cam_to_world[:3, 3].copy(), np.linalg.inv(cam.cam_to_world))
-            for cam, d in zip(cameras, free)]
+    return [View(cam, cKDTree(d) if len(d) else None) for cam, d in zip(cameras, free)]
 
 
 def limbs_of(bone_names: Sequence[str], bone_parents: np.ndarray, corner_bone: np.ndarray, part_of,
@@ -113,6 +110,7 @@ def limbs_of(bone_names: Sequence[str], bone_parents: np.ndarray, corner_bone: n
         raise LimbError(f"the body has no bone {', '.join(map(repr, unknown))}; limbs.bones names Anny's bones "
                         "(e.g. lowerarm01.L)")
     names = list(bone_names)
+    part = np.array([part_of(names[k]) for k in corner_bone])  # each corner's part
     out = []
     for name in bones:
         b = names.index(name)
@@ -120,7 +118,6 @@ def limbs_of(bone_names: Sequence[str], bone_parents: np.ndarray, corner_bone: n
         subtree[b] = True
         for k in range(b + 1, len(names)):  # parents come first
             subtree[k] |= bone_parents[k] >= 0 and subtree[bone_parents[k]]
-        part = np.array([part_of(names[k]) for k in corner_bone])
         out.append(Limb(b, subtree, subtree[corner_bone], part == part_of(name)))
     return out
 
@@ -141,27 +138,12 @@ def _posed(rotations: np.ndarray, pivot: np.ndarray, points: np.ndarray, normals
             np.einsum("kij,cj->kci", rotations, normals))
 
 
-def project(view: View, points: np.ndarray) -> np.ndarray:
-    """Distorted pixels of world points in front of the camera (OpenCV's model, k1 k2 p1 p2 k3), NaN behind it.
-    (n, 3) -> (n, 2)"""
-    cam = points @ view.world_to_cam[:3, :3].T + view.world_to_cam[:3, 3]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        x, y = cam[:, 0] / cam[:, 2], cam[:, 1] / cam[:, 2]
-    k1, k2, p1, p2, k3 = view.camera.dist
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-    uv = np.column_stack([view.camera.fx * xd + view.camera.cx, view.camera.fy * yd + view.camera.cy])
-    return np.where((cam[:, 2] > 0)[:, None], uv, np.nan)
-
-
 def _pixels(view: View, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
     """Pixels of the points that face the camera and fall in its image, NaN elsewhere.  (..., 3) -> (..., 2)"""
-    facing = ((view.centre - points) * normals).sum(-1) > 0
-    uv = np.full(points.shape[:-1] + (2,), np.nan)
-    found = project(view, points[facing])
     cam = view.camera
+    facing = ((cam.cam_to_world[:3, 3] - points) * normals).sum(-1) > 0
+    uv = np.full(points.shape[:-1] + (2,), np.nan)
+    found, _ = cam.project(points[facing])  # NaN behind the camera
     inside = (found[:, 0] >= 0) & (found[:, 1] >= 0) & (found[:, 0] < (cam.width or np.inf)) \
         & (found[:, 1] < (cam.height or np.inf))
     uv[facing] = np.where(inside[:, None], found, np.nan)
