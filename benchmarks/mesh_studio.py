@@ -36,7 +36,7 @@ from mocapflow.tasks.shared.body import Subject  # noqa: E402
 from mocapflow.tasks.shared.cameras import Camera  # noqa: E402
 from mocapflow.tasks.shared.mesh_body import mesh_body, pose_mesh, random_phenotype  # noqa: E402
 from mocapflow.tasks.studio import mesh_motion, mesh_render, retarget  # noqa: E402
-from mocapflow.tasks.studio.cameras import look_at  # noqa: E402
+from mocapflow.tasks.shared.cameras import look_at  # noqa: E402
 from mocapflow.tasks.deepmocap.film.mesh_synth import view_frame  # noqa: E402
 from mocapflow.tasks.deepmocap.film.synth import build_rig  # noqa: E402
 from mocapflow.tasks.studio.spec import SequenceSpec

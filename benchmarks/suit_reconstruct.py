@@ -35,7 +35,7 @@ from mocapflow.tasks.shared.triangulation import (  # noqa: E402
     triangulate_linear,
     undistort_pixels,
 )
-from mocapflow.tasks.studio.cameras import look_at, ring_positions  # noqa: E402
+from mocapflow.tasks.shared.cameras import look_at, ring_positions  # noqa: E402
 from mocapflow.tasks.suit.reconstruct import reconstruct_frame  # noqa: E402
 
 DIST = (-0.25, 0.12, 0.0005, -0.0003, -0.02)

@@ -13,7 +13,7 @@ import numpy as np
 from mocapflow.tasks.shared.cameras import Camera
 from mocapflow.tasks.shared.mesh_body import random_surface_points
 from mocapflow.tasks.studio import mesh_render
-from mocapflow.tasks.studio.cameras import look_at
+from mocapflow.tasks.shared.cameras import look_at
 from mocapflow.tasks.deepmocap.film.synth import build_rig, synthesize
 from mocapflow.tasks.studio.spec import SequenceSpec
 

@@ -11,6 +11,7 @@ height``); :func:`camera_of` builds the :class:`Camera` from them once, checked 
 Other systems state a pose otherwise: OpenCV, anipose and Pose2Sim as a world-to-camera rotation and translation
 (:func:`pose_from_extrinsics`), Qualisys as a camera position and a rotation of its own camera axes
 (:func:`pose_from_qualisys`); :func:`reframed` turns a pose into another world frame (e.g. Y up onto Z up).
+Rigs are placed by :func:`look_at` (a camera aimed at a target, its x axis level) on :func:`ring_positions`.
 """
 
 from __future__ import annotations
@@ -30,6 +31,11 @@ _UNDISTORT = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-9)
 
 class CalibrationError(ValueError):
     """A view's calibration cannot be used (not finite, wrong shape)."""
+
+
+class LayoutError(ValueError):
+    """Cameras that cannot be placed (one at its target or looking straight up or down, a sensor without a
+    position, an orientation that is not one)."""
 
 
 @dataclass(frozen=True)
@@ -182,6 +188,30 @@ def project(points: np.ndarray, K: np.ndarray, dist, cam_to_world: np.ndarray) -
                                      np.asarray(dist, float))
         uv[ok] = found.reshape(-1, 2)
     return uv, np.where(ok, cam[:, 2], np.nan)
+
+
+def look_at(position, target) -> np.ndarray:
+    """Camera-to-world transform of a camera at ``position`` aimed at ``target`` (no roll)."""
+    position, target = np.asarray(position, float), np.asarray(target, float)
+    z = target - position
+    if np.linalg.norm(z) < 1e-6:
+        raise LayoutError(f"camera at {position.tolist()} coincides with its target")
+    z /= np.linalg.norm(z)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    if np.linalg.norm(x) < 1e-6:
+        raise LayoutError(f"camera at {position.tolist()} looks straight up or down; tilt it, or give its rotation")
+    x /= np.linalg.norm(x)
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
+    pose[:3, 3] = position
+    return pose
+
+
+def ring_positions(count=3, radius=2.5, height=0.8, start_deg=90.0, spacing_deg=None) -> np.ndarray:
+    """Sensor positions on a circle around the centre; the first one faces the subject's front (+Y)."""
+    spacing = 360.0 / count if spacing_deg is None else spacing_deg
+    angles = np.radians(start_deg + spacing * np.arange(count))
+    return np.stack([radius * np.cos(angles), radius * np.sin(angles), np.full(count, height)], axis=1)
 
 
 def pose_from_extrinsics(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:

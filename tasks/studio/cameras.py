@@ -19,17 +19,13 @@ import numpy as np
 
 from scipy.spatial.transform import Rotation
 
-from mocapflow.tasks.shared.cameras import Camera
+from mocapflow.tasks.shared.cameras import Camera, LayoutError, look_at, ring_positions
 
 WIDTH, HEIGHT = 512, 424
 FOV_DEG = (70.6, 60.0)
 KINECT_DIST = (0.09, -0.27, 0.0, 0.0, 0.09)
 CAPTURE_CENTRE = (0.0, 0.0, 0.9)
 ROTATION_TOLERANCE = 1e-4  # a layout's rotation or quaternion may be off by this much (numbers typed at 4-6 places)
-
-
-class LayoutError(ValueError):
-    """A camera layout that cannot be built (a sensor without a position, an orientation that is not one)."""
 
 
 def kinect_v2(name: str, cam_to_world: np.ndarray, rng: np.random.Generator | None = None) -> Camera:
@@ -43,30 +39,6 @@ def kinect_v2(name: str, cam_to_world: np.ndarray, rng: np.random.Generator | No
         dist = dist * rng.uniform(0.8, 1.2, 5)
     return Camera(name, float(fx), float(fy), float(cx), float(cy), tuple(float(d) for d in dist),
                   np.asarray(cam_to_world, float), WIDTH, HEIGHT)
-
-
-def look_at(position, target=CAPTURE_CENTRE) -> np.ndarray:
-    """Camera-to-world transform of a camera at ``position`` aimed at ``target`` (no roll)."""
-    position, target = np.asarray(position, float), np.asarray(target, float)
-    z = target - position
-    if np.linalg.norm(z) < 1e-6:
-        raise LayoutError(f"camera at {position.tolist()} coincides with its target")
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    if np.linalg.norm(x) < 1e-6:
-        raise LayoutError(f"camera at {position.tolist()} looks straight up or down; tilt it, or give its rotation")
-    x /= np.linalg.norm(x)
-    pose = np.eye(4)
-    pose[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
-    pose[:3, 3] = position
-    return pose
-
-
-def ring_positions(count=3, radius=2.5, height=0.8, start_deg=90.0, spacing_deg=None) -> np.ndarray:
-    """Sensor positions on a circle around the centre; the first one faces the subject's front (+Y)."""
-    spacing = 360.0 / count if spacing_deg is None else spacing_deg
-    angles = np.radians(start_deg + spacing * np.arange(count))
-    return np.stack([radius * np.cos(angles), radius * np.sin(angles), np.full(count, height)], axis=1)
 
 
 def layout(spec: Mapping[str, Any] | None = None, *, views: int = 3, rng: np.random.Generator | None = None):

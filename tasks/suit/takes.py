@@ -21,7 +21,7 @@ import numpy as np
 
 from mocapflow.tasks.shared.cameras import Camera
 from mocapflow.tasks.shared.mesh_body import MeshBody
-from mocapflow.tasks.studio.cameras import look_at, ring_positions
+from mocapflow.tasks.shared.cameras import look_at, ring_positions
 from mocapflow.tasks.studio.mesh_render import Lighting, MeshScene, film_view, surface_points, visibility
 from mocapflow.tasks.suit.pattern import Suit, texture
 

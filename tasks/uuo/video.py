@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mocapflow.tasks.shared.cameras import Camera
-from mocapflow.tasks.studio.cameras import look_at
+from mocapflow.tasks.shared.cameras import look_at
 from mocapflow.tasks.studio.mesh_render import Lighting, MeshScene, cast_view, radiance
 
 

@@ -16,7 +16,7 @@ from mocapflow.cli import commands as cli
 from mocapflow.formats.calibration import cameras_of, read_calibration, read_opencv, read_qca, read_toml
 from mocapflow.systems.deepmocap.readers import read_calibration_yaml
 from mocapflow.pipeline.errors import InputError
-from mocapflow.tasks.shared.cameras import calibrated_camera, extrinsics_of
+from mocapflow.tasks.shared.cameras import calibrated_camera, extrinsics_of, look_at
 from mocapflow.tasks.shared.kinematics import Y_UP_TO_Z_UP
 from shared_data import CALIBRATION
 
@@ -25,24 +25,12 @@ QCA = CALIBRATION / "pose2sim_demo_Calib.qca.txt"
 POINTS = np.array([[0.0, 0.0, 0.0], [0.3, -0.2, 1.0], [-0.4, 0.5, 1.7], [0.1, 0.6, 0.4], [-0.5, -0.5, 1.2]])
 
 
-def look_at(position, target=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """OpenCV camera-to-world pose at ``position`` looking at ``target``, the image's up toward +Z."""
-    forward = np.asarray(target, float) - position
-    forward /= np.linalg.norm(forward)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    pose = np.eye(4)
-    pose[:3, :3] = np.column_stack([right, np.cross(forward, right), forward])
-    pose[:3, 3] = position
-    return pose
-
-
 def ring():
     """Three known cameras around the origin, each with its own intrinsics and distortion."""
     specs = [((3.0, 0.2, 2.0), 1000.0, 1010.0, 640.5, 360.2, [-0.12, 0.05, 0.001, -0.0005, 0.01], 1280, 720),
              ((-1.5, 2.6, 1.8), 1500.0, 1500.0, 960.0, 540.0, [0.02, -0.01, 0.0, 0.0, 0.0], 1920, 1080),
              ((-1.2, -2.8, 2.5), 800.0, 805.0, 330.0, 250.0, [-0.2, 0.1, -0.002, 0.003, -0.02], 640, 480)]
-    return {f"cam{i}": calibrated_camera(f"cam{i}", fx=fx, fy=fy, cx=cx, cy=cy, dist=dist, cam_to_world=look_at(np.array(p)),
+    return {f"cam{i}": calibrated_camera(f"cam{i}", fx=fx, fy=fy, cx=cx, cy=cy, dist=dist, cam_to_world=look_at(np.array(p), (0.0, 0.0, 1.0)),
                                          width=w, height=h)
             for i, (p, fx, fy, cx, cy, dist, w, h) in enumerate(specs)}
 

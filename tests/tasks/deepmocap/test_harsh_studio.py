@@ -12,7 +12,8 @@ from mocapflow.pipeline.errors import InputError
 from mocapflow.systems.studio.specs import fingerprint, make_spec
 from mocapflow.tasks.shared.reflectors import TAPE_WIDTH
 from mocapflow.tasks.deepmocap.film import cloth, mesh_reflectors, tape, tof
-from mocapflow.tasks.studio.cameras import kinect_v2, look_at
+from mocapflow.tasks.shared.cameras import look_at
+from mocapflow.tasks.studio.cameras import kinect_v2
 from mocapflow.tasks.studio.mesh_render import MeshScene
 from mocapflow.tasks.deepmocap.film.synth import build_rig, synthesize
 from mocapflow.tasks.studio.spec import SequenceSpec

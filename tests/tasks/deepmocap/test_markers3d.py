@@ -8,7 +8,8 @@ import pytest
 import xarray as xr
 
 from mocapflow.tasks.deepmocap import markers3d as m3d
-from mocapflow.tasks.studio.cameras import kinect_v2, look_at
+from mocapflow.tasks.shared.cameras import look_at
+from mocapflow.tasks.studio.cameras import kinect_v2
 
 
 def _camera(position, target=(0.0, 0.0, 1.0)):

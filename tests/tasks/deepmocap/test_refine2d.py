@@ -8,24 +8,13 @@ from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
 from mocapflow.tasks.deepmocap import refine2d
-from mocapflow.tasks.shared.cameras import intrinsics, project
+from mocapflow.tasks.shared.cameras import intrinsics, look_at, project
 from mocapflow.tasks.deepmocap.skeleton import patch_normals
 
 K = intrinsics(365.0, 365.0, 256.0, 212.0)
 NO_DIST = np.zeros(5)
 NAMES = ["L_PELVIS", "R_PELVIS", "L_CALF", "R_CALF", "F_L_HEAD", "F_R_HEAD", "B_HEAD"]
 RADIUS = {"L_CALF": 0.052, "R_CALF": 0.052}  # straps: tasks.markers3d.nominal_radius of the shins
-
-
-def look_at(centre: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """cam_to_world (4, 4) of a camera at ``centre`` looking at ``target``, image y down the world's -z."""
-    z = (target - centre) / np.linalg.norm(target - centre)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    pose = np.eye(4)
-    pose[:3, :3] = np.column_stack([x, np.cross(z, x), z])
-    pose[:3, 3] = centre
-    return pose
 
 
 def test_projection_matches_the_pinhole_model_and_drops_points_behind():

@@ -10,7 +10,7 @@ from mocapflow.tasks.shared import calibration_error as ce
 from mocapflow.tasks.shared.cameras import calibrated_camera
 from mocapflow.tasks.shared.triangulation import project_points, undistort_pixels, projection_matrices
 from mocapflow.tasks.shared.triangulation import triangulate_linear
-from mocapflow.tasks.studio.cameras import look_at, ring_positions
+from mocapflow.tasks.shared.cameras import look_at, ring_positions
 
 
 def ring(views=8):

@@ -17,7 +17,7 @@ from mocapflow.tasks.shared.triangulation import (
     triangulate_linear,
     undistort_pixels,
 )
-from mocapflow.tasks.studio.cameras import look_at, ring_positions
+from mocapflow.tasks.shared.cameras import look_at, ring_positions
 
 DIST = (-0.25, 0.12, 0.0005, -0.0003, -0.02)
 

@@ -9,7 +9,7 @@ import pytest
 from mocapflow.tasks.shared import mesh_body as mb
 from mocapflow.tasks.shared.cameras import Camera
 from mocapflow.tasks.studio import mesh_render as mr
-from mocapflow.tasks.studio.cameras import look_at
+from mocapflow.tasks.shared.cameras import look_at
 
 
 @pytest.fixture(scope="module")

@@ -11,11 +11,11 @@ from mocapflow.tasks.shared import mesh_body as mb
 from mocapflow.tasks.shared.cameras import calibrated_camera
 from mocapflow.tasks.shared.kinematics import world_rotations
 from mocapflow.tasks.shared.place_fit import reference_body
-from mocapflow.tasks.studio.cameras import look_at
+from mocapflow.tasks.shared.cameras import look_at
 from mocapflow.tasks.suit.body_fit import corner_weights, face_normals
 from mocapflow.tasks.suit.fill import FillDetectionsConfig, FillSuitConfig, fill_suit, fill_suit_detections
 from mocapflow.tasks.suit.limbs import (LimbConfig, LimbError, limb_pixels, limb_points, limbs_of, matched_pixels,
-                                        project, rotation_grid, search, unclaimed, views_of)
+                                        rotation_grid, search, unclaimed, views_of)
 
 WIDTH, HEIGHT = 768, 1024
 
@@ -57,13 +57,6 @@ def test_rotation_grid_spans_the_reach():
     assert angles.max() <= 90.0 + 1e-6 and np.isclose(angles.min(), 0.0)
     assert len(grid) == 123  # the points of a cubic lattice within three steps of the origin
     np.testing.assert_allclose(grid @ grid.transpose(0, 2, 1), np.broadcast_to(np.eye(3), grid.shape), atol=1e-12)
-
-
-def test_projection_is_opencvs():
-    cam = ring(1)[0]
-    view = views_of([cam], [np.zeros((0, 2))])[0]
-    points = np.random.default_rng(2).normal([0.0, 0.0, 1.0], 0.4, (50, 3))
-    np.testing.assert_allclose(project(view, points), cam.project(points)[0], atol=1e-9)
 
 
 def test_labels_claim_their_detections():

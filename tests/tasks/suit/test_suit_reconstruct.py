@@ -10,7 +10,7 @@ import pytest
 
 from mocapflow.tasks.shared.cameras import calibrated_camera
 from mocapflow.tasks.shared.triangulation import project_points
-from mocapflow.tasks.studio.cameras import look_at, ring_positions
+from mocapflow.tasks.shared.cameras import look_at, ring_positions
 from mocapflow.tasks.suit.reconstruct import (
     ReconstructConfig,
     ReconstructError,
