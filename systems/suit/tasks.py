@@ -96,6 +96,7 @@ TASKS = (
         name="train_cornerdet", fn=suit_training.train_cornerdet_stage, version="2",
         params=suit_training.TrainCornerdetConfig, output="suit_net_weights", partition="dataset",
         inputs={"samples": "suit_corner_samples"}, streams={"samples": ("crops",)}, checkpoints=True,
+        weights_params=("init",),
         description="train CornerdetNet (seeded; crops streamed through a pool of images; resumable from its "
                     "checkpoint)",
     ),
@@ -110,6 +111,7 @@ TASKS = (
         name="train_codes", fn=suit_training.train_codes_stage, version="2",
         params=suit_training.TrainCodesConfig, output="suit_net_weights", partition="dataset",
         inputs={"samples": "suit_quad_samples"}, streams={"samples": ("crops",)}, checkpoints=True,
+        weights_params=("init",),
         description="train RejectorNet and RecogNet on studio quads and synthetic crops of every code (seeded; "
                     "crops streamed through a pool of images; resumable from its checkpoint)",
     ),

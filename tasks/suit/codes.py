@@ -283,10 +283,12 @@ def _jitter(x: torch.Tensor, amount: float, gen: torch.Generator) -> torch.Tenso
 
 
 def train_code_nets(samples: QuadSamples | CropPool, config: CodeTrainConfig = CodeTrainConfig(), seed: int = 0,
-                    checkpoint=None, checkpoint_every: int = 500) -> tuple[RejectorNet, RecogNet, Fitted]:
+                    checkpoint=None, checkpoint_every: int = 500,
+                    start: tuple[RejectorNet, RecogNet] | None = None) -> tuple[RejectorNet, RecogNet, Fitted]:
     """RejectorNet on every crop, RecogNet on the valid ones, jointly per iteration (Adam, cosine decay), each
     batch augmented; ``samples`` in memory or a pool streaming them; checkpointed and resumable with a
-    ``checkpoint`` (augment.fit).  -> the two networks (eval mode, CPU), the losses and seconds"""
+    ``checkpoint`` (augment.fit); from the weights of ``start`` (fine-tuning; of the config's architectures) or
+    from scratch.  -> the two networks (eval mode, CPU), the losses and seconds"""
     import torch
     from torch.nn import functional as F
     from mocapflow.tasks.suit.networks import RecogNet, RejectorNet
@@ -298,7 +300,14 @@ def train_code_nets(samples: QuadSamples | CropPool, config: CodeTrainConfig = C
         raise CodeError(f"training needs at least one batch ({config.batch}) of crops with valid and invalid ones; "
                         f"got {len(pool)}, {valid} valid")
     gen, rng, device = seeded(seed, 104)
-    rejector, recog = RejectorNet(config.rejector).to(device), RecogNet(config.recog).to(device)
+    if start is None:
+        start = RejectorNet(config.rejector), RecogNet(config.recog)
+    differ = [f"{name} {net.config} in the file, {want} here" for name, net, want in
+              (("rejector", start[0], config.rejector), ("recog", start[1], config.recog)) if net.config != want]
+    if differ:
+        raise CodeError(f"the networks to start from are another architecture ({'; '.join(differ)}); set the "
+                        "training's networks to the file's or train from scratch (init: \"\")")
+    rejector, recog = start[0].to(device), start[1].to(device)
     opt, sched = adam_cosine(list(rejector.parameters()) + list(recog.parameters()), config.learning_rate,
                              config.iterations)
 

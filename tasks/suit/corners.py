@@ -461,10 +461,12 @@ def cornerdet_loss(out: torch.Tensor, present: torch.Tensor, position: torch.Ten
 
 
 def train_cornerdet(samples: CornerSamples | CropPool, config: TrainConfig = TrainConfig(), seed: int = 0,
-                    checkpoint=None, checkpoint_every: int = 500) -> tuple[CornerdetNet, Fitted]:
+                    checkpoint=None, checkpoint_every: int = 500,
+                    start: CornerdetNet | None = None) -> tuple[CornerdetNet, Fitted]:
     """CornerdetNet trained with Adam on ``samples`` (in memory, or a pool streaming them), batches drawn and
     augmented from ``seed`` (deterministic for a seed and a torch thread count); checkpointed and resumable with a
-    ``checkpoint`` (augment.fit).  -> the network (eval mode, CPU), its losses and seconds"""
+    ``checkpoint`` (augment.fit); from the weights of ``start`` (fine-tuning; of ``config.net``'s architecture)
+    or from scratch.  -> the network (eval mode, CPU), its losses and seconds"""
     import torch
     from mocapflow.tasks.suit.networks import CornerdetNet
 
@@ -475,7 +477,10 @@ def train_cornerdet(samples: CornerSamples | CropPool, config: TrainConfig = Tra
         raise CornerError(f"training needs at least one batch ({config.batch}) of crops with both positives and "
                           f"negatives; got {len(pool)} crops, {positives} positive")
     gen, rng, device = seeded(seed, 17)
-    net = CornerdetNet(config.net).to(device)
+    if start is not None and start.config != config.net:
+        raise CornerError(f"the network to start from is {start.config}, the training's {config.net}; set the "
+                          "training's net to the file's architecture or train from scratch (init: \"\")")
+    net = (CornerdetNet(config.net) if start is None else start).to(device)
     opt, sched = adam_cosine(list(net.parameters()), config.learning_rate, config.iterations)
 
     def batch_loss():

@@ -91,6 +91,7 @@ class TrainCornerdetConfig:
     train: co.TrainConfig = co.TrainConfig()
     stream: StreamConfig = StreamConfig()
     seed: int = 0
+    init: str = ""  # a CornerdetNet file to start from (fine-tuning; its architecture train.net's); empty: scratch
 
 
 def _split(samples: xr.Dataset | Samples, stream: StreamConfig) -> tuple[Samples, Samples | None]:
@@ -116,18 +117,21 @@ def _held_out(samples: Samples, columns: tuple[str, ...]) -> dict[str, np.ndarra
     return {CROPS: np.concatenate(rows), **{c: samples.table[c].values[used] for c in columns}}
 
 
-def train_cornerdet_stage(samples: xr.Dataset | Samples, config: TrainCornerdetConfig, checkpoint=None) -> xr.Dataset:
+def train_cornerdet_stage(samples: xr.Dataset | Samples, config: TrainCornerdetConfig, checkpoint=None,
+                          init: dict | None = None) -> xr.Dataset:
     """Task: CornerdetNet trained on every crop of a dataset (its images streamed through a pool), less the
-    validation sequences, which are scored at the end."""
+    validation sequences, which are scored at the end; from the weights of ``init`` (the file ``config.init``
+    names, loaded by the engine) or from scratch."""
     train, validation = _split(samples, config.stream)
     pool = CropPool(train, ("present", "position"), slots=config.stream.slots, swap=config.stream.swap)
+    start = None if init is None else co.cornerdet_from_weights(init)
     net, fitted = co.train_cornerdet(pool, config.train, seed=config.seed, checkpoint=checkpoint,
-                                     checkpoint_every=config.stream.checkpoint_every)
+                                     checkpoint_every=config.stream.checkpoint_every, start=start)
     arch = {"widths": list(config.train.net.widths), "hidden": config.train.net.hidden,
             "batch_norm": config.train.net.batch_norm}
     record = {"crops": len(pool), "positives": pool.count("present"), "images": pool.n_samples,
               "seconds": fitted.seconds, "device": fitted.device, "iterations": config.train.iterations,
-              "seed": config.seed, "slots": pool.slots}
+              "seed": config.seed, "slots": pool.slots, "init": config.init}
     if validation is not None:
         record["validation"] = cornerdet_scores(net, _held_out(validation, ("present", "position")))
     return pack(net.state_dict(), arch, record, fitted.losses)
@@ -190,24 +194,28 @@ class TrainCodesConfig:
     train: cd.CodeTrainConfig = field(default_factory=cd.CodeTrainConfig)
     stream: StreamConfig = StreamConfig()
     seed: int = 0
+    init: str = ""  # a code networks file to start from (fine-tuning; their architectures train's); empty: scratch
 
 
-def train_codes_stage(samples: xr.Dataset | Samples, config: TrainCodesConfig, checkpoint=None) -> xr.Dataset:
+def train_codes_stage(samples: xr.Dataset | Samples, config: TrainCodesConfig, checkpoint=None,
+                      init: dict | None = None) -> xr.Dataset:
     """Task: RejectorNet and RecogNet trained on a dataset's candidate quads (streamed through a pool) plus
-    synthetic crops of every code, less the validation sequences, which are scored at the end."""
+    synthetic crops of every code, less the validation sequences, which are scored at the end; from the weights
+    of ``init`` (the file ``config.init`` names, loaded by the engine) or from scratch."""
     train, validation = _split(samples, config.stream)
     rng = np.random.default_rng([config.seed, 625])
     synthetic = cd.synthetic_quads(config.train.synthetic, config.train.synth, rng)
     columns = ("valid", "rotation", "code")
     pool = CropPool(train, columns, slots=config.stream.slots, swap=config.stream.swap,
                     fixed={CROPS: synthetic.crops, **{c: getattr(synthetic, c) for c in columns}})
+    start = None if init is None else cd.nets_from_weights(init)
     rejector, recog, fitted = cd.train_code_nets(pool, config.train, seed=config.seed, checkpoint=checkpoint,
-                                                 checkpoint_every=config.stream.checkpoint_every)
+                                                 checkpoint_every=config.stream.checkpoint_every, start=start)
     state, arch = cd.pack_state(rejector, recog)
     record = {"studio_crops": len(pool) - pool.n_fixed, "studio_valid": pool.count("valid") - int(synthetic.valid.sum()),
               "synthetic_crops": pool.n_fixed, "images": pool.n_samples, "seconds": fitted.seconds,
               "device": fitted.device, "iterations": config.train.iterations, "seed": config.seed,
-              "slots": pool.slots, "synth": asdict(config.train.synth)}
+              "slots": pool.slots, "synth": asdict(config.train.synth), "init": config.init}
     if validation is not None:
         record["validation"] = codes_scores(rejector, recog, _held_out(validation, columns))
     return pack(state, arch, record, fitted.losses)

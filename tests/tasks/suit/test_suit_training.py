@@ -3,6 +3,8 @@ training continued to the same networks, a validation split scored."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -105,3 +107,40 @@ def test_validation_sequences_must_be_some_of_the_training_set():
         config = tr.TrainCornerdetConfig(train=CORNER.train, stream=tr.StreamConfig(validation=names))
         with pytest.raises(PoolError, match=what):
             tr.train_cornerdet_stage(_corner_samples(), config)
+
+
+def _parameters(weights: dict) -> dict[str, np.ndarray]:
+    """The learnt tensors of a weights file (not batch normalisation's running statistics)."""
+    return {k: t.numpy() for k, t in weights["state"].items() if not k.endswith(("running_mean", "running_var",
+                                                                                  "num_batches_tracked"))}
+
+
+def test_a_cornerdet_training_from_a_file_starts_from_its_weights():
+    torch.set_num_threads(1)
+    first = unpack(tr.train_cornerdet_stage(_corner_samples(), CORNER))
+    still = dataclasses.replace(CORNER, train=dataclasses.replace(CORNER.train, learning_rate=1e-12),
+                                init="first.pt")
+    tuned = unpack(tr.train_cornerdet_stage(_corner_samples(seed=1), still, init=first))
+    scratch = unpack(tr.train_cornerdet_stage(_corner_samples(seed=1), dataclasses.replace(still, init="")))
+    for name, value in _parameters(first).items():
+        np.testing.assert_allclose(_parameters(tuned)[name], value, atol=1e-6, err_msg=name)
+    assert max(np.abs(_parameters(scratch)[k] - v).max() for k, v in _parameters(first).items()) > 1e-2
+    assert tuned["training"]["init"] == "first.pt"
+    wider = dataclasses.replace(still, train=dataclasses.replace(still.train, net=CornerNetConfig((4, 4, 4, 8), 4)))
+    with pytest.raises(co.CornerError, match=r"widths=\(4, 4, 4, 4\).*widths=\(4, 4, 4, 8\)"):
+        tr.train_cornerdet_stage(_corner_samples(), wider, init=first)
+
+
+def test_a_codes_training_from_a_file_starts_from_its_weights():
+    small = CodeNetConfig(widths=(4, 4), hidden=8, pool=8)
+    train = cd.CodeTrainConfig(rejector=small, recog=small, iterations=3, batch=8, synthetic=16)
+    config = tr.TrainCodesConfig(train=train, stream=tr.StreamConfig(slots=2), seed=3)
+    torch.set_num_threads(1)
+    first = unpack(tr.train_codes_stage(_quad_samples(), config))
+    still = dataclasses.replace(config, train=dataclasses.replace(train, learning_rate=1e-12), init="first.pt")
+    tuned = unpack(tr.train_codes_stage(_quad_samples(seed=1), still, init=first))
+    for name, value in _parameters(first).items():
+        np.testing.assert_allclose(_parameters(tuned)[name], value, atol=1e-6, err_msg=name)
+    other = dataclasses.replace(still, train=dataclasses.replace(train, recog=CodeNetConfig((4, 8), 8, 8)))
+    with pytest.raises(cd.CodeError, match=r"recog .*widths=\(4, 4\).* in the file"):
+        tr.train_codes_stage(_quad_samples(), other, init=first)
