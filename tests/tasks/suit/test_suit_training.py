@@ -144,3 +144,39 @@ def test_a_codes_training_from_a_file_starts_from_its_weights():
     other = dataclasses.replace(still, train=dataclasses.replace(train, recog=CodeNetConfig((4, 8), 8, 8)))
     with pytest.raises(cd.CodeError, match=r"recog .*widths=\(4, 4\).* in the file"):
         tr.train_codes_stage(_quad_samples(), other, init=first)
+
+
+def _one(a: np.ndarray) -> np.ndarray:
+    """An array of one view and frame: (view, frame, ...)."""
+    return a[None, None]
+
+
+def _board_take(square=24, squares=(6, 7)) -> xr.Dataset:
+    """One view and frame of a flat checkerboard with its interior corners as the truth: all visible, the left
+    half readable (the right half as a square seen past 70 degrees would be)."""
+    ny, nx = squares
+    yy, xx = np.mgrid[0:ny * square, 0:nx * square]
+    image = np.where((yy // square + xx // square) % 2 == 0, 200, 30).astype(np.uint8)
+    image = np.pad(image, 30, constant_values=10)
+    gi, gj = np.mgrid[1:nx, 1:ny]
+    corners = np.column_stack([gi.ravel(), gj.ravel()]) * square - 0.5 + 30
+    readable = corners[:, 0] < image.shape[1] / 2
+    return xr.Dataset({"image": (("view", "frame", "y", "x"), _one(image)),
+                       "gt_corners2d": (("view", "frame", "corner", "xy"), _one(corners)),
+                       "gt_visible": (("view", "frame", "corner"), _one(np.ones(len(corners), bool))),
+                       "gt_readable": (("view", "frame", "corner"), _one(readable))},
+                      coords={"view": ["cam00"], "frame": [0]})
+
+
+def test_cornerdet_positives_are_the_readable_corners_or_every_visible_one():
+    take = _board_take()
+    readable = int(take["gt_readable"].sum())
+    sample = co.SampleConfig(per_corner=2, rotate=0.0)
+    counts = {}
+    for positives in ("readable", "visible"):
+        config = tr.CornerSampleStageConfig(sample=sample, positives=positives, capacity=2000, seed=1)
+        s = tr.corner_training_samples(take, config)
+        counts[positives] = int((s["present"] & s["used"]).sum())
+    assert counts == {"readable": 2 * readable, "visible": 2 * take.sizes["corner"]}
+    with pytest.raises(co.CornerError, match="'oblique'"):
+        tr.CornerSampleStageConfig(positives="oblique")
