@@ -23,13 +23,9 @@ from mocapflow.pipeline.catalog import load_catalog
 from mocapflow.pipeline.plan import build_plan
 from mocapflow.pipeline.storage import Store
 from mocapflow.tasks.suit.grow import GrowConfig, cell_edges
+from suit_verify_tune import stage_of
 
 FOUND_PX, RIGHT_PX = 1.5, 2.0
-
-
-def stage_of(catalog, task: str) -> str:
-    """The catalog's (first) stage running ``task``."""
-    return next(name for name, s in catalog.stages.items() if s.spec.name == task)
 
 
 def image_counts(truth, visible, readable, detections, logits, labels, edges) -> dict[str, np.ndarray]:
